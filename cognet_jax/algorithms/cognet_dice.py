@@ -1,0 +1,330 @@
+"""COGNet-DICE (SPEC section 5): cross-entropy search over FSCs whose node transitions are small
+neural networks on continuous observations.
+
+One iteration (``CognetDice.step``, compiled once) -- values are returns to **maximise**:
+
+1. roll out the current stochastic joint policy ``rollouts`` times, recording trajectories;
+2. pre-select the ``top`` rollouts with the highest return;
+3. candidates: for each pre-selected rollout, the current policy with the action distribution of
+   every visited node replaced by the empirical action frequencies of that rollout;
+4. evaluate every candidate with ``eval_rollouts`` rollouts (common random numbers by default);
+5. elite threshold on the candidate values (``threshold_rule="elite"``), or, as in the thesis
+   code, keep only candidates beating the best in-loop value so far (``"best"``); keep ``keep``;
+6. action distributions: count MLE over the kept *original* rollouts (every visit counts),
+   smoothing with ``alpha``, optional entropy injection (SPEC section 2);
+7. node networks: pairs ``(z_{t+1}, q_{t+1})`` for every t with ``q_t = q`` in the kept rollouts
+   train node q's network by softmax cross-entropy (``train_steps`` full-batch optax steps per
+   iteration; members without pairs are masked so their optimiser state does not move them);
+8. evaluate the updated joint policy with ``eval_rollouts`` fresh rollouts, record the value and
+   keep the best policy (anytime).
+
+**Separate training** (``separate=True``, thesis 5.2): node q's action distribution is fixed to
+a one-hot on action ``q mod |A|`` and steps 3-6 are skipped. **[choice]** The kept rollouts are
+then the ``keep`` best of the ``rollouts`` rollouts by return, without a threshold (single-rollout
+returns are too noisy for a rising threshold: it would lock onto the luckiest one).
+
+Optimiser **[choice]**: Adam (``optimizer="adam"``) with the learning rate in the dynamic
+hyper-parameters; ``"sgd"`` gives SGD with momentum as in the thesis code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from cognet_jax.algorithms.cross_entropy import (
+    EntropyConfig,
+    Progress,
+    count_table,
+    elite_selection,
+    inject_entropy,
+    select_tree,
+    smooth,
+)
+from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
+from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+
+
+@struct.dataclass
+class CognetHyper:
+    """Dynamic (sweepable) hyper-parameters of COGNet-DICE."""
+
+    alpha: jax.Array | float = 0.2
+    learning_rate: jax.Array | float = 0.01
+    entropy: EntropyConfig = EntropyConfig()
+
+
+@dataclasses.dataclass(frozen=True)
+class CognetSettings:
+    """Static settings (they fix array shapes or the program's structure)."""
+
+    nodes: int = 3
+    iterations: int = 500
+    rollouts: int = 1000
+    top: int = 100
+    keep: int = 10
+    eval_rollouts: int = 100
+    hidden: int = 10
+    train_steps: int = 20
+    optimizer: str = "adam"
+    momentum: float = 0.5
+    threshold_rule: str = "elite"
+    separate: bool = False
+    common_random_numbers: bool = True
+    train_last_transition: bool = True
+    entropy_window: int = 4
+
+
+@struct.dataclass
+class CognetState:
+    """Full search state (a pytree): current and best policy, optimiser state, bookkeeping."""
+
+    policy: NeuralPolicy
+    opt_state: Any
+    best_policy: NeuralPolicy
+    progress: Progress
+
+
+@struct.dataclass
+class CognetMetrics:
+    value: jax.Array  # [] step-8 value of the updated policy
+    best_value: jax.Array  # [] best in-loop value so far
+    threshold: jax.Array  # [] V_w after this iteration
+    kept: jax.Array  # [] number of kept candidates
+    best_candidate: jax.Array  # [] largest candidate value
+    rollout_mean: jax.Array  # [] mean return of step-1 rollouts
+    injected: jax.Array  # [] bool
+
+
+def make_optimizer(settings: CognetSettings) -> optax.GradientTransformation:
+    """The optimiser *without* its learning rate (applied from ``CognetHyper``)."""
+    if settings.optimizer == "adam":
+        return optax.scale_by_adam()
+    if settings.optimizer == "sgd":
+        return optax.trace(decay=settings.momentum)
+    raise ValueError(f"unknown optimizer {settings.optimizer!r}")
+
+
+def fixed_one_hot_actions(controller: NeuralController) -> jax.Array:
+    """Separate training: node q plays action ``q mod |A|``; ``[agents, nodes, actions]``."""
+    n, a = controller.num_nodes, controller.num_actions
+    table = jax.nn.one_hot(jnp.arange(n) % a, a, dtype=jnp.float32)
+    return jnp.broadcast_to(table, (controller.num_agents, n, a))
+
+
+def rollout_action_counts(traj_nodes, traj_actions, num_nodes, num_actions):
+    """Per-rollout action counts ``[..., agents, nodes, actions]`` from trajectories
+    ``nodes / actions [..., H, agents]`` (every visit counts once)."""
+    node_oh = jax.nn.one_hot(traj_nodes, num_nodes, dtype=jnp.float32)
+    act_oh = jax.nn.one_hot(traj_actions, num_actions, dtype=jnp.float32)
+    return jnp.einsum("...tiq,...tia->...iqa", node_oh, act_oh)
+
+
+def candidate_action_probs(current: jax.Array, counts: jax.Array) -> jax.Array:
+    """Clone rule: ``current [agents, nodes, actions]`` with visited rows replaced by the
+    empirical frequencies in ``counts [C, agents, nodes, actions]``; returns ``[C, ...]``."""
+    total = counts.sum(-1, keepdims=True)
+    return jnp.where(total > 0, counts / jnp.maximum(total, 1.0), current[None])
+
+
+def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
+    """Training pairs of the kept rollouts, per agent.
+
+    Args:
+      traj: batched ``Trajectory`` with leading axis R (``nodes [R, H, agents]`` ...).
+      kept_idx: ``[K]`` indices of the kept rollouts; ``kept_mask [K]`` which of them are real.
+      last_transition: include ``t = H - 1`` (whose next node is never used by the episode).
+
+    Returns:
+      ``(obs [agents, K*H, *obs_shape], src [agents, K*H], tgt [agents, K*H], valid [agents, K*H])``
+      where pair p says: in node ``src`` the agent saw ``obs`` and moved to ``tgt``.
+    """
+    k = kept_idx.shape[0]
+    h = traj.nodes.shape[1]
+    nodes = traj.nodes[kept_idx]  # [K, H, agents]
+    nxt = traj.next_nodes[kept_idx]
+    obs = traj.obs[kept_idx]  # [K, H, agents, *obs]
+    valid = jnp.broadcast_to(kept_mask[:, None, None], nodes.shape)
+    if not last_transition:
+        valid = valid & (jnp.arange(h) < h - 1)[None, :, None]
+    agents = nodes.shape[-1]
+
+    def flat(x):  # [K, H, agents, ...] -> [agents, K*H, ...]
+        x = jnp.moveaxis(x, 2, 0)
+        return x.reshape((agents, k * h) + x.shape[3:])
+
+    return flat(obs), flat(nodes), flat(nxt), flat(valid)
+
+
+class CognetDice:
+    """COGNet-DICE on one environment; ``init`` / ``step`` are pure and jit-able."""
+
+    def __init__(self, env, env_params, settings: CognetSettings, hyper: CognetHyper | None = None):
+        self.env = env
+        self.env_params = env_params
+        self.settings = settings
+        self.hyper = hyper if hyper is not None else CognetHyper()
+        self.controller = NeuralController(
+            num_agents=env.num_agents,
+            num_nodes=settings.nodes,
+            num_actions=env.num_actions,
+            obs_shape=env.obs_shape,
+            hidden=settings.hidden,
+            action_counts=env.action_counts,
+        )
+        self.optimizer = make_optimizer(settings)
+
+    # -- state ---------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> CognetState:
+        policy = self.controller.init(key)
+        if self.settings.separate:
+            policy = policy.replace(action_probs=fixed_one_hot_actions(self.controller))
+        opt_state = jax.vmap(jax.vmap(self.optimizer.init))(policy.net_params)
+        return CognetState(
+            policy=policy,
+            opt_state=opt_state,
+            best_policy=policy,
+            progress=Progress.create(self.settings.entropy_window),
+        )
+
+    # -- pieces ------------------------------------------------------------------------------
+    def _support(self) -> jax.Array:
+        counts = jnp.asarray(self.env.action_counts)
+        return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
+
+    def train_networks(self, net_params, opt_state, pairs, hyper: CognetHyper):
+        """``train_steps`` full-batch steps of softmax cross-entropy on every member at once."""
+        obs, src, tgt, valid = pairs
+        n = self.settings.nodes
+        # weights[a, q, p]: pair p of agent a belongs to member (a, q)
+        weights = (valid[:, None, :] & (src[:, None, :] == jnp.arange(n)[None, :, None])).astype(
+            jnp.float32
+        )
+        counts = weights.sum(-1)  # [agents, nodes]
+        has_data = counts > 0
+
+        def member_loss(params, obs_a, tgt_a, w):
+            logits = jax.vmap(self.controller.one_net_logits, (None, 0))(params, obs_a)
+            ce = optax.softmax_cross_entropy_with_integer_labels(logits, tgt_a)
+            return jnp.sum(w * ce) / jnp.maximum(w.sum(), 1.0)
+
+        # grads over members: vmap agents (obs per agent) then nodes (weights per node)
+        grad_fn = jax.vmap(
+            jax.vmap(jax.grad(member_loss), in_axes=(0, None, None, 0)), in_axes=(0, 0, 0, 0)
+        )
+        update_fn = jax.vmap(jax.vmap(self.optimizer.update))
+
+        def one_step(carry, _):
+            params, opt = carry
+            grads = grad_fn(params, obs, tgt, weights)
+            updates, new_opt = update_fn(grads, opt, params)
+            new_params = jax.tree.map(lambda p, u: p - hyper.learning_rate * u, params, updates)
+
+            def masked(new, old):
+                m = has_data.reshape(has_data.shape + (1,) * (new.ndim - 2))
+                return jnp.where(m, new, old)
+
+            return (jax.tree.map(masked, new_params, params), jax.tree.map(masked, new_opt, opt)), None
+
+        (net_params, opt_state), _ = jax.lax.scan(
+            one_step, (net_params, opt_state), None, length=self.settings.train_steps
+        )
+        return net_params, opt_state
+
+    def evaluate(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
+        """Mean return of ``policy`` over ``num_rollouts`` rollouts."""
+        keys = jax.random.split(key, num_rollouts)
+        return rollouts(self.env, self.controller, keys, self.env_params, policy).mean()
+
+    def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
+        """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
+        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
+
+    @staticmethod
+    def best_policy(state: CognetState) -> NeuralPolicy:
+        return state.best_policy
+
+    # -- one iteration -------------------------------------------------------------------------
+    def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
+        """One COGNet-DICE iteration; returns ``(state, CognetMetrics)``."""
+        hyper = self.hyper if hyper is None else hyper
+        s, ctrl, env = self.settings, self.controller, self.env
+        k_roll, k_cand, k_eval = jax.random.split(key, 3)
+        policy, progress = state.policy, state.progress
+
+        # 1-2: rollouts of the current policy, pre-selection
+        traj = rollouts(env, ctrl, jax.random.split(k_roll, s.rollouts), self.env_params, policy,
+                        record=True)
+        if s.separate:
+            _, kept_idx = jax.lax.top_k(traj.ret, s.keep)
+            kept_mask = jnp.ones(s.keep, bool)
+            threshold = progress.threshold
+            best_candidate = traj.ret[kept_idx[0]]
+            action_probs = policy.action_probs
+            injected = jnp.bool_(False)
+        else:
+            _, top_idx = jax.lax.top_k(traj.ret, s.top)
+            counts = rollout_action_counts(
+                traj.nodes[top_idx], traj.actions[top_idx], s.nodes, env.num_actions
+            )  # [top, agents, nodes, actions]
+            # 3-4: clone candidates and evaluate them
+            cand_probs = candidate_action_probs(policy.action_probs, counts)
+            if s.common_random_numbers:
+                cand_values = evaluate_candidates(
+                    env, ctrl, jax.random.split(k_cand, s.eval_rollouts), self.env_params,
+                    policy.replace(action_probs=cand_probs),
+                    policy_axes=NeuralPolicy(action_probs=0, net_params=None),
+                )
+            else:
+                cand_keys = jax.random.split(k_cand, (s.top, s.eval_rollouts))
+                cand_values = jax.vmap(
+                    lambda ks, p: rollouts(env, ctrl, ks, self.env_params,
+                                           policy.replace(action_probs=p)).mean()
+                )(cand_keys, cand_probs)
+            best_candidate = cand_values.max()
+            # 5: threshold
+            bar = progress.best_value if s.threshold_rule == "best" else progress.threshold
+            sel, kept_mask, new_bar = elite_selection(cand_values, bar, s.keep)
+            threshold = progress.threshold if s.threshold_rule == "best" else new_bar
+            kept_idx = top_idx[sel]
+            # 6: count MLE over the kept original rollouts, smoothing, entropy injection
+            kept_counts = (counts[sel] * kept_mask[:, None, None, None]).sum(0)
+            action_probs = smooth(policy.action_probs, kept_counts, hyper.alpha)
+            injected = progress.should_inject(hyper.entropy)
+            action_probs = jnp.where(
+                injected,
+                inject_entropy(action_probs, hyper.entropy.rate, self._support()),
+                action_probs,
+            )
+
+        progress = progress.replace(threshold=threshold).after_injection(injected)
+
+        # 7: train the node networks on the kept rollouts' transitions
+        pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
+        net_params, opt_state = self.train_networks(
+            policy.net_params, state.opt_state, pairs, hyper
+        )
+        policy = NeuralPolicy(action_probs=action_probs, net_params=net_params)
+
+        # 8: evaluate, record, keep the best
+        value = self.evaluate(k_eval, policy, s.eval_rollouts)
+        progress, improved = progress.record(value)
+        best_policy = select_tree(improved, policy, state.best_policy)
+        metrics = CognetMetrics(
+            value=value,
+            best_value=progress.best_value,
+            threshold=progress.threshold,
+            kept=kept_mask.sum(),
+            best_candidate=best_candidate,
+            rollout_mean=traj.ret.mean(),
+            injected=injected,
+        )
+        new_state = CognetState(
+            policy=policy, opt_state=opt_state, best_policy=best_policy, progress=progress
+        )
+        return new_state, metrics

@@ -1,0 +1,104 @@
+"""The ``cognet-jax`` command.
+
+    cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
+    cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
+    cognet-jax list
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+DEFAULT_EXPERIMENT = "tagging-thesis-n3"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cognet-jax", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
+    t.add_argument("experiment", nargs="?", default=DEFAULT_EXPERIMENT,
+                   help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
+    t.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=V",
+                   help="override a config field; repeatable")
+    t.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+    e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
+    e.add_argument("run_dir")
+    e.add_argument("--rollouts", type=int, default=None, help="default: the run's evaluation.rollouts")
+    e.add_argument("--seed", type=int, default=12345, help="evaluation seed")
+    e.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=V",
+                   help="change the evaluation setting (e.g. env.obs_noise=0.1)")
+
+    sub.add_parser("list", help="list the built-in experiments")
+    return p
+
+
+def _train(args) -> int:
+    from cognet_jax.config import load_config
+    from cognet_jax.runner import run_training
+
+    config = load_config(args.experiment, args.overrides)
+    out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
+    if args.no_progress:
+        config.run.progress = False
+    run_training(config, args.seed, out)
+    return 0
+
+
+def _evaluate(args) -> int:
+    import jax
+
+    from cognet_jax.runner import honest_evaluation, load_policy
+
+    config, algorithm, policy = load_policy(args.run_dir, args.overrides)
+    rollouts = args.rollouts or config.evaluation.rollouts
+    if rollouts < 2:
+        raise SystemExit("error: --rollouts must be >= 2")
+    t0 = time.perf_counter()
+    key = jax.random.key(args.seed, impl=config.run.prng_impl)
+    value = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
+    value.update(seed=args.seed, overrides=args.overrides, wall_s=time.perf_counter() - t0)
+    print(f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({rollouts} rollouts, "
+          f"seed {args.seed}{', ' + ' '.join(args.overrides) if args.overrides else ''})")
+    log = Path(args.run_dir) / "evaluations.jsonl"
+    with log.open("a") as f:
+        f.write(json.dumps(value) + "\n")
+    print(f"appended to {log}")
+    return 0
+
+
+def _list(args) -> int:
+    from cognet_jax.config import builtin_experiments, read_experiment
+
+    for name in builtin_experiments():
+        desc = read_experiment(name).get("experiment", {}).get("description", "")
+        print(f"{name:28s} {desc}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from cognet_jax.config import ConfigError
+
+    args = _parser().parse_args(argv)
+    try:
+        return {"train": _train, "evaluate": _evaluate, "list": _list}[args.command](args)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

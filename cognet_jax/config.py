@@ -1,0 +1,329 @@
+"""Typed experiment configuration: TOML files, ``--set section.key=value`` overrides and
+validation that names the offending field before anything compiles.
+
+A configuration has these sections (``[experiment]``, ``[env]``, ``[problem]``,
+``[algorithm]``, ``[network]``, ``[evaluation]``, ``[run]``). Which dataclass reads ``[env]``
+depends on ``env.name``; which reads ``[algorithm]`` on ``experiment.algorithm``. Unknown keys,
+wrong types and out-of-range values raise ``ConfigError`` naming the dotted field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A configuration problem; ``field`` is the dotted name (e.g. ``algorithm.nodes``)."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"config field '{field}': {message}" if field else message)
+
+
+# --------------------------------------------------------------------------------------------
+# sections
+# --------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class ExperimentSection:
+    name: str = "custom"
+    algorithm: str = "cognet-dice"
+    description: str = ""
+
+
+@dataclasses.dataclass
+class TaggingEnvSection:
+    """1D tagging (SPEC 7.1). ``horizon``/``discount``/``respawn`` default to the setting's."""
+
+    name: str = "tagging"
+    setting: str = "thesis"
+    horizon: int | None = None
+    discount: float | None = None
+    respawn: bool | None = None
+    motion_noise: float = 0.0
+    obs_noise: float = 0.0
+    obs_division: float = 0.0
+
+
+@dataclasses.dataclass
+class DpomdpEnvSection:
+    """A tabular problem read from the file in ``[problem]``."""
+
+    name: str = "dpomdp"
+
+
+@dataclasses.dataclass
+class ProblemSection:
+    """The MADP ``.dpomdp`` problem (used when ``env.name = "dpomdp"``)."""
+
+    path: str = ""
+    horizon: int = 3
+    discount: float | None = None
+
+
+@dataclasses.dataclass
+class CognetAlgorithmSection:
+    """COGNet-DICE (SPEC 5); names follow the thesis: K_roll, K_top, K_keep, K_eval."""
+
+    nodes: int = 3
+    iterations: int = 500
+    rollouts: int = 1000
+    top: int = 100
+    keep: int = 10
+    eval_rollouts: int = 100
+    alpha: float = 0.2
+    threshold_rule: str = "elite"
+    separate: bool = False
+    common_random_numbers: bool = True
+    train_last_transition: bool = True
+    entropy_injection: bool = True
+    entropy_rate: float = 0.02
+    entropy_std: float = 0.5
+    entropy_window: int = 4
+    entropy_patience: int = 5
+
+
+@dataclasses.dataclass
+class NetworkSection:
+    """Node networks of COGNet-DICE."""
+
+    hidden: int = 10
+    optimizer: str = "adam"
+    learning_rate: float = 0.01
+    momentum: float = 0.5
+    train_steps: int = 20
+
+
+@dataclasses.dataclass
+class EvaluationSection:
+    """Honest final evaluation of the best policy (fresh key)."""
+
+    rollouts: int = 10_000
+    batch: int = 10_000
+
+
+@dataclasses.dataclass
+class RunSection:
+    prng_impl: str = "threefry2x32"
+    progress: bool = True
+    plots: bool = True
+
+
+ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpEnvSection}
+ALGORITHM_SECTIONS: dict[str, type] = {"cognet-dice": CognetAlgorithmSection}
+
+
+@dataclasses.dataclass
+class Config:
+    experiment: ExperimentSection = dataclasses.field(default_factory=ExperimentSection)
+    env: Any = dataclasses.field(default_factory=TaggingEnvSection)
+    problem: ProblemSection = dataclasses.field(default_factory=ProblemSection)
+    algorithm: Any = dataclasses.field(default_factory=CognetAlgorithmSection)
+    network: NetworkSection = dataclasses.field(default_factory=NetworkSection)
+    evaluation: EvaluationSection = dataclasses.field(default_factory=EvaluationSection)
+    run: RunSection = dataclasses.field(default_factory=RunSection)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------------
+def _check_type(field: str, value: Any, annotation: Any) -> Any:
+    """Convert/validate one value against a simple annotation (int, float, bool, str, X|None)."""
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(annotation)
+        if value is None and type(None) in options:
+            return None
+        inner = [o for o in options if o is not type(None)]
+        return _check_type(field, value, inner[0])
+    if annotation is bool:
+        if isinstance(value, bool):
+            return value
+    elif annotation is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif annotation is float:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    elif annotation is str:
+        if isinstance(value, str):
+            return value
+    else:  # pragma: no cover - only simple annotations are used
+        return value
+    raise ConfigError(field, f"expected {annotation.__name__}, got {type(value).__name__} {value!r}")
+
+
+def _section_from_dict(cls: type, data: Any, prefix: str):
+    if not isinstance(data, dict):
+        raise ConfigError(prefix, f"expected a table of settings, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in data:
+        if key not in names:
+            raise ConfigError(f"{prefix}.{key}", f"unknown key (known: {', '.join(sorted(names))})")
+    kwargs = {k: _check_type(f"{prefix}.{k}", v, hints[k]) for k, v in data.items()}
+    return cls(**kwargs)
+
+
+def config_from_dict(data: dict) -> Config:
+    """Build and validate a ``Config`` from nested dicts (as read from TOML)."""
+    data = dict(data)
+    known = {f.name for f in dataclasses.fields(Config)}
+    for key in data:
+        if key not in known:
+            raise ConfigError(key, f"unknown section (known: {', '.join(sorted(known))})")
+    experiment = _section_from_dict(ExperimentSection, data.get("experiment", {}), "experiment")
+    env_data = data.get("env", {})
+    env_name = env_data.get("name", "tagging") if isinstance(env_data, dict) else None
+    if env_name not in ENV_SECTIONS:
+        raise ConfigError("env.name", f"unknown environment {env_name!r} (known: "
+                          f"{', '.join(sorted(ENV_SECTIONS))})")
+    if experiment.algorithm not in ALGORITHM_SECTIONS:
+        raise ConfigError("experiment.algorithm", f"unknown algorithm {experiment.algorithm!r} "
+                          f"(known: {', '.join(sorted(ALGORITHM_SECTIONS))})")
+    config = Config(
+        experiment=experiment,
+        env=_section_from_dict(ENV_SECTIONS[env_name], env_data, "env"),
+        problem=_section_from_dict(ProblemSection, data.get("problem", {}), "problem"),
+        algorithm=_section_from_dict(
+            ALGORITHM_SECTIONS[experiment.algorithm], data.get("algorithm", {}), "algorithm"
+        ),
+        network=_section_from_dict(NetworkSection, data.get("network", {}), "network"),
+        evaluation=_section_from_dict(EvaluationSection, data.get("evaluation", {}), "evaluation"),
+        run=_section_from_dict(RunSection, data.get("run", {}), "run"),
+    )
+    validate(config)
+    return config
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``"section.key=value"`` -> (``["section", "key"]``, value). The value is read as a TOML
+    literal (``3``, ``0.5``, ``true``, ``"x"``); anything else is taken as a plain string."""
+    if "=" not in text:
+        raise ConfigError(text, "an override must look like section.key=value")
+    dotted, raw = text.split("=", 1)
+    path = [p.strip() for p in dotted.strip().split(".")]
+    if len(path) != 2 or not all(path):
+        raise ConfigError(dotted.strip(), "an override names section.key (e.g. algorithm.nodes=6)")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return path, value
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict:
+    data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    for text in overrides:
+        (section, key), value = parse_override(text)
+        if section in data and not isinstance(data[section], dict):
+            raise ConfigError(section, "is not a section")
+        data.setdefault(section, {})[key] = value
+    return data
+
+
+def builtin_experiments() -> list[str]:
+    """Names of the experiments shipped with the package."""
+    folder = resources.files("cognet_jax") / "experiments"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def read_experiment(name_or_path: str) -> dict:
+    """Raw dict of a built-in experiment (by name) or of a TOML file (by path)."""
+    path = Path(name_or_path)
+    if name_or_path.endswith(".toml") or path.exists():
+        if not path.exists():
+            raise ConfigError("", f"no such experiment file: {name_or_path}")
+        text = path.read_text()
+        origin = str(path)
+    else:
+        res = resources.files("cognet_jax") / "experiments" / f"{name_or_path}.toml"
+        if not res.is_file():
+            raise ConfigError("", f"unknown experiment {name_or_path!r}; built-in experiments: "
+                              f"{', '.join(builtin_experiments())} (or give a .toml file)")
+        text = res.read_text()
+        origin = name_or_path
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("", f"{origin}: invalid TOML: {err}") from None
+    data.setdefault("experiment", {}).setdefault("name", path.stem if path.exists() else name_or_path)
+    return data
+
+
+def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config:
+    """Read an experiment, apply ``--set`` overrides, validate."""
+    return config_from_dict(apply_overrides(read_experiment(name_or_path), overrides or []))
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+# --------------------------------------------------------------------------------------------
+def _require(cond: bool, field: str, message: str):
+    if not cond:
+        raise ConfigError(field, message)
+
+
+def _positive(section: Any, prefix: str, *names: str):
+    for n in names:
+        v = getattr(section, n)
+        _require(v is None or v >= 1, f"{prefix}.{n}", f"must be >= 1, got {v}")
+
+
+def _probability(section: Any, prefix: str, *names: str):
+    for n in names:
+        v = getattr(section, n)
+        _require(0.0 <= v <= 1.0, f"{prefix}.{n}", f"must be in [0, 1], got {v}")
+
+
+def validate(config: Config) -> None:
+    """Range and consistency checks; raises ``ConfigError`` naming the field."""
+    env = config.env
+    if isinstance(env, TaggingEnvSection):
+        from cognet_jax.envs.tagging import SETTINGS
+
+        _require(env.setting in SETTINGS, "env.setting",
+                 f"unknown setting {env.setting!r} (known: {', '.join(sorted(SETTINGS))})")
+        _positive(env, "env", "horizon")
+        if env.discount is not None:
+            _require(0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}")
+        for n in ("motion_noise", "obs_noise", "obs_division"):
+            _require(getattr(env, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(env, n)}")
+    if isinstance(env, DpomdpEnvSection):
+        _require(bool(config.problem.path), "problem.path",
+                 "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp")
+        _positive(config.problem, "problem", "horizon")
+        d = config.problem.discount
+        _require(d is None or 0.0 < d <= 1.0, "problem.discount", f"must be in (0, 1], got {d}")
+
+    alg = config.algorithm
+    if isinstance(alg, CognetAlgorithmSection):
+        _positive(alg, "algorithm", "nodes", "iterations", "rollouts", "top", "keep",
+                  "eval_rollouts", "entropy_window", "entropy_patience")
+        _require(alg.top <= alg.rollouts, "algorithm.top",
+                 f"pre-selected rollouts ({alg.top}) cannot exceed algorithm.rollouts ({alg.rollouts})")
+        limit = alg.rollouts if alg.separate else alg.top
+        _require(alg.keep <= limit, "algorithm.keep",
+                 f"kept elites ({alg.keep}) cannot exceed the candidates ({limit})")
+        _probability(alg, "algorithm", "alpha", "entropy_rate")
+        _require(alg.entropy_std >= 0, "algorithm.entropy_std", "must be >= 0")
+        _require(alg.threshold_rule in ("elite", "best"), "algorithm.threshold_rule",
+                 f"must be 'elite' or 'best', got {alg.threshold_rule!r}")
+        net = config.network
+        _positive(net, "network", "hidden", "train_steps")
+        _require(net.optimizer in ("adam", "sgd"), "network.optimizer",
+                 f"must be 'adam' or 'sgd', got {net.optimizer!r}")
+        _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
+        _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+    _positive(config.evaluation, "evaluation", "rollouts", "batch")
+    _require(config.evaluation.rollouts >= 2, "evaluation.rollouts", "needs >= 2 for a std error")
+    _require(config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg"), "run.prng_impl",
+             f"must be threefry2x32, rbg or unsafe_rbg, got {config.run.prng_impl!r}")

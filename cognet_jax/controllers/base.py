@@ -1,0 +1,47 @@
+"""Shared pieces of finite-state controllers (Moore FSCs, SPEC section 1).
+
+A controller *kind* is a frozen dataclass of static facts (agents, nodes, actions) with two pure
+functions over a *policy* pytree, used by the rollout engine once per time step:
+
+* ``act(u, policy, nodes) -> actions``: ``u`` is ``[agents]`` uniform(0, 1) numbers, ``nodes`` the
+  current node of every agent ``[agents]``; returns ``[agents]`` int32 actions.
+* ``next_node(u, policy, nodes, obs) -> nodes``: the next node of every agent given its
+  observation ``obs[agents, *obs_shape]``.
+
+Sampling uses one uniform number per draw (inverse CDF) instead of a key, so the rollout engine
+draws all random numbers of a rollout in two block calls. Deterministic controllers ignore ``u``.
+All agents start in node 0.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def sample_categorical(u: jax.Array, probs: jax.Array) -> jax.Array:
+    """Inverse-CDF draw: ``u[...]`` uniform in [0, 1), ``probs[..., K]`` -> int32 ``[...]``.
+
+    Returns the smallest k with ``u * sum(probs) < cumsum(probs)[k]``; exact for probabilities
+    that do not sum exactly to one, and never picks a zero-probability category.
+    """
+    cdf = jnp.cumsum(probs, axis=-1)
+    threshold = u[..., None] * cdf[..., -1:]
+    idx = jnp.sum(cdf <= threshold, axis=-1)
+    return jnp.minimum(idx, probs.shape[-1] - 1).astype(jnp.int32)
+
+
+def uniform_distribution(shape: tuple[int, ...], counts: tuple[int, ...] | None = None):
+    """Uniform probabilities of ``shape [agents, ..., K]``; with per-agent ``counts`` the
+    categories ``k >= counts[agent]`` get probability 0 (agents with fewer actions)."""
+    k = shape[-1]
+    if counts is None:
+        return jnp.full(shape, 1.0 / k, jnp.float32)
+    mask = jnp.arange(k)[None, :] < jnp.asarray(counts)[:, None]  # [agents, K]
+    mask = mask.reshape((shape[0],) + (1,) * (len(shape) - 2) + (k,))
+    probs = jnp.broadcast_to(mask, shape).astype(jnp.float32)
+    return probs / probs.sum(-1, keepdims=True)
+
+
+def agent_index(num_agents: int) -> jax.Array:
+    return jnp.arange(num_agents)

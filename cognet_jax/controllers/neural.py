@@ -1,0 +1,126 @@
+"""COGNet-DICE controllers (SPEC section 5): a categorical action distribution per node and one
+small MLP per (agent, node) mapping an observation to logits over next nodes.
+
+The MLPs are a single Flax module whose parameters are *stacked*: every leaf has leading axes
+``[agents, nodes, ...]``; members are initialised independently (vmap over split keys) and never
+share weights. Transitions are sampled from the softmax, in training and in evaluation.
+
+Initialisation follows PyTorch's ``nn.Linear`` default used by the thesis code: weights and biases
+uniform in ``+-1/sqrt(fan_in)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from cognet_jax.controllers.base import sample_categorical, uniform_distribution
+
+
+def _torch_uniform(fan_in: int):
+    bound = 1.0 / math.sqrt(fan_in)
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
+
+
+class NodeNet(nn.Module):
+    """obs ``[*obs_shape]`` -> hidden (ReLU) -> ``out`` logits. One member of the stack."""
+
+    in_features: int
+    hidden: int
+    out: int
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = obs.reshape(-1).astype(jnp.float32)
+        x = nn.Dense(
+            self.hidden,
+            kernel_init=_torch_uniform(self.in_features),
+            bias_init=_torch_uniform(self.in_features),
+        )(x)
+        x = nn.relu(x)
+        return nn.Dense(
+            self.out, kernel_init=_torch_uniform(self.hidden), bias_init=_torch_uniform(self.hidden)
+        )(x)
+
+
+@struct.dataclass
+class NeuralPolicy:
+    """A stochastic joint COGNet-DICE controller.
+
+    ``action_probs [agents, nodes, actions]``; ``net_params``: Flax params, leaves
+    ``[agents, nodes, ...]``.
+    """
+
+    action_probs: jax.Array
+    net_params: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class NeuralController:
+    """Static shape facts of a neural FSC; ``act`` / ``next_node`` are the rollout hooks."""
+
+    num_agents: int
+    num_nodes: int
+    num_actions: int
+    obs_shape: tuple[int, ...] = ()
+    hidden: int = 10
+    action_counts: tuple[int, ...] | None = None
+
+    @property
+    def in_features(self) -> int:
+        return math.prod(self.obs_shape)
+
+    @property
+    def net(self) -> NodeNet:
+        return NodeNet(in_features=self.in_features, hidden=self.hidden, out=self.num_nodes)
+
+    def init_net_params(self, key: jax.Array) -> dict:
+        """Independent members for every (agent, node): leaves ``[agents, nodes, ...]``."""
+        a, n = self.num_agents, self.num_nodes
+        keys = jax.random.split(key, a * n)
+        dummy = jnp.zeros(self.obs_shape, jnp.float32)
+        params = jax.vmap(lambda k: self.net.init(k, dummy))(keys)
+        return jax.tree.map(lambda p: p.reshape((a, n) + p.shape[1:]), params)
+
+    def init(self, key: jax.Array) -> NeuralPolicy:
+        probs = uniform_distribution(
+            (self.num_agents, self.num_nodes, self.num_actions), self.action_counts
+        )
+        return NeuralPolicy(action_probs=probs, net_params=self.init_net_params(key))
+
+    def one_net_logits(self, member_params: dict, obs: jax.Array) -> jax.Array:
+        """Logits ``[nodes]`` of one member for one observation ``[*obs_shape]``."""
+        return self.net.apply(member_params, obs)
+
+    def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
+        """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
+
+        Gathers each agent's member ``net_params[i, nodes[i]]`` and applies it.
+        """
+
+        def per_agent(params_i, node, z):
+            member = jax.tree.map(lambda p: p[node], params_i)
+            return self.one_net_logits(member, z)
+
+        return jax.vmap(per_agent)(net_params, nodes, obs)
+
+    def all_node_logits(self, net_params: dict, obs: jax.Array) -> jax.Array:
+        """Logits ``[agents, nodes, next_nodes]`` of every member on its agent's ``obs``."""
+        return jax.vmap(jax.vmap(self.one_net_logits, (0, None)), (0, 0))(net_params, obs)
+
+    def act(self, u, policy: NeuralPolicy, nodes):
+        probs = policy.action_probs[jnp.arange(self.num_agents), nodes]
+        return sample_categorical(u, probs)
+
+    def next_node(self, u, policy: NeuralPolicy, nodes, obs):
+        probs = jax.nn.softmax(self.node_logits(policy.net_params, nodes, obs), axis=-1)
+        return sample_categorical(u, probs)

@@ -1,0 +1,64 @@
+"""Tabular FSCs for discrete observations (G-DICE, SPEC section 3).
+
+* ``TabularDistribution``: the search distribution -- ``action_probs [agents, nodes, actions]``
+  and ``transition_probs [agents, nodes, obs, nodes]`` (``phi[q, z, q']``).
+* ``DeterministicTabularPolicy``: one sampled controller -- ``actions [agents, nodes]`` and
+  ``transitions [agents, nodes, obs]`` (int32). This is what G-DICE evaluates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from cognet_jax.controllers.base import sample_categorical, uniform_distribution
+
+
+@struct.dataclass
+class TabularDistribution:
+    action_probs: jax.Array  # [agents, nodes, actions]
+    transition_probs: jax.Array  # [agents, nodes, obs, nodes]
+
+
+@struct.dataclass
+class DeterministicTabularPolicy:
+    actions: jax.Array  # [agents, nodes] int32
+    transitions: jax.Array  # [agents, nodes, obs] int32
+
+
+@dataclasses.dataclass(frozen=True)
+class TabularController:
+    """Deterministic Moore FSC over discrete observations (static shapes only)."""
+
+    num_agents: int
+    num_nodes: int
+    num_actions: int
+    num_obs: int
+    action_counts: tuple[int, ...] | None = None
+    obs_counts: tuple[int, ...] | None = None
+
+    def init_distribution(self) -> TabularDistribution:
+        a, n = self.num_agents, self.num_nodes
+        return TabularDistribution(
+            action_probs=uniform_distribution((a, n, self.num_actions), self.action_counts),
+            transition_probs=uniform_distribution((a, n, self.num_obs, n)),
+        )
+
+    def sample(self, key: jax.Array, dist: TabularDistribution) -> DeterministicTabularPolicy:
+        """Draw one deterministic joint controller from the search distribution."""
+        k_a, k_t = jax.random.split(key)
+        u_a = jax.random.uniform(k_a, dist.action_probs.shape[:-1])
+        u_t = jax.random.uniform(k_t, dist.transition_probs.shape[:-1])
+        return DeterministicTabularPolicy(
+            actions=sample_categorical(u_a, dist.action_probs),
+            transitions=sample_categorical(u_t, dist.transition_probs),
+        )
+
+    def act(self, u, policy: DeterministicTabularPolicy, nodes):
+        return policy.actions[jnp.arange(self.num_agents), nodes]
+
+    def next_node(self, u, policy: DeterministicTabularPolicy, nodes, obs):
+        return policy.transitions[jnp.arange(self.num_agents), nodes, obs]

@@ -1,0 +1,138 @@
+"""1D moving-source tagging problem (SPEC section 7.1), as pure JAX step functions.
+
+A line ``[0, length]`` holds one evader and ``num_agents`` taggers, all with speed 1. Tagger
+actions: ``0`` tag, ``1`` move left, ``2`` move right. One step:
+
+1. reward on the pre-step state, summed over taggers: a tag with ``|p_i - e| <= tag_radius``
+   gives ``tag_reward`` (+50), a tag otherwise ``miss_reward`` (-20), a move ``move_reward`` (-1);
+2. taggers move -1/0/+1 plus Gaussian motion noise ``N(0, motion_noise)`` (on every action),
+   clipped to the line;
+3. the evader moves one unit away from the taggers: with ``d = sum_i (p_i' - e)`` it moves +1 if
+   ``d < 0``, -1 if ``d > 0``, stays if ``d == 0``; clipped;
+4. if ``respawn`` is on and any tagger tagged successfully, every position is redrawn uniformly;
+5. each tagger observes ``z_i = e' - p_i' + N(0, obs_noise)`` (signed, unnormalised).
+
+``obs_division > 0`` discretises observations (COG-DICE paper): round to an integer, then
+truncate toward zero to a multiple of ``obs_division``; a division below 1 (e.g. 0.5) rounds to a
+multiple of the division instead. The discretisation is static because it changes which
+controllers apply.
+
+Two standard settings (``SETTINGS``): ``thesis`` (h 3, gamma 1, no respawn) and
+``cogdice-paper`` (h 150, gamma 0.9, respawn).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class TaggingParams:
+    """Tunable numbers of the tagging problem (a pytree: vmap or sweep over any leaf)."""
+
+    motion_noise: jax.Array | float = 0.0
+    obs_noise: jax.Array | float = 0.0
+    respawn: jax.Array | bool = False
+    discount: jax.Array | float = 1.0
+    tag_reward: jax.Array | float = 50.0
+    miss_reward: jax.Array | float = -20.0
+    move_reward: jax.Array | float = -1.0
+    tag_radius: jax.Array | float = 1.0
+
+
+@struct.dataclass
+class TaggingState:
+    taggers: jax.Array  # [agents] float32 positions
+    evader: jax.Array  # [] float32 position
+
+
+#: Standard settings: horizon and default params.
+SETTINGS = {
+    "thesis": dict(horizon=3, discount=1.0, respawn=False),
+    "cogdice-paper": dict(horizon=150, discount=0.9, respawn=True),
+}
+
+TAG, LEFT, RIGHT = 0, 1, 2
+ACTION_NAMES = ("tag", "left", "right")
+
+
+@dataclasses.dataclass(frozen=True)
+class Tagging:
+    """Static description of the tagging problem (see module docstring)."""
+
+    horizon: int = 3
+    num_agents: int = 2
+    length: float = 10.0
+    obs_division: float = 0.0
+
+    num_actions: int = 3
+    obs_shape: tuple[int, ...] = ()
+    num_obs: int | None = None
+    action_names: tuple[str, ...] = ACTION_NAMES
+
+    @property
+    def action_counts(self) -> tuple[int, ...]:
+        return (self.num_actions,) * self.num_agents
+
+    @property
+    def obs_range(self) -> tuple[float, float]:
+        return (-self.length, self.length)
+
+    def default_params(self) -> TaggingParams:
+        return TaggingParams()
+
+    def reset(self, key: jax.Array, params: TaggingParams) -> TaggingState:
+        pos = jax.random.uniform(key, (self.num_agents + 1,), maxval=self.length)
+        return TaggingState(taggers=pos[:-1], evader=pos[-1])
+
+    def step(
+        self, key: jax.Array, state: TaggingState, actions: jax.Array, params: TaggingParams
+    ) -> tuple[TaggingState, jax.Array, jax.Array]:
+        """One step; returns ``(next_state, obs [agents] float32, joint reward [])``."""
+        k_motion, k_respawn, k_obs = jax.random.split(key, 3)
+        n = self.num_agents
+        p, e = state.taggers, state.evader
+        tagging = actions == TAG
+        hit = tagging & (jnp.abs(p - e) <= params.tag_radius)
+        reward = jnp.sum(
+            jnp.where(tagging, jnp.where(hit, params.tag_reward, params.miss_reward),
+                      params.move_reward)
+        )
+        move = jnp.where(actions == LEFT, -1.0, jnp.where(actions == RIGHT, 1.0, 0.0))
+        noise = params.motion_noise * jax.random.normal(k_motion, (n,))
+        p_next = jnp.clip(p + move + noise, 0.0, self.length)
+        d = jnp.sum(p_next - e)
+        e_next = jnp.clip(e - jnp.sign(d), 0.0, self.length)
+        respawned = self.reset(k_respawn, params)
+        do_respawn = jnp.logical_and(params.respawn, jnp.any(hit))
+        p_next = jnp.where(do_respawn, respawned.taggers, p_next)
+        e_next = jnp.where(do_respawn, respawned.evader, e_next)
+        obs = e_next - p_next + params.obs_noise * jax.random.normal(k_obs, (n,))
+        obs = discretise(obs, self.obs_division)
+        return TaggingState(taggers=p_next, evader=e_next), obs, reward
+
+
+def discretise(obs: jax.Array, division: float) -> jax.Array:
+    """COG-DICE paper discretisation (static ``division``; 0 leaves ``obs`` unchanged)."""
+    if division <= 0:
+        return obs
+    if division < 1:
+        return jnp.round(obs / division) * division
+    return jnp.trunc(jnp.round(obs) / division) * division
+
+
+def make_tagging(
+    setting: str = "thesis", horizon: int | None = None, obs_division: float = 0.0, **overrides
+) -> tuple[Tagging, TaggingParams]:
+    """Build the env and its params for a named setting; ``overrides`` set params fields."""
+    if setting not in SETTINGS:
+        raise ValueError(f"unknown tagging setting {setting!r}; choose from {sorted(SETTINGS)}")
+    s = SETTINGS[setting]
+    env = Tagging(horizon=horizon or s["horizon"], obs_division=obs_division)
+    params = TaggingParams(discount=s["discount"], respawn=s["respawn"])
+    params = params.replace(**overrides)
+    return env, params
