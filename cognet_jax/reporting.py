@@ -1,5 +1,65 @@
-"""Figures of a finished run (placeholder until the plots module lands)."""
+"""Figures of a finished run, written next to ``results.json``.
+
+For a neural (COGNet-DICE) policy on scalar observations: ``actions.png`` (each node's action
+distribution), ``node_responses.png`` (next-node probabilities over the observation range),
+``controllers.png`` (each agent's controller as a graph: node -> most likely action, edges
+labelled with the observation intervals where that next node is the most likely) and
+``values.png`` (in-loop value per iteration and running best, with the SPEC's reference values).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cognet_jax import plots
+
+#: Reference values of SPEC section 8, keyed by (env name, setting).
+REFERENCES = {
+    ("tagging", "thesis"): {"reactive 3-node controller": 20.76, "random actions": -23.68},
+    ("tagging", "cogdice-paper"): {"reactive 3-node controller": 108.0, "COG-DICE (paper)": 101.8},
+}
 
 
-def write_plots(config, algorithm, policy, results, out_dir):
-    return []
+def references_for(config) -> dict[str, float]:
+    return REFERENCES.get((config.env.name, getattr(config.env, "setting", None)), {})
+
+
+def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
+    """Next-node probabilities ``[agents, nodes, G, next_nodes]`` on a scalar observation grid."""
+    logits = jax.vmap(
+        lambda z: controller.all_node_logits(
+            policy.net_params, jnp.full((controller.num_agents,), z, jnp.float32)
+        )
+    )(jnp.asarray(grid, jnp.float32))
+    return np.asarray(jax.nn.softmax(logits, -1)).transpose(1, 2, 0, 3)
+
+
+def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]:
+    """Write the run's PNG figures to ``out_dir``; returns the paths written."""
+    out_dir = Path(out_dir)
+    env = algorithm.env
+    names = getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
+    title = f"{results['experiment']} (seed {results['seed']})"
+    written = [
+        plots.plot_values(
+            results["values_per_iteration"], results["best_per_iteration"],
+            out_dir / "values.png", title=title, reference=references_for(config),
+        )
+    ]
+    action_probs = np.asarray(policy.action_probs)
+    written.append(plots.plot_action_distributions(action_probs, names, out_dir / "actions.png",
+                                                   title=f"{title}: action distributions"))
+    if env.obs_shape == () and env.obs_range is not None and hasattr(policy, "net_params"):
+        lo, hi = env.obs_range
+        grid = np.linspace(lo, hi, 401)
+        probs = neural_node_probs(algorithm.controller, policy, grid)
+        written.append(plots.plot_node_responses(grid, probs, out_dir / "node_responses.png",
+                                                 title=f"{title}: next-node probabilities"))
+        edges = [plots.controller_graph_edges(grid, p) for p in probs]
+        written.append(plots.plot_controller_graphs(action_probs, edges, names,
+                                                    out_dir / "controllers.png", title=title))
+    return [Path(p) for p in written]

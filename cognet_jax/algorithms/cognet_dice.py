@@ -238,8 +238,7 @@ class CognetDice:
 
     def evaluate(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
         """Mean return of ``policy`` over ``num_rollouts`` rollouts."""
-        keys = jax.random.split(key, num_rollouts)
-        return rollouts(self.env, self.controller, keys, self.env_params, policy).mean()
+        return rollouts(self.env, self.controller, key, num_rollouts, self.env_params, policy).mean()
 
     def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
         """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
@@ -258,8 +257,7 @@ class CognetDice:
         policy, progress = state.policy, state.progress
 
         # 1-2: rollouts of the current policy, pre-selection
-        traj = rollouts(env, ctrl, jax.random.split(k_roll, s.rollouts), self.env_params, policy,
-                        record=True)
+        traj = rollouts(env, ctrl, k_roll, s.rollouts, self.env_params, policy, record=True)
         if s.separate:
             _, kept_idx = jax.lax.top_k(traj.ret, s.keep)
             kept_mask = jnp.ones(s.keep, bool)
@@ -276,16 +274,15 @@ class CognetDice:
             cand_probs = candidate_action_probs(policy.action_probs, counts)
             if s.common_random_numbers:
                 cand_values = evaluate_candidates(
-                    env, ctrl, jax.random.split(k_cand, s.eval_rollouts), self.env_params,
+                    env, ctrl, k_cand, s.eval_rollouts, self.env_params,
                     policy.replace(action_probs=cand_probs),
                     policy_axes=NeuralPolicy(action_probs=0, net_params=None),
                 )
             else:
-                cand_keys = jax.random.split(k_cand, (s.top, s.eval_rollouts))
                 cand_values = jax.vmap(
-                    lambda ks, p: rollouts(env, ctrl, ks, self.env_params,
-                                           policy.replace(action_probs=p)).mean()
-                )(cand_keys, cand_probs)
+                    lambda k, p: rollouts(env, ctrl, k, s.eval_rollouts, self.env_params,
+                                          policy.replace(action_probs=p)).mean()
+                )(jax.random.split(k_cand, s.top), cand_probs)
             best_candidate = cand_values.max()
             # 5: threshold
             bar = progress.best_value if s.threshold_rule == "best" else progress.threshold

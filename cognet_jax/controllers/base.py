@@ -18,6 +18,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from cognet_jax.envs.base import categorical_from_uniform
+
 
 def sample_categorical(u: jax.Array, probs: jax.Array) -> jax.Array:
     """Inverse-CDF draw: ``u[...]`` uniform in [0, 1), ``probs[..., K]`` -> int32 ``[...]``.
@@ -25,10 +27,7 @@ def sample_categorical(u: jax.Array, probs: jax.Array) -> jax.Array:
     Returns the smallest k with ``u * sum(probs) < cumsum(probs)[k]``; exact for probabilities
     that do not sum exactly to one, and never picks a zero-probability category.
     """
-    cdf = jnp.cumsum(probs, axis=-1)
-    threshold = u[..., None] * cdf[..., -1:]
-    idx = jnp.sum(cdf <= threshold, axis=-1)
-    return jnp.minimum(idx, probs.shape[-1] - 1).astype(jnp.int32)
+    return categorical_from_uniform(u, probs)
 
 
 def uniform_distribution(shape: tuple[int, ...], counts: tuple[int, ...] | None = None):

@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from cognet_jax.envs.base import normal_from_uniform
+
 
 @struct.dataclass
 class TaggingParams:
@@ -82,19 +84,30 @@ class Tagging:
     def obs_range(self) -> tuple[float, float]:
         return (-self.length, self.length)
 
+    @property
+    def reset_noise(self) -> int:
+        return self.num_agents + 1
+
+    @property
+    def step_noise(self) -> int:
+        """Motion noise (n), observation noise (n), respawn positions (n + 1)."""
+        return 3 * self.num_agents + 1
+
     def default_params(self) -> TaggingParams:
         return TaggingParams()
 
-    def reset(self, key: jax.Array, params: TaggingParams) -> TaggingState:
-        pos = jax.random.uniform(key, (self.num_agents + 1,), maxval=self.length)
+    def reset(self, u: jax.Array, params: TaggingParams) -> TaggingState:
+        """``u [agents + 1]``: uniform positions of the taggers, then the evader."""
+        pos = u * self.length
         return TaggingState(taggers=pos[:-1], evader=pos[-1])
 
     def step(
-        self, key: jax.Array, state: TaggingState, actions: jax.Array, params: TaggingParams
+        self, u: jax.Array, state: TaggingState, actions: jax.Array, params: TaggingParams
     ) -> tuple[TaggingState, jax.Array, jax.Array]:
-        """One step; returns ``(next_state, obs [agents] float32, joint reward [])``."""
-        k_motion, k_respawn, k_obs = jax.random.split(key, 3)
+        """One step; ``u [3 agents + 1]`` = motion-noise, observation-noise and respawn
+        uniforms. Returns ``(next_state, obs [agents] float32, joint reward [])``."""
         n = self.num_agents
+        u_motion, u_obs, u_respawn = u[:n], u[n : 2 * n], u[2 * n :]
         p, e = state.taggers, state.evader
         tagging = actions == TAG
         hit = tagging & (jnp.abs(p - e) <= params.tag_radius)
@@ -103,15 +116,15 @@ class Tagging:
                       params.move_reward)
         )
         move = jnp.where(actions == LEFT, -1.0, jnp.where(actions == RIGHT, 1.0, 0.0))
-        noise = params.motion_noise * jax.random.normal(k_motion, (n,))
+        noise = params.motion_noise * normal_from_uniform(u_motion)
         p_next = jnp.clip(p + move + noise, 0.0, self.length)
         d = jnp.sum(p_next - e)
         e_next = jnp.clip(e - jnp.sign(d), 0.0, self.length)
-        respawned = self.reset(k_respawn, params)
+        respawned = self.reset(u_respawn, params)
         do_respawn = jnp.logical_and(params.respawn, jnp.any(hit))
         p_next = jnp.where(do_respawn, respawned.taggers, p_next)
         e_next = jnp.where(do_respawn, respawned.evader, e_next)
-        obs = e_next - p_next + params.obs_noise * jax.random.normal(k_obs, (n,))
+        obs = e_next - p_next + params.obs_noise * normal_from_uniform(u_obs)
         obs = discretise(obs, self.obs_division)
         return TaggingState(taggers=p_next, evader=e_next), obs, reward
 
