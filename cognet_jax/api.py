@@ -16,7 +16,13 @@ from __future__ import annotations
 
 import jax
 
-from cognet_jax.config import Config, CognetAlgorithmSection, TaggingEnvSection
+from cognet_jax.config import (
+    CognetAlgorithmSection,
+    Config,
+    DpomdpEnvSection,
+    GDiceAlgorithmSection,
+    TaggingEnvSection,
+)
 
 
 def build_env(config: Config):
@@ -31,7 +37,24 @@ def build_env(config: Config):
         if e.respawn is not None:
             overrides["respawn"] = e.respawn
         return make_tagging(e.setting, horizon=e.horizon, obs_division=e.obs_division, **overrides)
+    if isinstance(e, DpomdpEnvSection):
+        from cognet_jax.envs.tabular import make_tabular
+
+        return make_tabular(load_problem(config), config.problem.horizon, config.problem.discount)
     raise NotImplementedError(f"environment {e.name!r} is not available yet")
+
+
+def load_problem(config: Config):
+    """The parsed ``TabularModel`` of ``config.problem.path`` (ConfigError if unreadable)."""
+    from pathlib import Path
+
+    from cognet_jax.config import ConfigError
+    from cognet_jax.io.dpomdp import parse_dpomdp
+
+    path = Path(config.problem.path).expanduser()
+    if not path.is_file():
+        raise ConfigError("problem.path", f"no such file: {config.problem.path}")
+    return parse_dpomdp(str(path), discount=config.problem.discount)
 
 
 def build_algorithm(config: Config, env=None, env_params=None):
@@ -45,21 +68,56 @@ def build_algorithm(config: Config, env=None, env_params=None):
 
         net = config.network
         settings = CognetSettings(
-            nodes=a.nodes, iterations=a.iterations, rollouts=a.rollouts, top=a.top, keep=a.keep,
-            eval_rollouts=a.eval_rollouts, hidden=net.hidden, train_steps=net.train_steps,
-            optimizer=net.optimizer, momentum=net.momentum, threshold_rule=a.threshold_rule,
-            separate=a.separate, common_random_numbers=a.common_random_numbers,
-            train_last_transition=a.train_last_transition, entropy_window=a.entropy_window,
+            nodes=a.nodes,
+            iterations=a.iterations,
+            rollouts=a.rollouts,
+            top=a.top,
+            keep=a.keep,
+            eval_rollouts=a.eval_rollouts,
+            hidden=net.hidden,
+            train_steps=net.train_steps,
+            optimizer=net.optimizer,
+            momentum=net.momentum,
+            threshold_rule=a.threshold_rule,
+            separate=a.separate,
+            common_random_numbers=a.common_random_numbers,
+            train_last_transition=a.train_last_transition,
+            entropy_window=a.entropy_window,
         )
         hyper = CognetHyper(
             alpha=a.alpha,
             learning_rate=net.learning_rate,
             entropy=EntropyConfig(
-                enabled=a.entropy_injection, rate=a.entropy_rate, std_threshold=a.entropy_std,
+                enabled=a.entropy_injection,
+                rate=a.entropy_rate,
+                std_threshold=a.entropy_std,
                 patience=a.entropy_patience,
             ),
         )
         return CognetDice(env, env_params, settings, hyper)
+    if isinstance(a, GDiceAlgorithmSection):
+        from cognet_jax.algorithms.cross_entropy import EntropyConfig
+        from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
+
+        settings = GDiceSettings(
+            nodes=a.nodes,
+            iterations=a.iterations,
+            samples=a.samples,
+            elites=a.elites,
+            eval_rollouts=a.eval_rollouts,
+            common_random_numbers=a.common_random_numbers,
+            entropy_window=a.entropy_window,
+        )
+        hyper = GDiceHyper(
+            alpha=a.alpha,
+            entropy=EntropyConfig(
+                enabled=a.entropy_injection,
+                rate=a.entropy_rate,
+                std_threshold=a.entropy_std,
+                patience=a.entropy_patience,
+            ),
+        )
+        return GDice(env, env_params, settings, hyper)
     raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
 
 

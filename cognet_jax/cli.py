@@ -1,8 +1,8 @@
 """The ``cognet-jax`` command.
 
-    cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
-    cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
-    cognet-jax list
+cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
+cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
+cognet-jax list
 """
 
 from __future__ import annotations
@@ -21,20 +21,38 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
-    t.add_argument("experiment", nargs="?", default=DEFAULT_EXPERIMENT,
-                   help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})")
+    t.add_argument(
+        "experiment",
+        nargs="?",
+        default=DEFAULT_EXPERIMENT,
+        help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
+    )
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
-    t.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=V",
-                   help="override a config field; repeatable")
+    t.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V",
+        help="override a config field; repeatable",
+    )
     t.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
     e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
     e.add_argument("run_dir")
-    e.add_argument("--rollouts", type=int, default=None, help="default: the run's evaluation.rollouts")
+    e.add_argument(
+        "--rollouts", type=int, default=None, help="default: the run's evaluation.rollouts"
+    )
     e.add_argument("--seed", type=int, default=12345, help="evaluation seed")
-    e.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=V",
-                   help="change the evaluation setting (e.g. env.obs_noise=0.1)")
+    e.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V",
+        help="change the evaluation setting (e.g. env.obs_noise=0.1)",
+    )
 
     sub.add_parser("list", help="list the built-in experiments")
     return p
@@ -65,8 +83,10 @@ def _evaluate(args) -> int:
     key = jax.random.key(args.seed, impl=config.run.prng_impl)
     value = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
     value.update(seed=args.seed, overrides=args.overrides, wall_s=time.perf_counter() - t0)
-    print(f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({rollouts} rollouts, "
-          f"seed {args.seed}{', ' + ' '.join(args.overrides) if args.overrides else ''})")
+    print(
+        f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({rollouts} rollouts, "
+        f"seed {args.seed}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
+    )
     log = Path(args.run_dir) / "evaluations.jsonl"
     with log.open("a") as f:
         f.write(json.dumps(value) + "\n")

@@ -10,12 +10,13 @@ wrong types and out-of-range values raise ``ConfigError`` naming the dotted fiel
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 import types
 import typing
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+import tomllib
 
 
 class ConfigError(ValueError):
@@ -89,6 +90,24 @@ class CognetAlgorithmSection:
 
 
 @dataclasses.dataclass
+class GDiceAlgorithmSection:
+    """G-DICE (SPEC 3): N_n nodes, N_k iterations, N_s samples, N_b elites, N_sim rollouts."""
+
+    nodes: int = 7
+    iterations: int = 100
+    samples: int = 100
+    elites: int = 10
+    eval_rollouts: int = 100
+    alpha: float = 0.1
+    common_random_numbers: bool = True
+    entropy_injection: bool = False
+    entropy_rate: float = 0.02
+    entropy_std: float = 0.5
+    entropy_window: int = 4
+    entropy_patience: int = 5
+
+
+@dataclasses.dataclass
 class NetworkSection:
     """Node networks of COGNet-DICE."""
 
@@ -115,7 +134,10 @@ class RunSection:
 
 
 ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpEnvSection}
-ALGORITHM_SECTIONS: dict[str, type] = {"cognet-dice": CognetAlgorithmSection}
+ALGORITHM_SECTIONS: dict[str, type] = {
+    "cognet-dice": CognetAlgorithmSection,
+    "gdice": GDiceAlgorithmSection,
+}
 
 
 @dataclasses.dataclass
@@ -158,7 +180,9 @@ def _check_type(field: str, value: Any, annotation: Any) -> Any:
             return value
     else:  # pragma: no cover - only simple annotations are used
         return value
-    raise ConfigError(field, f"expected {annotation.__name__}, got {type(value).__name__} {value!r}")
+    raise ConfigError(
+        field, f"expected {annotation.__name__}, got {type(value).__name__} {value!r}"
+    )
 
 
 def _section_from_dict(cls: type, data: Any, prefix: str):
@@ -184,11 +208,16 @@ def config_from_dict(data: dict) -> Config:
     env_data = data.get("env", {})
     env_name = env_data.get("name", "tagging") if isinstance(env_data, dict) else None
     if env_name not in ENV_SECTIONS:
-        raise ConfigError("env.name", f"unknown environment {env_name!r} (known: "
-                          f"{', '.join(sorted(ENV_SECTIONS))})")
+        raise ConfigError(
+            "env.name",
+            f"unknown environment {env_name!r} (known: {', '.join(sorted(ENV_SECTIONS))})",
+        )
     if experiment.algorithm not in ALGORITHM_SECTIONS:
-        raise ConfigError("experiment.algorithm", f"unknown algorithm {experiment.algorithm!r} "
-                          f"(known: {', '.join(sorted(ALGORITHM_SECTIONS))})")
+        raise ConfigError(
+            "experiment.algorithm",
+            f"unknown algorithm {experiment.algorithm!r} "
+            f"(known: {', '.join(sorted(ALGORITHM_SECTIONS))})",
+        )
     config = Config(
         experiment=experiment,
         env=_section_from_dict(ENV_SECTIONS[env_name], env_data, "env"),
@@ -247,15 +276,20 @@ def read_experiment(name_or_path: str) -> dict:
     else:
         res = resources.files("cognet_jax") / "experiments" / f"{name_or_path}.toml"
         if not res.is_file():
-            raise ConfigError("", f"unknown experiment {name_or_path!r}; built-in experiments: "
-                              f"{', '.join(builtin_experiments())} (or give a .toml file)")
+            raise ConfigError(
+                "",
+                f"unknown experiment {name_or_path!r}; built-in experiments: "
+                f"{', '.join(builtin_experiments())} (or give a .toml file)",
+            )
         text = res.read_text()
         origin = name_or_path
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError("", f"{origin}: invalid TOML: {err}") from None
-    data.setdefault("experiment", {}).setdefault("name", path.stem if path.exists() else name_or_path)
+    data.setdefault("experiment", {}).setdefault(
+        "name", path.stem if path.exists() else name_or_path
+    )
     return data
 
 
@@ -290,40 +324,96 @@ def validate(config: Config) -> None:
     if isinstance(env, TaggingEnvSection):
         from cognet_jax.envs.tagging import SETTINGS
 
-        _require(env.setting in SETTINGS, "env.setting",
-                 f"unknown setting {env.setting!r} (known: {', '.join(sorted(SETTINGS))})")
+        _require(
+            env.setting in SETTINGS,
+            "env.setting",
+            f"unknown setting {env.setting!r} (known: {', '.join(sorted(SETTINGS))})",
+        )
         _positive(env, "env", "horizon")
         if env.discount is not None:
-            _require(0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}")
+            _require(
+                0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}"
+            )
         for n in ("motion_noise", "obs_noise", "obs_division"):
             _require(getattr(env, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(env, n)}")
     if isinstance(env, DpomdpEnvSection):
-        _require(bool(config.problem.path), "problem.path",
-                 "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp")
+        _require(
+            bool(config.problem.path),
+            "problem.path",
+            "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp",
+        )
         _positive(config.problem, "problem", "horizon")
         d = config.problem.discount
         _require(d is None or 0.0 < d <= 1.0, "problem.discount", f"must be in (0, 1], got {d}")
 
     alg = config.algorithm
     if isinstance(alg, CognetAlgorithmSection):
-        _positive(alg, "algorithm", "nodes", "iterations", "rollouts", "top", "keep",
-                  "eval_rollouts", "entropy_window", "entropy_patience")
-        _require(alg.top <= alg.rollouts, "algorithm.top",
-                 f"pre-selected rollouts ({alg.top}) cannot exceed algorithm.rollouts ({alg.rollouts})")
+        _positive(
+            alg,
+            "algorithm",
+            "nodes",
+            "iterations",
+            "rollouts",
+            "top",
+            "keep",
+            "eval_rollouts",
+            "entropy_window",
+            "entropy_patience",
+        )
+        _require(
+            alg.top <= alg.rollouts,
+            "algorithm.top",
+            f"pre-selected rollouts ({alg.top}) cannot exceed algorithm.rollouts ({alg.rollouts})",
+        )
         limit = alg.rollouts if alg.separate else alg.top
-        _require(alg.keep <= limit, "algorithm.keep",
-                 f"kept elites ({alg.keep}) cannot exceed the candidates ({limit})")
+        _require(
+            alg.keep <= limit,
+            "algorithm.keep",
+            f"kept elites ({alg.keep}) cannot exceed the candidates ({limit})",
+        )
         _probability(alg, "algorithm", "alpha", "entropy_rate")
         _require(alg.entropy_std >= 0, "algorithm.entropy_std", "must be >= 0")
-        _require(alg.threshold_rule in ("elite", "best"), "algorithm.threshold_rule",
-                 f"must be 'elite' or 'best', got {alg.threshold_rule!r}")
+        _require(
+            alg.threshold_rule in ("elite", "best"),
+            "algorithm.threshold_rule",
+            f"must be 'elite' or 'best', got {alg.threshold_rule!r}",
+        )
         net = config.network
         _positive(net, "network", "hidden", "train_steps")
-        _require(net.optimizer in ("adam", "sgd"), "network.optimizer",
-                 f"must be 'adam' or 'sgd', got {net.optimizer!r}")
+        _require(
+            net.optimizer in ("adam", "sgd"),
+            "network.optimizer",
+            f"must be 'adam' or 'sgd', got {net.optimizer!r}",
+        )
         _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
         _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+    if isinstance(alg, GDiceAlgorithmSection):
+        _positive(
+            alg,
+            "algorithm",
+            "nodes",
+            "iterations",
+            "samples",
+            "elites",
+            "eval_rollouts",
+            "entropy_window",
+            "entropy_patience",
+        )
+        _require(
+            alg.elites <= alg.samples,
+            "algorithm.elites",
+            f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
+        )
+        _probability(alg, "algorithm", "alpha", "entropy_rate")
+        _require(
+            isinstance(env, DpomdpEnvSection) or getattr(env, "obs_division", 0) > 0,
+            "env.name",
+            "G-DICE needs discrete observations: a .dpomdp problem",
+        )
     _positive(config.evaluation, "evaluation", "rollouts", "batch")
     _require(config.evaluation.rollouts >= 2, "evaluation.rollouts", "needs >= 2 for a std error")
-    _require(config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg"), "run.prng_impl",
-             f"must be threefry2x32, rbg or unsafe_rbg, got {config.run.prng_impl!r}")
+    _require(
+        config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg"),
+        "run.prng_impl",
+        f"must be threefry2x32, rbg or unsafe_rbg, got {config.run.prng_impl!r}",
+    )

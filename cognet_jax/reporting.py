@@ -46,20 +46,35 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
     title = f"{results['experiment']} (seed {results['seed']})"
     written = [
         plots.plot_values(
-            results["values_per_iteration"], results["best_per_iteration"],
-            out_dir / "values.png", title=title, reference=references_for(config),
+            results["values_per_iteration"],
+            results["best_per_iteration"],
+            out_dir / "values.png",
+            title=title,
+            reference=references_for(config),
         )
     ]
     action_probs = np.asarray(policy.action_probs)
-    written.append(plots.plot_action_distributions(action_probs, names, out_dir / "actions.png",
-                                                   title=f"{title}: action distributions"))
+    written.append(
+        plots.plot_action_distributions(
+            action_probs, names, out_dir / "actions.png", title=f"{title}: action distributions"
+        )
+    )
     if env.obs_shape == () and env.obs_range is not None and hasattr(policy, "net_params"):
         lo, hi = env.obs_range
         grid = np.linspace(lo, hi, 401)
         probs = neural_node_probs(algorithm.controller, policy, grid)
-        written.append(plots.plot_node_responses(grid, probs, out_dir / "node_responses.png",
-                                                 title=f"{title}: next-node probabilities"))
+        written.append(
+            plots.plot_node_responses(
+                grid,
+                probs,
+                out_dir / "node_responses.png",
+                title=f"{title}: next-node probabilities",
+            )
+        )
         edges = [plots.controller_graph_edges(grid, p) for p in probs]
-        written.append(plots.plot_controller_graphs(action_probs, edges, names,
-                                                    out_dir / "controllers.png", title=title))
+        written.append(
+            plots.plot_controller_graphs(
+                action_probs, edges, names, out_dir / "controllers.png", title=title
+            )
+        )
     return [Path(p) for p in written]

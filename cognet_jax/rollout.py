@@ -40,8 +40,9 @@ class Trajectory:
     ret: jax.Array
 
 
-def rollouts(env, controller, key: jax.Array, num: int, env_params: Any, policy: Any,
-             record: bool = False):
+def rollouts(
+    env, controller, key: jax.Array, num: int, env_params: Any, policy: Any, record: bool = False
+):
     """``num`` rollouts of one (stochastic or deterministic) joint ``policy``.
 
     Returns the discounted returns ``[num]``, or a ``Trajectory`` when ``record`` is true.
@@ -87,8 +88,9 @@ def evaluate_candidates(
     return jax.vmap(one, in_axes=(policy_axes,))(policies)
 
 
-def many_returns(env, controller, key: jax.Array, env_params: Any, policy: Any, num: int,
-                 batch: int = 10_000) -> jax.Array:
+def many_returns(
+    env, controller, key: jax.Array, env_params: Any, policy: Any, num: int, batch: int = 10_000
+) -> jax.Array:
     """Returns ``[num]`` of ``num`` rollouts, computed ``batch`` at a time (bounded memory);
     chunk c uses ``fold_in(key, c)``."""
     if num <= batch:

@@ -43,6 +43,28 @@ def honest_evaluation(algorithm, key, policy, rollouts: int, batch: int) -> dict
     }
 
 
+def exact_evaluation(config: Config, policy) -> float | None:
+    """Exact value of a deterministic tabular controller on a ``.dpomdp`` problem (finite
+    horizon by backward DP; ``None`` for other problems or policies)."""
+    from cognet_jax.config import DpomdpEnvSection
+
+    if not isinstance(config.env, DpomdpEnvSection) or not hasattr(policy, "transitions"):
+        return None
+    from cognet_jax.api import load_problem
+    from cognet_jax.exact import exact_value
+
+    model = load_problem(config)
+    return float(
+        exact_value(
+            model,
+            np.asarray(policy.actions),
+            np.asarray(policy.transitions),
+            config.problem.horizon,
+            model.discount,
+        )
+    )
+
+
 def save_policy(path: Path, policy) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_bytes(serialization.to_bytes(jax.device_get(policy)))
@@ -72,8 +94,9 @@ def _json_ready(x):
     return arr.tolist()
 
 
-def run_training(config: Config, seed: int, out_dir: str | Path, progress: bool | None = None,
-                 log=print) -> dict:
+def run_training(
+    config: Config, seed: int, out_dir: str | Path, progress: bool | None = None, log=print
+) -> dict:
     """Run the search of ``config`` with ``seed``; write outputs to ``out_dir``; return results."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -102,8 +125,12 @@ def run_training(config: Config, seed: int, out_dir: str | Path, progress: bool 
     loop_s = time.perf_counter() - t_loop
 
     best = algorithm.best_policy(state)
-    final = honest_evaluation(algorithm, k_eval, best, config.evaluation.rollouts,
-                              config.evaluation.batch)
+    final = honest_evaluation(
+        algorithm, k_eval, best, config.evaluation.rollouts, config.evaluation.batch
+    )
+    exact = exact_evaluation(config, best)
+    if exact is not None:
+        final["exact"] = exact
     save_policy(out_dir / "policy.msgpack", best)
     wall_s = time.perf_counter() - t_start
 
@@ -131,10 +158,13 @@ def run_training(config: Config, seed: int, out_dir: str | Path, progress: bool 
         from cognet_jax.reporting import write_plots
 
         write_plots(config, algorithm, best, results, out_dir)
+    exact_text = f" (exact {final['exact']:.6f})" if "exact" in final else ""
     log(
         f"{config.experiment.name} seed {seed}: honest value {final['mean']:.3f} "
-        f"+- {final['stderr']:.3f} ({final['rollouts']} rollouts); in-loop best "
+        f"+- {final['stderr']:.3f} ({final['rollouts']} rollouts){exact_text}; in-loop best "
         f"{results['in_loop_best']:.3f}; wall {wall_s:.1f} s (compile {compile_s:.1f} s)"
     )
-    log(f"wrote {out_dir}/results.json, policy.msgpack" + (" and plots" if config.run.plots else ""))
+    log(
+        f"wrote {out_dir}/results.json, policy.msgpack" + (" and plots" if config.run.plots else "")
+    )
     return results

@@ -18,8 +18,13 @@ from cognet_jax.config import load_config
 from cognet_jax.rollout import Trajectory
 
 SMALL = [
-    "algorithm.iterations=6", "algorithm.rollouts=200", "algorithm.top=20", "algorithm.keep=5",
-    "algorithm.eval_rollouts=20", "evaluation.rollouts=500", "run.plots=false",
+    "algorithm.iterations=6",
+    "algorithm.rollouts=200",
+    "algorithm.top=20",
+    "algorithm.keep=5",
+    "algorithm.eval_rollouts=20",
+    "evaluation.rollouts=500",
+    "run.plots=false",
     "run.progress=false",
 ]
 
@@ -63,21 +68,29 @@ def test_training_pairs_match_slow_reference(last):
     obs, src, tgt, valid = map(np.asarray, training_pairs(traj, kept_idx, kept_mask, last))
     for i in range(2):
         got = sorted(
-            (float(obs[i, p]), int(src[i, p]), int(tgt[i, p])) for p in range(obs.shape[1]) if valid[i, p]
+            (float(obs[i, p]), int(src[i, p]), int(tgt[i, p]))
+            for p in range(obs.shape[1])
+            if valid[i, p]
         )
         want = []
         for k, keep in zip(np.asarray(kept_idx), np.asarray(kept_mask)):
             if not keep:
                 continue
             for t in range(4 if last else 3):
-                want.append((float(traj.obs[k, t, i]), int(traj.nodes[k, t, i]),
-                             int(traj.next_nodes[k, t, i])))
+                want.append(
+                    (
+                        float(traj.obs[k, t, i]),
+                        int(traj.nodes[k, t, i]),
+                        int(traj.next_nodes[k, t, i]),
+                    )
+                )
         assert got == sorted(want)
 
 
 def test_network_training_fits_pairs_and_masks_idle_members():
-    config = load_config("tagging-thesis-n3", SMALL + ["network.train_steps=200",
-                                                       "network.learning_rate=0.05"])
+    config = load_config(
+        "tagging-thesis-n3", SMALL + ["network.train_steps=200", "network.learning_rate=0.05"]
+    )
     algorithm, init, _ = make_step(config)
     state = init(jax.random.key(0))
     # agent 0, node 1 sees z<0 -> 0 and z>0 -> 2; nothing else has data
@@ -94,7 +107,9 @@ def test_network_training_fits_pairs_and_masks_idle_members():
     logits2 = algorithm.controller.all_node_logits(params, jnp.array([3.0, 3.0]))
     assert int(jnp.argmax(logits2[0, 1])) == 2
     # members without pairs are bit-identical to before
-    for leaf_new, leaf_old in zip(jax.tree.leaves(params), jax.tree.leaves(state.policy.net_params)):
+    for leaf_new, leaf_old in zip(
+        jax.tree.leaves(params), jax.tree.leaves(state.policy.net_params)
+    ):
         np.testing.assert_array_equal(leaf_new[1], leaf_old[1])
         np.testing.assert_array_equal(leaf_new[0, 0], leaf_old[0, 0])
 
@@ -132,8 +147,9 @@ def test_vmap_over_seeds_equals_separate_runs():
     for s in range(4):
         _, single = train(keys[s])
         np.testing.assert_array_equal(np.asarray(batched.value[s]), np.asarray(single.value))
-        np.testing.assert_array_equal(np.asarray(batched.best_value[s]),
-                                      np.asarray(single.best_value))
+        np.testing.assert_array_equal(
+            np.asarray(batched.best_value[s]), np.asarray(single.best_value)
+        )
 
 
 def test_same_seed_same_results(tmp_path):
@@ -147,7 +163,17 @@ def test_same_seed_same_results(tmp_path):
     c = run_training(config, 4, tmp_path / "c", log=lambda *_: None)
     assert c["values_per_iteration"] != a["values_per_iteration"]
     saved = json.loads((tmp_path / "a" / "results.json").read_text())
-    for key in ("experiment", "algorithm", "seed", "config", "final_value", "in_loop_best",
-                "iterations", "wall_s", "compile_s", "values_per_iteration"):
+    for key in (
+        "experiment",
+        "algorithm",
+        "seed",
+        "config",
+        "final_value",
+        "in_loop_best",
+        "iterations",
+        "wall_s",
+        "compile_s",
+        "values_per_iteration",
+    ):
         assert key in saved
     assert saved["final_value"]["rollouts"] == 500

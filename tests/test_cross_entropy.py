@@ -1,6 +1,5 @@
 """Shared cross-entropy pieces against hand computations and slow references."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 

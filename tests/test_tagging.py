@@ -17,7 +17,9 @@ def scipy_norm_ppf(u):
     return np.array([NormalDist().inv_cdf(float(x)) for x in u])
 
 
-def numpy_step(taggers, evader, actions, motion_noise, obs_noise, respawn_pos, respawn, length=10.0):
+def numpy_step(
+    taggers, evader, actions, motion_noise, obs_noise, respawn_pos, respawn, length=10.0
+):
     """Plain re-statement of SPEC 7.1 with the noise draws given explicitly."""
     reward = 0.0
     hit_any = False
@@ -55,14 +57,16 @@ def test_step_matches_numpy_reference(setting, noise):
         actions = rng.integers(0, 3, size=2)
         u = rng.uniform(size=env.step_noise)
         state = TaggingState(taggers=jnp.asarray(pos[:2], jnp.float32), evader=jnp.float32(pos[2]))
-        nxt, obs, reward = step(jnp.asarray(u, jnp.float32), state, jnp.asarray(actions, jnp.int32),
-                                params)
+        nxt, obs, reward = step(
+            jnp.asarray(u, jnp.float32), state, jnp.asarray(actions, jnp.int32), params
+        )
         # the documented layout of u: motion noise, observation noise, respawn positions
         m = noise * scipy_norm_ppf(u[:2])
         o = noise * scipy_norm_ppf(u[2:4])
         r = u[4:] * 10.0
-        ref = numpy_step(np.asarray(state.taggers), float(state.evader), actions, m, o, r,
-                         bool(params.respawn))
+        ref = numpy_step(
+            np.asarray(state.taggers), float(state.evader), actions, m, o, r, bool(params.respawn)
+        )
         np.testing.assert_allclose(np.asarray(nxt.taggers), ref[0], atol=1e-5)
         np.testing.assert_allclose(float(nxt.evader), ref[1], atol=1e-5)
         np.testing.assert_allclose(np.asarray(obs), ref[2], atol=1e-5)
@@ -70,9 +74,7 @@ def test_step_matches_numpy_reference(setting, noise):
 
 
 def _value(env, params, ctrl, policy, n=20000, seed=0):
-    ret = jax.jit(lambda k: rollouts(env, ctrl, k, n, params, policy))(
-        jax.random.key(seed)
-    )
+    ret = jax.jit(lambda k: rollouts(env, ctrl, k, n, params, policy))(jax.random.key(seed))
     ret = np.asarray(ret, np.float64)
     return ret.mean(), ret.std(ddof=1) / np.sqrt(n)
 
@@ -84,8 +86,9 @@ def test_random_policy_value_thesis():
     assert abs(mean - (-23.68)) < 3 * se
 
 
-@pytest.mark.parametrize("setting,reference,ref_se", [("thesis", 20.76, 0.09),
-                                                       ("cogdice-paper", 108.0, 0.35)])
+@pytest.mark.parametrize(
+    "setting,reference,ref_se", [("thesis", 20.76, 0.09), ("cogdice-paper", 108.0, 0.35)]
+)
 def test_reactive_controller_value(setting, reference, ref_se):
     env, params = make_tagging(setting)
     ctrl, policy = reactive_tagging_policy()

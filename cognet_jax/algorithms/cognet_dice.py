@@ -40,7 +40,6 @@ from flax import struct
 from cognet_jax.algorithms.cross_entropy import (
     EntropyConfig,
     Progress,
-    count_table,
     elite_selection,
     inject_entropy,
     select_tree,
@@ -229,7 +228,10 @@ class CognetDice:
                 m = has_data.reshape(has_data.shape + (1,) * (new.ndim - 2))
                 return jnp.where(m, new, old)
 
-            return (jax.tree.map(masked, new_params, params), jax.tree.map(masked, new_opt, opt)), None
+            return (
+                jax.tree.map(masked, new_params, params),
+                jax.tree.map(masked, new_opt, opt),
+            ), None
 
         (net_params, opt_state), _ = jax.lax.scan(
             one_step, (net_params, opt_state), None, length=self.settings.train_steps
@@ -238,7 +240,9 @@ class CognetDice:
 
     def evaluate(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
         """Mean return of ``policy`` over ``num_rollouts`` rollouts."""
-        return rollouts(self.env, self.controller, key, num_rollouts, self.env_params, policy).mean()
+        return rollouts(
+            self.env, self.controller, key, num_rollouts, self.env_params, policy
+        ).mean()
 
     def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
         """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
@@ -274,14 +278,24 @@ class CognetDice:
             cand_probs = candidate_action_probs(policy.action_probs, counts)
             if s.common_random_numbers:
                 cand_values = evaluate_candidates(
-                    env, ctrl, k_cand, s.eval_rollouts, self.env_params,
+                    env,
+                    ctrl,
+                    k_cand,
+                    s.eval_rollouts,
+                    self.env_params,
                     policy.replace(action_probs=cand_probs),
                     policy_axes=NeuralPolicy(action_probs=0, net_params=None),
                 )
             else:
                 cand_values = jax.vmap(
-                    lambda k, p: rollouts(env, ctrl, k, s.eval_rollouts, self.env_params,
-                                          policy.replace(action_probs=p)).mean()
+                    lambda k, p: rollouts(
+                        env,
+                        ctrl,
+                        k,
+                        s.eval_rollouts,
+                        self.env_params,
+                        policy.replace(action_probs=p),
+                    ).mean()
                 )(jax.random.split(k_cand, s.top), cand_probs)
             best_candidate = cand_values.max()
             # 5: threshold

@@ -43,7 +43,9 @@ class RegionController:
         return policy.transitions[agents, nodes, region]
 
 
-def reactive_tagging_policy(num_agents: int = 2) -> tuple[RegionController, DeterministicRegionPolicy]:
+def reactive_tagging_policy(
+    num_agents: int = 2,
+) -> tuple[RegionController, DeterministicRegionPolicy]:
     """The reactive 3-node tagging controller of SPEC section 8: node 0 moves left, node 1 tags,
     node 2 moves right; from every node the next node is chosen by the region of the
     observation ``z = e - p``: ``(-inf, -1]`` -> node 0 (left), ``(-1, 1]`` -> node 1 (tag),

@@ -112,8 +112,9 @@ class Tagging:
         tagging = actions == TAG
         hit = tagging & (jnp.abs(p - e) <= params.tag_radius)
         reward = jnp.sum(
-            jnp.where(tagging, jnp.where(hit, params.tag_reward, params.miss_reward),
-                      params.move_reward)
+            jnp.where(
+                tagging, jnp.where(hit, params.tag_reward, params.miss_reward), params.move_reward
+            )
         )
         move = jnp.where(actions == LEFT, -1.0, jnp.where(actions == RIGHT, 1.0, 0.0))
         noise = params.motion_noise * normal_from_uniform(u_motion)

@@ -1,0 +1,188 @@
+"""G-DICE (SPEC section 3, thesis Algorithm 1): cross-entropy search over deterministic FSCs
+with discrete observations.
+
+Search distribution per agent: ``action_probs [agents, nodes, actions]`` (theta) and
+``transition_probs [agents, nodes, obs, nodes]`` (phi), uniform at the start. One iteration
+(``GDice.step``, compiled once), values are returns to **maximise**:
+
+1. draw ``samples`` deterministic joint controllers (one action per node, one next node per
+   (node, observation)) in one block;
+2. evaluate each with ``eval_rollouts`` rollouts, all samples at once (common random numbers
+   across samples by default);
+3. elite threshold (SPEC section 2): keep the best ``elites`` samples above V_w;
+4. count MLE over the elites' *tables* (frequency over elites, not over visits), smoothing with
+   ``alpha``, optional entropy injection;
+5. keep the best sample seen so far (anytime).
+
+**[choice]** The value an iteration records for the entropy-injection triggers and the best-value
+curve is its best sample's value (the in-loop, optimistic estimate).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from cognet_jax.algorithms.cross_entropy import (
+    EntropyConfig,
+    Progress,
+    count_table,
+    elite_selection,
+    inject_entropy,
+    select_tree,
+    smooth,
+)
+from cognet_jax.controllers.tabular import (
+    DeterministicTabularPolicy,
+    TabularController,
+    TabularDistribution,
+)
+from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+
+
+@struct.dataclass
+class GDiceHyper:
+    """Dynamic (sweepable) hyper-parameters."""
+
+    alpha: jax.Array | float = 0.1
+    entropy: EntropyConfig = EntropyConfig(enabled=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class GDiceSettings:
+    nodes: int = 7
+    iterations: int = 100
+    samples: int = 100
+    elites: int = 10
+    eval_rollouts: int = 100
+    common_random_numbers: bool = True
+    entropy_window: int = 4
+
+
+@struct.dataclass
+class GDiceState:
+    distribution: TabularDistribution
+    best_policy: DeterministicTabularPolicy
+    progress: Progress
+
+
+@struct.dataclass
+class GDiceMetrics:
+    value: jax.Array  # [] best sample value of this iteration
+    best_value: jax.Array  # [] best in-loop value so far
+    mean_value: jax.Array  # [] mean sample value
+    threshold: jax.Array  # [] V_w after this iteration
+    kept: jax.Array  # [] number of elites
+    injected: jax.Array  # [] bool
+
+
+class GDice:
+    """G-DICE on an environment with discrete observations; ``init`` / ``step`` are pure."""
+
+    def __init__(self, env, env_params, settings: GDiceSettings, hyper: GDiceHyper | None = None):
+        if env.num_obs is None:
+            raise ValueError("G-DICE needs discrete observations (env.num_obs is None)")
+        self.env = env
+        self.env_params = env_params
+        self.settings = settings
+        self.hyper = hyper if hyper is not None else GDiceHyper()
+        self.controller = TabularController(
+            num_agents=env.num_agents,
+            num_nodes=settings.nodes,
+            num_actions=env.num_actions,
+            num_obs=env.num_obs,
+            action_counts=env.action_counts,
+        )
+
+    def init(self, key: jax.Array) -> GDiceState:
+        dist = self.controller.init_distribution()
+        return GDiceState(
+            distribution=dist,
+            best_policy=self.controller.sample(key, dist),
+            progress=Progress.create(self.settings.entropy_window),
+        )
+
+    def sample_policies(self, key: jax.Array, dist: TabularDistribution):
+        """``samples`` deterministic controllers (leaves with a leading ``[samples]`` axis)."""
+        return jax.vmap(lambda k: self.controller.sample(k, dist))(
+            jax.random.split(key, self.settings.samples)
+        )
+
+    def evaluate_samples(self, key: jax.Array, policies) -> jax.Array:
+        """Mean return ``[samples]`` of each sampled controller."""
+        s = self.settings
+        if s.common_random_numbers:
+            return evaluate_candidates(
+                self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
+            )
+        return jax.vmap(
+            lambda k, p: rollouts(
+                self.env, self.controller, k, s.eval_rollouts, self.env_params, p
+            ).mean()
+        )(jax.random.split(key, s.samples), policies)
+
+    def update_distribution(self, dist: TabularDistribution, elites, kept, hyper: GDiceHyper):
+        """Count MLE over the kept elites' tables + smoothing. ``elites``: policies with a
+        leading ``[elites]`` axis, ``kept [elites]`` bool."""
+        w = kept.astype(jnp.float32)
+        n, a = self.settings.nodes, self.env.num_actions
+        # [elites, agents, nodes] -> counts [agents, nodes, actions]
+        act_counts = count_table(jnp.moveaxis(elites.actions, 0, -1), a, w)
+        trans_counts = count_table(jnp.moveaxis(elites.transitions, 0, -1), n, w)
+        return TabularDistribution(
+            action_probs=smooth(dist.action_probs, act_counts, hyper.alpha),
+            transition_probs=smooth(dist.transition_probs, trans_counts, hyper.alpha),
+        )
+
+    def _support(self):
+        counts = jnp.asarray(self.env.action_counts)
+        return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
+
+    def step(self, key: jax.Array, state: GDiceState, hyper: GDiceHyper | None = None):
+        """One G-DICE iteration; returns ``(state, GDiceMetrics)``."""
+        hyper = self.hyper if hyper is None else hyper
+        k_sample, k_eval = jax.random.split(key)
+        progress = state.progress
+        policies = self.sample_policies(k_sample, state.distribution)
+        values = self.evaluate_samples(k_eval, policies)
+        idx, kept, threshold = elite_selection(values, progress.threshold, self.settings.elites)
+        elites = jax.tree.map(lambda x: x[idx], policies)
+        dist = self.update_distribution(state.distribution, elites, kept, hyper)
+        injected = progress.should_inject(hyper.entropy)
+        dist = TabularDistribution(
+            action_probs=jnp.where(
+                injected,
+                inject_entropy(dist.action_probs, hyper.entropy.rate, self._support()),
+                dist.action_probs,
+            ),
+            transition_probs=jnp.where(
+                injected,
+                inject_entropy(dist.transition_probs, hyper.entropy.rate),
+                dist.transition_probs,
+            ),
+        )
+        progress = progress.replace(threshold=threshold).after_injection(injected)
+        best_idx = jnp.argmax(values)
+        progress, improved = progress.record(values[best_idx])
+        best_policy = select_tree(
+            improved, jax.tree.map(lambda x: x[best_idx], policies), state.best_policy
+        )
+        metrics = GDiceMetrics(
+            value=values[best_idx],
+            best_value=progress.best_value,
+            mean_value=values.mean(),
+            threshold=progress.threshold,
+            kept=kept.sum(),
+            injected=injected,
+        )
+        return GDiceState(distribution=dist, best_policy=best_policy, progress=progress), metrics
+
+    def policy_returns(self, key, policy, num: int, batch: int = 10_000):
+        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
+
+    @staticmethod
+    def best_policy(state: GDiceState) -> DeterministicTabularPolicy:
+        return state.best_policy

@@ -1,0 +1,157 @@
+"""Pure-JAX simulator of a tabular Dec-POMDP (a parsed ``.dpomdp`` file, SPEC section 7.3).
+
+The static :class:`TabularEnv` holds only shapes and the horizon (it is hashable and can be
+closed over by jitted code); the model arrays live in the :class:`TabularParams` pytree, so
+one compiled rollout serves every model of the same shape. One step (SPEC section 1):
+
+1. ``ja = sum_i a_i prod_{j>i} |A_j|`` (last agent fastest; an action beyond an agent's count
+   is clipped to its last action);
+2. reward ``R[s, ja]`` on the pre-step state;
+3. ``s' ~ T[s, ja, :]``;
+4. ``jo ~ O[ja, s', :]``, split into per-agent observations (last agent fastest).
+
+The state is the int32 state index; observations are ``[agents]`` int32.
+
+Randomness follows ``envs.base``: ``reset(u, params)`` takes ``u [reset_noise=1]`` and
+``step(u, state, actions, params)`` takes ``u [step_noise=2]`` uniform(0, 1) numbers, used by
+inverse-CDF draws (first for ``s'``, then for ``jo``). For convenience both also accept a JAX
+PRNG key in place of ``u`` (the uniforms are then drawn from it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from cognet_jax.envs.base import categorical_from_uniform
+from cognet_jax.io.dpomdp import TabularModel
+
+__all__ = ["TabularEnv", "TabularParams", "make_tabular"]
+
+
+@struct.dataclass
+class TabularParams:
+    """Model arrays (float32): ``transition [S, JA, S']``, ``observation [JA, S', JO]``,
+    ``reward [S, JA]``, ``initial_belief [S]``, and the ``discount`` (a scalar)."""
+
+    transition: jax.Array
+    observation: jax.Array
+    reward: jax.Array
+    initial_belief: jax.Array
+    discount: jax.Array | float = 1.0
+
+
+def _strides(counts: tuple[int, ...]) -> tuple[int, ...]:
+    """Mixed-radix strides with the last agent fastest."""
+    out, acc = [], 1
+    for c in reversed(counts):
+        out.append(acc)
+        acc *= c
+    return tuple(reversed(out))
+
+
+@dataclasses.dataclass(frozen=True)
+class TabularEnv:
+    """Static description of a tabular Dec-POMDP (see module docstring)."""
+
+    num_agents: int
+    num_states: int
+    action_counts: tuple[int, ...]
+    obs_counts: tuple[int, ...]
+    horizon: int
+    obs_shape: tuple[int, ...] = ()
+    obs_range: tuple[float, float] | None = None
+
+    @property
+    def num_actions(self) -> int:
+        return max(self.action_counts)
+
+    @property
+    def num_obs(self) -> int:
+        return max(self.obs_counts)
+
+    @property
+    def num_joint_actions(self) -> int:
+        return int(np.prod(self.action_counts))
+
+    @property
+    def num_joint_obs(self) -> int:
+        return int(np.prod(self.obs_counts))
+
+    def default_params(self) -> TabularParams:
+        raise NotImplementedError(
+            "a TabularEnv has no default model: build env and params with make_tabular(model, "
+            "horizon)"
+        )
+
+    def joint_action(self, actions: jax.Array) -> jax.Array:
+        """Joint action index of ``actions [agents]`` (clipped to each agent's range)."""
+        counts = jnp.asarray(self.action_counts, jnp.int32)
+        a = jnp.clip(actions.astype(jnp.int32), 0, counts - 1)
+        return jnp.sum(a * jnp.asarray(_strides(self.action_counts), jnp.int32))
+
+    def split_joint_obs(self, jo: jax.Array) -> jax.Array:
+        """Per-agent observations ``[agents]`` int32 of joint observation ``jo``."""
+        strides = jnp.asarray(_strides(self.obs_counts), jnp.int32)
+        counts = jnp.asarray(self.obs_counts, jnp.int32)
+        return (jo // strides) % counts
+
+    @property
+    def reset_noise(self) -> int:
+        return 1
+
+    @property
+    def step_noise(self) -> int:
+        return 2
+
+    def reset(self, u: jax.Array, params: TabularParams) -> jax.Array:
+        """``s_0 ~ b0`` (int32) from ``u [1]`` uniform numbers (or a PRNG key)."""
+        u = _uniforms(u, self.reset_noise)
+        return categorical_from_uniform(u[0], params.initial_belief)
+
+    def step(
+        self, u: jax.Array, state: jax.Array, actions: jax.Array, params: TabularParams
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """One step from ``u [2]`` uniform numbers (or a PRNG key); returns
+        ``(next_state int32, obs [agents] int32, reward float32)``."""
+        u = _uniforms(u, self.step_noise)
+        ja = self.joint_action(actions)
+        reward = params.reward[state, ja].astype(jnp.float32)
+        next_state = categorical_from_uniform(u[0], params.transition[state, ja])
+        jo = categorical_from_uniform(u[1], params.observation[ja, next_state])
+        return next_state, self.split_joint_obs(jo), reward
+
+
+def _uniforms(u: jax.Array, n: int) -> jax.Array:
+    """``u`` itself, or ``n`` uniforms drawn from it when it is a PRNG key."""
+    u = jnp.asarray(u)
+    is_key = jax.dtypes.issubdtype(u.dtype, jax.dtypes.prng_key) or u.dtype == jnp.uint32
+    return jax.random.uniform(u, (n,)) if is_key else u
+
+
+def make_tabular(
+    model: TabularModel, horizon: int, discount: float | None = None
+) -> tuple[TabularEnv, TabularParams]:
+    """Env and params of a parsed model; ``discount`` overrides the model's."""
+    if int(horizon) < 1:
+        raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+    env = TabularEnv(
+        num_agents=model.num_agents,
+        num_states=model.num_states,
+        action_counts=tuple(model.action_counts),
+        obs_counts=tuple(model.obs_counts),
+        horizon=int(horizon),
+    )
+    gamma = model.discount if discount is None else float(discount)
+    params = TabularParams(
+        transition=jnp.asarray(model.transition, jnp.float32),
+        observation=jnp.asarray(model.observation, jnp.float32),
+        reward=jnp.asarray(model.reward, jnp.float32),
+        initial_belief=jnp.asarray(model.initial_belief, jnp.float32),
+        discount=jnp.asarray(gamma, jnp.float32),
+    )
+    return env, params
