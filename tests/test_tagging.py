@@ -51,7 +51,7 @@ def test_step_matches_numpy_reference(setting, noise):
     env, params = make_tagging(setting, motion_noise=noise, obs_noise=noise)
     rng = np.random.default_rng(0)
     step = jax.jit(env.step)
-    for i in range(300):
+    for _i in range(300):
         # include positions near the tag radius and the walls
         pos = rng.choice([rng.uniform(0, 10), rng.integers(0, 11) * 1.0], size=3)
         actions = rng.integers(0, 3, size=2)

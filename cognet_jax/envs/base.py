@@ -11,14 +11,14 @@ Conventions (gymnax style, randomness first):
   observations, ``[agents]`` int32 for discrete ones.
 
 An environment object is a frozen (hashable) dataclass holding only *static* facts -- shapes,
-horizon, number of agents -- so that it can be closed over by jitted code. Why uniforms instead of keys: the rollout engine draws the random numbers of every rollout
-of a time step in *one* block call (``[rollouts, noise]``), which is much faster on CPU than one
-threefry call per rollout and compiles in a fraction of the time. Normal draws are made from
-uniforms by the inverse CDF (``normal_from_uniform``).
-
-Every tunable number
+horizon, number of agents -- so that it can be closed over by jitted code. Every tunable number
 (noise levels, rewards, discount) lives in the ``params`` pytree, so sweeping over it needs no
 recompilation.
+
+Why uniforms instead of keys: the rollout engine draws the random numbers of every rollout of a
+time step in *one* block call (``[rollouts, noise]``), which is much faster on CPU than one
+threefry call per rollout, and compiles faster. Normal draws are made from uniforms by the
+inverse CDF (``normal_from_uniform``).
 """
 
 from __future__ import annotations
