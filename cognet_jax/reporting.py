@@ -38,6 +38,23 @@ def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
     return np.asarray(jax.nn.softmax(logits, -1)).transpose(1, 2, 0, 3)
 
 
+def _observation_names(config, env) -> list[list[str]]:
+    if config.env.name == "dpomdp":
+        from cognet_jax.api import load_problem
+
+        return [list(n) for n in load_problem(config).observation_names]
+    return [[str(z) for z in range(env.num_obs)] for _ in range(env.num_agents)]
+
+
+def _action_names(config, env):
+    if config.env.name == "dpomdp":
+        from cognet_jax.api import load_problem
+
+        names = load_problem(config).action_names
+        return names[0] if len(set(names)) == 1 else tuple(str(a) for a in range(env.num_actions))
+    return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
+
+
 def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]:
     """Write the run's PNG figures to ``out_dir``; returns the paths written."""
     out_dir = Path(out_dir)
@@ -53,6 +70,20 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
             reference=references_for(config),
         )
     ]
+    if hasattr(policy, "transitions") and policy.transitions.ndim == 3:  # deterministic tabular
+        actions = np.asarray(policy.actions)
+        action_probs = np.eye(env.num_actions)[actions]
+        obs_names = _observation_names(config, env)
+        edges = [
+            plots.tabular_graph_edges(np.asarray(policy.transitions[i]), obs_names[i])
+            for i in range(env.num_agents)
+        ]
+        written.append(
+            plots.plot_controller_graphs(
+                actions, edges, _action_names(config, env), out_dir / "controllers.png", title=title
+            )
+        )
+        return [Path(p) for p in written]
     action_probs = np.asarray(policy.action_probs)
     written.append(
         plots.plot_action_distributions(

@@ -43,9 +43,11 @@ def honest_evaluation(algorithm, key, policy, rollouts: int, batch: int) -> dict
     }
 
 
-def exact_evaluation(config: Config, policy) -> float | None:
-    """Exact value of a deterministic tabular controller on a ``.dpomdp`` problem (finite
-    horizon by backward DP; ``None`` for other problems or policies)."""
+def exact_evaluation(config: Config, policy) -> dict | None:
+    """Exact values of a deterministic tabular controller on a ``.dpomdp`` problem:
+    ``{"exact": finite-horizon value at problem.horizon (backward DP)}`` plus
+    ``"exact_infinite"`` (Bellman iteration to 1e-10) when the discount is below 1; ``None`` for
+    other problems or policies."""
     from cognet_jax.config import DpomdpEnvSection
 
     if not isinstance(config.env, DpomdpEnvSection) or not hasattr(policy, "transitions"):
@@ -54,15 +56,17 @@ def exact_evaluation(config: Config, policy) -> float | None:
     from cognet_jax.exact import exact_value
 
     model = load_problem(config)
-    return float(
-        exact_value(
-            model,
-            np.asarray(policy.actions),
-            np.asarray(policy.transitions),
-            config.problem.horizon,
-            model.discount,
+    actions, transitions = np.asarray(policy.actions), np.asarray(policy.transitions)
+    out = {
+        "exact": float(
+            exact_value(model, actions, transitions, config.problem.horizon, model.discount)
         )
-    )
+    }
+    if model.discount < 1:
+        out["exact_infinite"] = float(
+            exact_value(model, actions, transitions, None, model.discount)
+        )
+    return out
 
 
 def save_policy(path: Path, policy) -> None:
@@ -130,7 +134,7 @@ def run_training(
     )
     exact = exact_evaluation(config, best)
     if exact is not None:
-        final["exact"] = exact
+        final.update(exact)
     save_policy(out_dir / "policy.msgpack", best)
     wall_s = time.perf_counter() - t_start
 
