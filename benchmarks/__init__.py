@@ -1,0 +1,1 @@
+"""Speed measurements of cognet_jax against PyTorch references (``python -m benchmarks``)."""
