@@ -1,0 +1,299 @@
+"""G-DICE (SPEC sections 2 and 3): count MLE over elite tables, smoothing and entropy injection,
+the elite threshold across iterations, compile-once, a known optimum, and the CLI error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax.algorithms.cross_entropy import EntropyConfig
+from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
+from cognet_jax.controllers.tabular import DeterministicTabularPolicy
+from cognet_jax.envs.tabular import TabularEnv, TabularParams
+
+DPOMDP_DIR = Path(__file__).resolve().parents[2] / "shared" / "dpomdp"
+
+
+def small_env(
+    action_counts=(3, 2), obs_counts=(2, 2), states: int = 3, horizon: int = 3, seed: int = 0
+):
+    """A random dense tabular Dec-POMDP (agents may have different action counts)."""
+    rng = np.random.default_rng(seed)
+    ja, jo = int(np.prod(action_counts)), int(np.prod(obs_counts))
+    env = TabularEnv(
+        num_agents=len(action_counts),
+        num_states=states,
+        action_counts=tuple(action_counts),
+        obs_counts=tuple(obs_counts),
+        horizon=horizon,
+    )
+    params = TabularParams(
+        transition=jnp.asarray(rng.dirichlet(np.ones(states), size=(states, ja)), jnp.float32),
+        observation=jnp.asarray(rng.dirichlet(np.ones(jo), size=(ja, states)), jnp.float32),
+        reward=jnp.asarray(rng.normal(size=(states, ja)), jnp.float32),
+        initial_belief=jnp.full((states,), 1.0 / states, jnp.float32),
+        discount=jnp.float32(1.0),
+    )
+    return env, params
+
+
+# --------------------------------------------------------------------------------------------
+# count MLE over the elites' tables
+
+
+# Four elite controllers, 2 agents, 3 nodes; agent 1 has only 2 actions. The fourth is not
+# kept. No transition of any kept elite leads to node 2, so node 2 is never *visited* by a
+# rollout -- its rows must still be updated from the tables (frequency over elites).
+ELITE_ACTIONS = np.array(
+    [
+        [[0, 2, 1], [1, 0, 0]],
+        [[0, 1, 1], [1, 1, 0]],
+        [[2, 1, 1], [0, 1, 0]],
+        [[1, 0, 0], [0, 0, 1]],  # not kept
+    ],
+    dtype=np.int32,
+)
+ELITE_TRANSITIONS = np.array(
+    [
+        [[[1, 0], [0, 1], [1, 1]], [[1, 1], [0, 0], [0, 1]]],
+        [[[1, 1], [0, 0], [1, 0]], [[0, 1], [1, 0], [0, 1]]],
+        [[[0, 1], [0, 1], [1, 1]], [[1, 0], [1, 0], [1, 1]]],
+        [[[2, 2], [2, 2], [2, 2]], [[2, 2], [2, 2], [2, 2]]],  # not kept
+    ],
+    dtype=np.int32,
+)
+KEPT = np.array([True, True, True, False])
+
+
+def _elites():
+    return DeterministicTabularPolicy(
+        actions=jnp.asarray(ELITE_ACTIONS), transitions=jnp.asarray(ELITE_TRANSITIONS)
+    )
+
+
+def test_count_mle_is_frequency_over_elite_tables():
+    env, params = small_env()
+    algo = GDice(env, params, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
+    dist = algo.controller.init_distribution()
+    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), GDiceHyper(alpha=1.0))
+    act = np.asarray(new.action_probs)
+    # hand counts over the three kept elites (alpha = 1: the MLE itself)
+    expected_actions = np.array(
+        [
+            [[2 / 3, 0, 1 / 3], [0, 2 / 3, 1 / 3], [0, 1, 0]],  # agent 0, nodes 0..2
+            [[1 / 3, 2 / 3, 0], [1 / 3, 2 / 3, 0], [1, 0, 0]],  # agent 1 (2 actions)
+        ]
+    )
+    np.testing.assert_allclose(act, expected_actions, atol=1e-6)
+    trans = np.asarray(new.transition_probs)  # [agents, nodes, obs, next node]
+    np.testing.assert_allclose(trans[0, 0, 0], [1 / 3, 2 / 3, 0], atol=1e-6)  # elites: 1, 1, 0
+    np.testing.assert_allclose(trans[0, 0, 1], [1 / 3, 2 / 3, 0], atol=1e-6)  # 0, 1, 1
+    np.testing.assert_allclose(trans[0, 2, 0], [0, 1, 0], atol=1e-6)  # unvisited node 2: 1, 1, 1
+    np.testing.assert_allclose(trans[0, 2, 1], [1 / 3, 2 / 3, 0], atol=1e-6)  # 1, 0, 1
+    np.testing.assert_allclose(trans[1, 1, 0], [1 / 3, 2 / 3, 0], atol=1e-6)  # 0, 1, 1
+    np.testing.assert_allclose(trans[1, 2, 1], [0, 1, 0], atol=1e-6)  # 1, 1, 1
+    # every row against an independent count over the kept tables
+    for i in range(2):
+        for q in range(3):
+            counts = np.bincount(ELITE_ACTIONS[KEPT, i, q], minlength=3)
+            np.testing.assert_allclose(act[i, q], counts / counts.sum(), atol=1e-6)
+            for z in range(2):
+                counts = np.bincount(ELITE_TRANSITIONS[KEPT, i, q, z], minlength=3)
+                np.testing.assert_allclose(trans[i, q, z], counts / counts.sum(), atol=1e-6)
+    # the elite that was not kept (all of its next nodes are 2) contributed nothing
+    assert np.all(trans[..., 2] == 0)
+
+
+def test_smoothing_mixes_mle_with_old_distribution():
+    env, params = small_env()
+    algo = GDice(env, params, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
+    dist = algo.controller.init_distribution()
+    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), GDiceHyper(alpha=0.25))
+    act = np.asarray(new.action_probs)
+    # agent 1, node 2: MLE [1, 0, 0], old uniform over its 2 actions [1/2, 1/2, 0]
+    np.testing.assert_allclose(act[1, 2], [0.625, 0.375, 0.0], atol=1e-6)
+    # agent 0, node 0: MLE [2/3, 0, 1/3], old uniform over 3 actions
+    np.testing.assert_allclose(act[0, 0], 0.25 * np.array([2 / 3, 0, 1 / 3]) + 0.75 / 3, atol=1e-6)
+    np.testing.assert_allclose(act.sum(-1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(new.transition_probs).sum(-1), 1.0, atol=1e-6)
+    # nothing kept: the distribution is returned unchanged
+    same = algo.update_distribution(dist, _elites(), jnp.zeros(4, bool), GDiceHyper(alpha=0.25))
+    chex.assert_trees_all_equal(same, dist)
+
+
+def test_distributions_stay_normalised_through_smoothing_and_injection():
+    env, params = small_env(action_counts=(3, 2))
+    rate = 0.05
+    hyper = GDiceHyper(
+        alpha=0.6,
+        # std threshold so large that a full window always triggers, patience 1: injections
+        entropy=EntropyConfig(enabled=True, rate=rate, std_threshold=1e6, patience=1),
+    )
+    algo = GDice(env, params, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8), hyper)
+    step = jax.jit(algo.step)
+    state = algo.init(jax.random.key(0))
+    injections = 0
+    for i in range(10):
+        state, m = step(jax.random.key(100 + i), state)
+        d = jax.device_get(state.distribution)
+        np.testing.assert_allclose(d.action_probs.sum(-1), 1.0, atol=1e-5)
+        np.testing.assert_allclose(d.transition_probs.sum(-1), 1.0, atol=1e-5)
+        assert np.all(d.action_probs >= 0) and np.all(d.transition_probs >= 0)
+        assert np.all(d.action_probs[1, :, 2] == 0.0), "agent 1 has no action 2"
+        if bool(m.injected):
+            injections += 1
+            assert float(m.threshold) == -np.inf  # V_w restarts after an injection
+            # every allowed category holds at least rate * uniform
+            assert np.all(d.action_probs[0] >= rate / 3 - 1e-7)
+            assert np.all(d.action_probs[1, :, :2] >= rate / 2 - 1e-7)
+            assert np.all(d.transition_probs >= rate / 3 - 1e-7)
+    assert injections >= 3
+
+
+# --------------------------------------------------------------------------------------------
+# elite threshold across iterations
+
+
+class CountingGDice(GDice):
+    """G-DICE on a deterministic objective: the number of action-0 entries of the tables."""
+
+    def evaluate_samples(self, key, policies):
+        return (policies.actions == 0).sum(axis=(1, 2)).astype(jnp.float32)
+
+
+def test_elite_threshold_rises_and_freezes_updates():
+    env, params = small_env(action_counts=(3, 3))
+    elites = 4
+    algo = CountingGDice(
+        env,
+        params,
+        GDiceSettings(nodes=4, samples=16, elites=elites, eval_rollouts=2),
+        GDiceHyper(alpha=0.5),
+    )
+    step = jax.jit(algo.step)
+    sample = jax.jit(algo.sample_policies)
+    state = algo.init(jax.random.key(1))
+    thresholds, kept_counts = [], []
+    for i in range(15):
+        key = jax.random.key(1000 + i)
+        k_sample, _ = jax.random.split(key)  # as GDice.step splits its key
+        values = np.asarray(algo.evaluate_samples(None, sample(k_sample, state.distribution)))
+        prev_thr = float(state.progress.threshold)
+        prev_dist = jax.device_get(state.distribution)
+        state, m = step(key, state)
+        above = np.sort(values[values > prev_thr])[::-1][:elites]
+        assert int(m.kept) == len(above)
+        if len(above):
+            assert float(m.threshold) == above[-1] > prev_thr
+        else:  # nobody beats V_w: threshold and distributions unchanged
+            assert float(m.threshold) == prev_thr
+            chex.assert_trees_all_equal(jax.device_get(state.distribution), prev_dist)
+        thresholds.append(float(m.threshold))
+        kept_counts.append(int(m.kept))
+    assert thresholds[0] > -np.inf
+    assert np.all(np.diff(thresholds) >= 0), thresholds
+    assert len(set(thresholds)) >= 3, f"V_w should rise several times: {thresholds}"
+    assert 0 in kept_counts, f"expected an iteration where nobody beats V_w: {kept_counts}"
+    # the search concentrated on the rewarded action
+    assert float(jnp.mean(state.distribution.action_probs[..., 0])) > 0.6
+
+    # a threshold nobody can reach: no elite, no update, V_w unchanged
+    high = state.replace(progress=state.progress.replace(threshold=jnp.float32(1e9)))
+    after, m = step(jax.random.key(7), high)
+    assert int(m.kept) == 0 and float(m.threshold) == 1e9
+    chex.assert_trees_all_equal(after.distribution, high.distribution)
+
+
+# --------------------------------------------------------------------------------------------
+# compile once
+
+
+def test_step_does_not_retrace_across_iterations_and_hyper_values():
+    env, params = small_env()
+    algo = GDice(env, params, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8))
+    chex.clear_trace_counter()
+
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def step(key, state, hyper):
+        return algo.step(key, state, hyper)
+
+    state = algo.init(jax.random.key(0))
+    for i in range(8):
+        hyper = GDiceHyper(
+            alpha=jnp.float32(0.1 + 0.05 * i),
+            entropy=EntropyConfig(
+                enabled=jnp.asarray(i % 2 == 0),
+                rate=jnp.float32(0.02),
+                std_threshold=jnp.float32(0.5),
+                patience=jnp.int32(2),
+            ),
+        )
+        state, metrics = step(jax.random.key(i), state, hyper)
+    assert int(state.progress.iteration) == 8
+    assert np.isfinite(float(metrics.best_value))
+
+
+# --------------------------------------------------------------------------------------------
+# a known optimum (SPEC section 8) and the command line
+
+
+@pytest.fixture(scope="module")
+def dectiger_path() -> Path:
+    path = DPOMDP_DIR / "dectiger.dpomdp"
+    if not path.is_file():
+        pytest.skip(f"benchmark file not found at {path}")
+    return path
+
+
+def test_gdice_reaches_dectiger_h2_optimum(dectiger_path):
+    from cognet_jax.api import load_problem, make_train
+    from cognet_jax.config import load_config
+    from cognet_jax.exact import exact_value
+
+    config = load_config(
+        "gdice-dpomdp",
+        [
+            f"problem.path={str(dectiger_path)!r}",
+            "problem.horizon=2",
+            "algorithm.nodes=3",
+            "algorithm.iterations=10",
+            "algorithm.samples=50",
+            "algorithm.elites=5",
+            # With 200 rollouts the anytime best is a risky controller (exact -6.75) whose
+            # noisy mean once looked better than -4: the winner's curse of SPEC section 2.
+            "algorithm.eval_rollouts=2000",
+            "algorithm.alpha=0.3",
+        ],
+    )
+    state, metrics = jax.jit(make_train(config))(jax.random.key(0))
+    best = jax.device_get(state.best_policy)
+    value = exact_value(load_problem(config), best.actions, best.transitions, 2, 1.0)
+    assert value == pytest.approx(-4.0, abs=1e-9)
+
+
+def test_cli_names_missing_problem_path(tmp_path, capsys):
+    from cognet_jax.cli import main
+
+    code = main(["train", "gdice-dpomdp", "--no-progress", "--out", str(tmp_path / "run")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "problem.path" in err
+    code = main(
+        [
+            "train",
+            "gdice-dpomdp",
+            "--no-progress",
+            "--set",
+            f"problem.path={str(tmp_path / 'missing.dpomdp')!r}",
+            "--out",
+            str(tmp_path / "run2"),
+        ]
+    )
+    assert code == 2
+    assert "problem.path" in capsys.readouterr().err
