@@ -1,0 +1,185 @@
+"""2D static-source heatmap problem (SPEC section 7.2), as pure JAX step functions.
+
+A ``16 x 16`` scene holds the value ``exp(-(x^2 + y^2) / 50)`` in cell ``(x, y)`` (source at the
+corner ``(0, 0)``, sigma 5, peak 1). Two independent agents move one cell per step; the joint
+reward is the sum of the agents' rewards. Actions: ``0`` x+1, ``1`` x-1, ``2`` y-1, ``3`` y+1;
+after each move every coordinate is clipped to ``[2, 13]``. One step:
+
+1. reward per agent on the *pre-move* position, with ``D = x^2 + y^2``: ``D < 9`` -> +50,
+   ``9 <= D < 16`` -> +1, otherwise -1 (``near_reward`` / ``mid_reward`` / ``far_reward``);
+2. move and clip;
+3. each agent observes the ``4 x 4`` patch of rows ``x-2..x+1`` and columns ``y-2..y+1`` (the
+   agent sits at patch index ``(2, 2)``), flattened row-major: ``obs [agents, 16]``. Optional
+   noise: ``patch + obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)`` per pixel
+   **[choice]**: the SPEC's "per-pixel additive amplitude * N(mean, std)" read literally; the
+   noisy value is not clipped.
+
+Start: ``x, y`` i.i.d. uniform integers in ``{start_low, ..., start_high}`` (params, so both
+ranges share one compiled program). Thesis range ``{-1..12}`` (positions below 2 are rewarded
+unclipped at t = 0, then clipped by the first move); default ``{2..13}`` (``START_RANGES``).
+h = 4, gamma = 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from cognet_jax.envs.base import normal_from_uniform
+
+SIZE = 16
+PATCH = 4
+LOW, HIGH = 2, 13
+#: Named start ranges ``(low, high)``, both inclusive.
+START_RANGES = {"thesis": (-1, 12), "default": (2, 13)}
+ACTION_NAMES = ("x+1", "x-1", "y-1", "y+1")
+#: ``(dx, dy)`` of each action.
+MOVES = np.array([[1, 0], [-1, 0], [0, -1], [0, 1]], dtype=np.int32)
+
+
+def scene(size: int = SIZE, sigma: float = 5.0) -> np.ndarray:
+    """The heatmap ``[size, size]``: ``exp(-(x^2 + y^2) / (2 sigma^2))``, indexed ``[x, y]``."""
+    x = np.arange(size, dtype=np.float64)
+    return np.exp(-(x[:, None] ** 2 + x[None, :] ** 2) / (2.0 * sigma**2)).astype(np.float32)
+
+
+def all_patches(image: np.ndarray | None = None) -> np.ndarray:
+    """Every ``4 x 4`` stride-1 window of ``image`` (default: the scene), ``[144, 16]``, ordered by
+    the window's top-left corner ``(r, c)`` row-major. The agent at ``(x, y)`` sees the window
+    with top-left corner ``(x - 2, y - 2)``."""
+    image = scene() if image is None else np.asarray(image)
+    n = image.shape[0] - PATCH + 1
+    return np.stack(
+        [image[r : r + PATCH, c : c + PATCH].reshape(-1) for r in range(n) for c in range(n)]
+    )
+
+
+@struct.dataclass
+class HeatmapParams:
+    """Tunable numbers of the heatmap problem (a pytree)."""
+
+    start_low: jax.Array | int = START_RANGES["default"][0]
+    start_high: jax.Array | int = START_RANGES["default"][1]
+    obs_noise_std: jax.Array | float = 0.0
+    obs_noise_mean: jax.Array | float = 0.0
+    obs_noise_amplitude: jax.Array | float = 1.0
+    discount: jax.Array | float = 1.0
+    near_reward: jax.Array | float = 50.0
+    mid_reward: jax.Array | float = 1.0
+    far_reward: jax.Array | float = -1.0
+
+
+@struct.dataclass
+class HeatmapState:
+    pos: jax.Array  # [agents, 2] int32 (x, y)
+
+
+def reward_of(pos, params: HeatmapParams):
+    """Per-agent reward ``[agents]`` of positions ``pos [agents, 2]`` (pre-move)."""
+    d = jnp.sum(pos.astype(jnp.int32) ** 2, axis=-1)
+    return jnp.where(
+        d < 9, params.near_reward, jnp.where(d < 16, params.mid_reward, params.far_reward)
+    ).astype(jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Heatmap:
+    """Static description of the heatmap problem (see module docstring)."""
+
+    horizon: int = 4
+    num_agents: int = 2
+
+    num_actions: int = 4
+    obs_shape: tuple[int, ...] = (PATCH * PATCH,)
+    num_obs: int | None = None
+    obs_range: tuple[float, float] | None = None
+    action_names: tuple[str, ...] = ACTION_NAMES
+
+    @property
+    def action_counts(self) -> tuple[int, ...]:
+        return (self.num_actions,) * self.num_agents
+
+    @property
+    def reset_noise(self) -> int:
+        return 2 * self.num_agents
+
+    @property
+    def step_noise(self) -> int:
+        """One normal draw per observed pixel: ``agents * 16``."""
+        return self.num_agents * PATCH * PATCH
+
+    def default_params(self) -> HeatmapParams:
+        return HeatmapParams()
+
+    def reset(self, u: jax.Array, params: HeatmapParams) -> HeatmapState:
+        """``u [2 agents]``: uniform x then y of each agent, mapped to integers in the start
+        range."""
+        lo = jnp.asarray(params.start_low, jnp.int32)
+        width = jnp.asarray(params.start_high, jnp.int32) - lo + 1
+        cells = jnp.minimum(jnp.floor(u * width).astype(jnp.int32), width - 1) + lo
+        return HeatmapState(pos=cells.reshape(self.num_agents, 2))
+
+    def observe(self, pos: jax.Array, u: jax.Array, params: HeatmapParams) -> jax.Array:
+        """Patches ``[agents, 16]`` at (clipped) positions ``pos [agents, 2]``; ``u
+        [agents * 16]`` drives the noise."""
+        image = jnp.asarray(scene())
+
+        def patch(p):
+            return jax.lax.dynamic_slice(image, (p[0] - 2, p[1] - 2), (PATCH, PATCH)).reshape(-1)
+
+        clean = jax.vmap(patch)(pos)
+        normal = normal_from_uniform(u).reshape(clean.shape)
+        noise = params.obs_noise_amplitude * (params.obs_noise_mean + params.obs_noise_std * normal)
+        return clean + noise
+
+    def step(
+        self, u: jax.Array, state: HeatmapState, actions: jax.Array, params: HeatmapParams
+    ) -> tuple[HeatmapState, jax.Array, jax.Array]:
+        """One step; ``u [agents * 16]`` drive the observation noise. Returns
+        ``(next_state, obs [agents, 16] float32, joint reward [])``."""
+        reward = jnp.sum(reward_of(state.pos, params))
+        pos = jnp.clip(state.pos + jnp.asarray(MOVES)[actions], LOW, HIGH)
+        obs = self.observe(pos, u, params)
+        return HeatmapState(pos=pos), obs, reward
+
+
+def make_heatmap(
+    start: str = "default", horizon: int = 4, **overrides
+) -> tuple[Heatmap, HeatmapParams]:
+    """The env and params for a named start range (``"thesis"`` or ``"default"``);
+    ``overrides`` set params fields."""
+    if start not in START_RANGES:
+        raise ValueError(f"unknown start range {start!r}; choose from {sorted(START_RANGES)}")
+    lo, hi = START_RANGES[start]
+    params = HeatmapParams(start_low=lo, start_high=hi).replace(**overrides)
+    return Heatmap(horizon=horizon), params
+
+
+def full_knowledge_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
+    """Best expected return with full knowledge of each agent's own position: backward dynamic
+    programming over the (x, y) grid for one agent, averaged over the uniform start range, times
+    the number of agents (agents are independent; the joint reward is a sum). Plain numpy."""
+    lo, hi = START_RANGES[start]
+    coords = np.arange(lo, HIGH + 1)  # every position reachable or startable
+
+    def r(x, y):
+        d = x * x + y * y
+        return 50.0 if d < 9 else (1.0 if d < 16 else -1.0)
+
+    value = {(x, y): 0.0 for x in coords for y in coords}
+    for _ in range(horizon):
+        new = {}
+        for x in coords:
+            for y in coords:
+                best = -np.inf
+                for dx, dy in MOVES:
+                    nx, ny = min(max(x + dx, LOW), HIGH), min(max(y + dy, LOW), HIGH)
+                    best = max(best, value[(nx, ny)])
+                new[(x, y)] = r(x, y) + best
+        value = new
+    starts = [(x, y) for x in range(lo, hi + 1) for y in range(lo, hi + 1)]
+    return num_agents * float(np.mean([value[s] for s in starts]))
