@@ -2,6 +2,7 @@
 
 cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
+cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
 cognet-jax list
 """
 
@@ -54,6 +55,17 @@ def _parser() -> argparse.ArgumentParser:
         help="change the evaluation setting (e.g. env.obs_noise=0.1)",
     )
 
+    v = sub.add_parser("vae", help="patch VAE for heatmap observations (SPEC section 6)")
+    vsub = v.add_subparsers(dest="vae_command", required=True)
+    vt = vsub.add_parser(
+        "train", help="train the patch VAE; writes vae.msgpack, vae.json, vae_mu.png"
+    )
+    vt.add_argument("--out", default="runs/vae", help="output folder (default runs/vae)")
+    vt.add_argument("--seed", type=int, default=0)
+    vt.add_argument("--epochs", type=int, default=60)
+    vt.add_argument("--no-noise", action="store_true", help="train on the 144 clean patches only")
+    vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
     sub.add_parser("list", help="list the built-in experiments")
     return p
 
@@ -94,6 +106,45 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _vae(args) -> int:
+    from tqdm.auto import tqdm
+
+    from cognet_jax.vae import diagnostics, plot_mu, save_vae, train_vae
+
+    if args.epochs < 1:
+        raise SystemExit("error: --epochs must be >= 1")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with tqdm(total=args.epochs, disable=args.no_progress, desc="vae", unit="epoch") as bar:
+
+        def progress(epoch, loss):
+            bar.set_postfix(loss=f"{loss:.3f}")
+            bar.update(1)
+
+        vae, losses = train_vae(
+            seed=args.seed, epochs=args.epochs, noisy=not args.no_noise, progress=progress
+        )
+    info = diagnostics(vae)
+    info.update(
+        seed=args.seed,
+        epochs=args.epochs,
+        noisy=not args.no_noise,
+        losses=losses.tolist(),
+        wall_s=time.perf_counter() - t0,
+    )
+    save_vae(out / "vae.msgpack", vae)
+    (out / "vae.json").write_text(json.dumps(info, indent=1))
+    plot_mu(vae, out / "vae_mu.png")
+    print(
+        f"vae: final loss {losses[-1]:.3f}; Spearman(mu, distance) "
+        f"{info['spearman_mu_distance']:.4f}; mu {info['mu_source_corner']:.2f} at (2, 2) .. "
+        f"{info['mu_far_corner']:.2f} at (13, 13); reconstruction MAE {info['recon_mae']:.4f}"
+    )
+    print(f"wrote {out}/vae.msgpack, vae.json, vae_mu.png")
+    return 0
+
+
 def _list(args) -> int:
     from cognet_jax.config import builtin_experiments, read_experiment
 
@@ -108,7 +159,9 @@ def main(argv: list[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"train": _train, "evaluate": _evaluate, "list": _list}[args.command](args)
+        return {"train": _train, "evaluate": _evaluate, "vae": _vae, "list": _list}[args.command](
+            args
+        )
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

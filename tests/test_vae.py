@@ -1,0 +1,66 @@
+"""Patch VAE: mu monotonic in the distance from the source, reconstructions, save/load, CLI."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax.vae import (
+    diagnostics,
+    load_vae,
+    reachable_patches,
+    reachable_positions,
+    save_vae,
+    spearman,
+    train_vae,
+    training_patches,
+)
+
+
+@pytest.fixture(scope="module")
+def vae():
+    return train_vae(seed=0, epochs=60)[0]
+
+
+def test_training_data_sizes():
+    x, t = training_patches(noisy=True)
+    assert x.shape == (144 * 13, 16) and t.min() >= 0 and t.max() <= 1
+    assert training_patches(noisy=False)[0].shape == (144, 16)
+
+
+def test_spearman_helper():
+    assert spearman([1, 2, 3, 4], [10, 20, 30, 40]) == pytest.approx(1.0)
+    assert spearman([1, 2, 3, 4], [4, 3, 2, 1]) == pytest.approx(-1.0)
+
+
+def test_mu_monotonic_in_distance_and_reconstruction(vae):
+    info = diagnostics(vae)
+    # mu increases with the distance from the source over the 144 reachable positions
+    assert info["spearman_mu_distance"] >= 0.95, info
+    assert info["mu_source_corner"] < info["mu_far_corner"]
+    # stated bound: mean absolute pixel error of the reconstruction from mu < 0.05, worst < 0.25
+    assert info["recon_mae"] < 0.05, info
+    assert info["recon_max_abs"] < 0.25, info
+    mu = np.asarray(vae.encode(jnp.asarray(reachable_patches()))[0])[:, 0]
+    assert mu.shape == (144,)
+    assert reachable_positions().shape == (144, 2)
+
+
+def test_save_load_roundtrip_and_sample(vae, tmp_path):
+    save_vae(tmp_path / "v.msgpack", vae)
+    again = load_vae(tmp_path / "v.msgpack")
+    x = jnp.asarray(reachable_patches()[:5])
+    for a, b in zip(vae.encode(x), again.encode(x)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+    samples = again.sample(jax.random.key(0), 7)
+    assert samples.shape == (7, 16) and float(samples.min()) > 0 and float(samples.max()) < 1
+    z = again.sample_latent(jax.random.key(1), x)
+    assert z.shape == (5, 1)
+
+
+def test_vae_training_is_deterministic():
+    a, la = train_vae(seed=3, epochs=2)
+    b, lb = train_vae(seed=3, epochs=2)
+    np.testing.assert_array_equal(la, lb)
+    x = jnp.asarray(reachable_patches())
+    np.testing.assert_array_equal(np.asarray(a.encode(x)[0]), np.asarray(b.encode(x)[0]))
