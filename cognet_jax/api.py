@@ -17,6 +17,7 @@ from __future__ import annotations
 import jax
 
 from cognet_jax.config import (
+    CogDiceAlgorithmSection,
     CognetAlgorithmSection,
     Config,
     DpomdpEnvSection,
@@ -36,7 +37,15 @@ def build_env(config: Config):
             overrides["discount"] = e.discount
         if e.respawn is not None:
             overrides["respawn"] = e.respawn
-        return make_tagging(e.setting, horizon=e.horizon, obs_division=e.obs_division, **overrides)
+        # G-DICE's tabular controllers read the discretised observation as an index
+        obs_index = isinstance(config.algorithm, GDiceAlgorithmSection) and e.obs_division > 0
+        return make_tagging(
+            e.setting,
+            horizon=e.horizon,
+            obs_division=e.obs_division,
+            obs_index=obs_index,
+            **overrides,
+        )
     if isinstance(e, DpomdpEnvSection):
         from cognet_jax.envs.tabular import make_tabular
 
@@ -118,6 +127,32 @@ def build_algorithm(config: Config, env=None, env_params=None):
             ),
         )
         return GDice(env, env_params, settings, hyper)
+    if isinstance(a, CogDiceAlgorithmSection):
+        from cognet_jax.algorithms.cogdice import CogDice, CogDiceHyper, CogDiceSettings
+        from cognet_jax.algorithms.cross_entropy import EntropyConfig
+
+        settings = CogDiceSettings(
+            nodes=a.nodes,
+            regions=a.regions,
+            iterations=a.iterations,
+            samples=a.samples,
+            elites=a.elites,
+            eval_rollouts=a.eval_rollouts,
+            common_random_numbers=a.common_random_numbers,
+            entropy_window=a.entropy_window,
+            beta_eps=a.beta_eps,
+            min_denominator=a.min_denominator,
+        )
+        hyper = CogDiceHyper(
+            alpha=a.alpha,
+            entropy=EntropyConfig(
+                enabled=a.entropy_injection,
+                rate=a.entropy_rate,
+                std_threshold=a.entropy_std,
+                patience=a.entropy_patience,
+            ),
+        )
+        return CogDice(env, env_params, settings, hyper)
     raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
 
 

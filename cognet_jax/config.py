@@ -108,6 +108,28 @@ class GDiceAlgorithmSection:
 
 
 @dataclasses.dataclass
+class CogDiceAlgorithmSection:
+    """COG-DICE (SPEC 4): N_n nodes, N_t regions, iterations, N_s samples, N_b elites, N_sim
+    rollouts; Beta fit clamp ``beta_eps`` and denominator floor ``min_denominator``."""
+
+    nodes: int = 3
+    regions: int = 3
+    iterations: int = 500
+    samples: int = 2000
+    elites: int = 50
+    eval_rollouts: int = 1000
+    alpha: float = 0.1
+    common_random_numbers: bool = True
+    beta_eps: float = 1e-6
+    min_denominator: float = 1e-6
+    entropy_injection: bool = False
+    entropy_rate: float = 0.02
+    entropy_std: float = 0.5
+    entropy_window: int = 4
+    entropy_patience: int = 5
+
+
+@dataclasses.dataclass
 class NetworkSection:
     """Node networks of COGNet-DICE."""
 
@@ -137,6 +159,7 @@ ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpE
 ALGORITHM_SECTIONS: dict[str, type] = {
     "cognet-dice": CognetAlgorithmSection,
     "gdice": GDiceAlgorithmSection,
+    "cogdice": CogDiceAlgorithmSection,
 }
 
 
@@ -408,7 +431,47 @@ def validate(config: Config) -> None:
         _require(
             isinstance(env, DpomdpEnvSection) or getattr(env, "obs_division", 0) > 0,
             "env.name",
-            "G-DICE needs discrete observations: a .dpomdp problem",
+            "G-DICE needs discrete observations: a .dpomdp problem, or tagging with "
+            "env.obs_division > 0",
+        )
+    if isinstance(alg, CogDiceAlgorithmSection):
+        _positive(
+            alg,
+            "algorithm",
+            "nodes",
+            "iterations",
+            "samples",
+            "elites",
+            "eval_rollouts",
+            "entropy_window",
+            "entropy_patience",
+        )
+        _require(
+            alg.regions >= 2,
+            "algorithm.regions",
+            f"needs >= 2 regions (at least one division point), got {alg.regions}",
+        )
+        _require(
+            alg.elites <= alg.samples,
+            "algorithm.elites",
+            f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
+        )
+        _probability(alg, "algorithm", "alpha", "entropy_rate")
+        _require(alg.entropy_std >= 0, "algorithm.entropy_std", "must be >= 0")
+        _require(
+            0.0 < alg.beta_eps < 0.5,
+            "algorithm.beta_eps",
+            f"must be in (0, 0.5), got {alg.beta_eps}",
+        )
+        _require(
+            0.0 < alg.min_denominator < 1.0,
+            "algorithm.min_denominator",
+            f"must be in (0, 1), got {alg.min_denominator}",
+        )
+        _require(
+            isinstance(env, TaggingEnvSection),
+            "env.name",
+            "COG-DICE needs a scalar continuous observation: the tagging environment",
         )
     _positive(config.evaluation, "evaluation", "rollouts", "batch")
     _require(config.evaluation.rollouts >= 2, "evaluation.rollouts", "needs >= 2 for a std error")

@@ -43,6 +43,9 @@ def _observation_names(config, env) -> list[list[str]]:
         from cognet_jax.api import load_problem
 
         return [list(n) for n in load_problem(config).observation_names]
+    values = getattr(env, "observation_values", None)
+    if values is not None:  # discretised tagging: index k stands for a value
+        return [[f"{v:g}" for v in values] for _ in range(env.num_agents)]
     return [[str(z) for z in range(env.num_obs)] for _ in range(env.num_agents)]
 
 
@@ -70,6 +73,19 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
             reference=references_for(config),
         )
     ]
+    if hasattr(policy, "points"):  # deterministic region controller (COG-DICE)
+        from cognet_jax.algorithms.cogdice import region_graph_edges
+
+        edges = [
+            region_graph_edges(np.asarray(policy.points[i]), np.asarray(policy.transitions[i]))
+            for i in range(env.num_agents)
+        ]
+        written.append(
+            plots.plot_controller_graphs(
+                np.asarray(policy.actions), edges, names, out_dir / "controllers.png", title=title
+            )
+        )
+        return [Path(p) for p in written]
     if hasattr(policy, "transitions") and policy.transitions.ndim == 3:  # deterministic tabular
         actions = np.asarray(policy.actions)
         action_probs = np.eye(env.num_actions)[actions]

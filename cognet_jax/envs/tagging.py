@@ -17,6 +17,14 @@ truncate toward zero to a multiple of ``obs_division``; a division below 1 (e.g.
 multiple of the division instead. The discretisation is static because it changes which
 controllers apply.
 
+``obs_index = True`` (with ``obs_division > 0``; what G-DICE's tabular controllers need) makes
+``step`` return the *index* of the discretised observation instead of its value:
+``obs [agents]`` int32 in ``0 .. num_obs - 1``, index k standing for the value
+``observation_values[k] = (k - K) * obs_division`` with ``K = floor(length / obs_division)``, so
+``num_obs = 2 K + 1`` (d = 0.5 / 1 / 2 / 4 on length 10: 41 / 21 / 11 / 5 observations).
+Noise-free observations always lie in ``[-length, length]``; **[choice]** with observation noise
+a value beyond the range is clipped to the first / last index.
+
 Two standard settings (``SETTINGS``): ``thesis`` (h 3, gamma 1, no respawn) and
 ``cogdice-paper`` (h 150, gamma 0.9, respawn).
 """
@@ -24,6 +32,7 @@ Two standard settings (``SETTINGS``): ``thesis`` (h 3, gamma 1, no respawn) and
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -70,6 +79,7 @@ class Tagging:
     num_agents: int = 2
     length: float = 10.0
     obs_division: float = 0.0
+    obs_index: bool = False
 
     num_actions: int = 3
     obs_shape: tuple[int, ...] = ()
@@ -80,9 +90,29 @@ class Tagging:
     def action_counts(self) -> tuple[int, ...]:
         return (self.num_actions,) * self.num_agents
 
+    def __post_init__(self):
+        if self.obs_index:
+            if self.obs_division <= 0:
+                raise ValueError("obs_index needs obs_division > 0")
+            object.__setattr__(self, "num_obs", 2 * self._half_count + 1)
+
     @property
-    def obs_range(self) -> tuple[float, float]:
-        return (-self.length, self.length)
+    def _half_count(self) -> int:
+        """K: the largest k with k * obs_division <= length (small tolerance for rounding)."""
+        return int(math.floor(self.length / self.obs_division + 1e-9))
+
+    @property
+    def observation_values(self) -> tuple[float, ...] | None:
+        """Value of each observation index (``obs_index`` only, else ``None``)."""
+        if not self.obs_index:
+            return None
+        k = self._half_count
+        return tuple((i - k) * self.obs_division for i in range(2 * k + 1))
+
+    @property
+    def obs_range(self) -> tuple[float, float] | None:
+        """Range of the scalar observation; ``None`` for index observations."""
+        return None if self.obs_index else (-self.length, self.length)
 
     @property
     def reset_noise(self) -> int:
@@ -127,6 +157,8 @@ class Tagging:
         e_next = jnp.where(do_respawn, respawned.evader, e_next)
         obs = e_next - p_next + params.obs_noise * normal_from_uniform(u_obs)
         obs = discretise(obs, self.obs_division)
+        if self.obs_index:
+            obs = observation_index(obs, self.obs_division, self._half_count)
         return TaggingState(taggers=p_next, evader=e_next), obs, reward
 
 
@@ -139,14 +171,26 @@ def discretise(obs: jax.Array, division: float) -> jax.Array:
     return jnp.trunc(jnp.round(obs) / division) * division
 
 
+def observation_index(obs: jax.Array, division: float, half_count: int) -> jax.Array:
+    """Index ``round(obs / division) + half_count`` of a discretised observation, clipped to
+    ``0 .. 2 half_count`` (int32, same shape as ``obs``)."""
+    k = jnp.round(obs / division).astype(jnp.int32) + half_count
+    return jnp.clip(k, 0, 2 * half_count)
+
+
 def make_tagging(
-    setting: str = "thesis", horizon: int | None = None, obs_division: float = 0.0, **overrides
+    setting: str = "thesis",
+    horizon: int | None = None,
+    obs_division: float = 0.0,
+    obs_index: bool = False,
+    **overrides,
 ) -> tuple[Tagging, TaggingParams]:
-    """Build the env and its params for a named setting; ``overrides`` set params fields."""
+    """Build the env and its params for a named setting; ``overrides`` set params fields;
+    ``obs_index`` returns discretised observations as indices (see the module docstring)."""
     if setting not in SETTINGS:
         raise ValueError(f"unknown tagging setting {setting!r}; choose from {sorted(SETTINGS)}")
     s = SETTINGS[setting]
-    env = Tagging(horizon=horizon or s["horizon"], obs_division=obs_division)
+    env = Tagging(horizon=horizon or s["horizon"], obs_division=obs_division, obs_index=obs_index)
     params = TaggingParams(discount=s["discount"], respawn=s["respawn"])
     params = params.replace(**overrides)
     return env, params
