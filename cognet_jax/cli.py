@@ -1,6 +1,7 @@
 """The ``cognet-jax`` command.
 
 cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
+                 [--checkpoint-every K] [--resume DIR]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
 cognet-jax list
@@ -39,6 +40,19 @@ def _parser() -> argparse.ArgumentParser:
         help="override a config field; repeatable",
     )
     t.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    t.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        metavar="K",
+        help="write the full search state every K iterations (run.checkpoint_every)",
+    )
+    t.add_argument(
+        "--resume",
+        metavar="DIR",
+        default=None,
+        help="continue the interrupted run in DIR from its checkpoint (config and seed from it)",
+    )
 
     e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
     e.add_argument("run_dir")
@@ -70,15 +84,30 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _run_overrides(args) -> list[str]:
+    extra = []
+    if args.no_progress:
+        extra.append("run.progress=false")
+    if args.checkpoint_every is not None:
+        extra.append(f"run.checkpoint_every={args.checkpoint_every}")
+    return extra
+
+
 def _train(args) -> int:
     from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.runner import Interrupted, resume_target, run_training
 
-    config = load_config(args.experiment, args.overrides)
-    out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
-    if args.no_progress:
-        config.run.progress = False
-    run_training(config, args.seed, out)
+    try:
+        if args.resume:
+            config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
+            run_training(config, seed, Path(args.resume), resume=True)
+            return 0
+        config = load_config(args.experiment, args.overrides + _run_overrides(args))
+        out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
+        run_training(config, args.seed, out)
+    except Interrupted as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -150,9 +150,13 @@ class EvaluationSection:
 
 @dataclasses.dataclass
 class RunSection:
+    """How a run is driven. ``checkpoint_every``: write the full search state every K
+    iterations (0: only at the end and on Ctrl-C)."""
+
     prng_impl: str = "threefry2x32"
     progress: bool = True
     plots: bool = True
+    checkpoint_every: int = 0
 
 
 ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpEnvSection}
@@ -475,6 +479,11 @@ def validate(config: Config) -> None:
         )
     _positive(config.evaluation, "evaluation", "rollouts", "batch")
     _require(config.evaluation.rollouts >= 2, "evaluation.rollouts", "needs >= 2 for a std error")
+    _require(
+        config.run.checkpoint_every >= 0,
+        "run.checkpoint_every",
+        f"must be >= 0, got {config.run.checkpoint_every}",
+    )
     _require(
         config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg"),
         "run.prng_impl",

@@ -13,7 +13,10 @@ Files written to ``out_dir``:
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -70,9 +73,10 @@ def exact_evaluation(config: Config, policy) -> dict | None:
 
 
 def save_policy(path: Path, policy) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_bytes(serialization.to_bytes(jax.device_get(policy)))
-    tmp.replace(path)
+    """Write ``policy`` (Flax msgpack) atomically."""
+    from cognet_jax.checkpoint import atomic_write_bytes
+
+    atomic_write_bytes(path, serialization.to_bytes(jax.device_get(policy)))
 
 
 def load_policy(run_dir: str | Path, overrides: list[str] | None = None):
@@ -98,33 +102,162 @@ def _json_ready(x):
     return arr.tolist()
 
 
+class Interrupted(Exception):
+    """A run stopped by SIGINT after writing its best policy and a checkpoint."""
+
+    def __init__(self, out_dir: Path, iteration: int, iterations: int):
+        self.out_dir, self.iteration = Path(out_dir), iteration
+        super().__init__(
+            f"interrupted at iteration {iteration}/{iterations}: best policy and checkpoint "
+            f"written to {out_dir}; continue with --resume {out_dir}"
+        )
+
+
+@contextlib.contextmanager
+def sigint_guard():
+    """Inside the block the first SIGINT (Ctrl-C) only sets ``flag["stop"]``, so the loop can
+    finish the current iteration and write a checkpoint; a second SIGINT raises
+    ``KeyboardInterrupt`` at once (abandoning the iteration). No-op outside the main thread."""
+    flag = {"stop": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum, frame):
+        flag["stop"] = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _train_meta(config: Config, seed: int) -> dict:
+    return {"kind": "train", "config": config.to_dict(), "seed": seed}
+
+
+def resume_target(run_dir: str | Path, overrides: list[str] | None = None):
+    """``(config, seed)`` stored in the checkpoint of ``run_dir``. ``overrides`` may only
+    touch the ``run`` section (progress, plots, checkpoint_every)."""
+    from cognet_jax.checkpoint import CHECKPOINT_NAME, read_checkpoint
+    from cognet_jax.config import ConfigError, apply_overrides, parse_override
+
+    for text in overrides or []:
+        (section, _), _ = parse_override(text)
+        if section != "run":
+            raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
+    raw = read_checkpoint(Path(run_dir) / CHECKPOINT_NAME)
+    meta = raw["meta"]
+    if meta.get("kind") != "train":
+        raise ConfigError("", f"{run_dir} holds a {meta.get('kind')} checkpoint, not a train run")
+    return config_from_dict(apply_overrides(meta["config"], overrides or [])), int(meta["seed"])
+
+
 def run_training(
-    config: Config, seed: int, out_dir: str | Path, progress: bool | None = None, log=print
+    config: Config,
+    seed: int,
+    out_dir: str | Path,
+    progress: bool | None = None,
+    log=print,
+    resume: bool = False,
 ) -> dict:
-    """Run the search of ``config`` with ``seed``; write outputs to ``out_dir``; return results."""
+    """Run the search of ``config`` with ``seed``; write outputs to ``out_dir``; return results.
+
+    Every ``run.checkpoint_every`` iterations (0: never), at the end and on SIGINT the full
+    search state is written atomically to ``out_dir/checkpoint.msgpack``; on SIGINT the best
+    policy so far is written too and ``Interrupted`` is raised. ``resume=True`` continues from
+    that checkpoint: the remaining iterations use the same compiled step and the same
+    ``fold_in(run_key, iteration)`` keys, so the results are bit-identical to an uninterrupted
+    run."""
+    from cognet_jax.checkpoint import (
+        CHECKPOINT_NAME,
+        atomic_write_text,
+        read_checkpoint,
+        restore_history,
+        restore_key,
+        restore_state,
+        save_checkpoint,
+        stack_history,
+    )
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = config.run.progress if progress is None else progress
     iterations = config.algorithm.iterations
+    every = config.run.checkpoint_every
+    ckpt_path = out_dir / CHECKPOINT_NAME
     t_start = time.perf_counter()
 
     algorithm, init, step = make_step(config)
     k_init, k_run, k_eval = split_seed_key(seed_key(config, seed))
     state = jax.jit(init)(k_init)
+    history = []
+    start = 0
+    if resume:
+        raw = read_checkpoint(ckpt_path)
+        stored_config = dict(raw["meta"].get("config", {}), run=None)
+        if raw["meta"].get("seed") != seed or stored_config != dict(config.to_dict(), run=None):
+            raise ValueError(f"{ckpt_path} was written by another config or seed")
+        stored = restore_key(raw, "run", config.run.prng_impl)
+        if not np.array_equal(jax.random.key_data(stored), jax.random.key_data(k_run)):
+            raise ValueError(f"{ckpt_path}: stored run key does not match seed {seed}")
+        state = jax.tree.map(jnp.asarray, restore_state(state, raw))
+        history = restore_history(jax.eval_shape(step, k_run, state)[1], raw)
+        start = int(raw["iteration"])
+        log(f"resuming {config.experiment.name} seed {seed} at iteration {start}/{iterations}")
     t0 = time.perf_counter()
     compiled = jax.jit(step, donate_argnums=(1,)).lower(k_run, state).compile()
     compile_s = time.perf_counter() - t0
 
-    history = []
+    def checkpoint(i):
+        save_checkpoint(
+            ckpt_path,
+            state=state,
+            keys={"init": k_init, "run": k_run, "eval": k_eval},
+            iteration=i,
+            history=stack_history(history),
+            meta=_train_meta(config, seed),
+        )
+
     t_loop = time.perf_counter()
-    with _progress_bar(iterations, progress, config.experiment.name) as bar:
-        for i in range(iterations):
+    i = start
+    with (
+        sigint_guard() as sigint,
+        _progress_bar(iterations, progress, config.experiment.name) as bar,
+    ):
+        bar.update(start)
+        while i < iterations and not sigint["stop"]:
             state, metrics = compiled(k_run, state)
             history.append(metrics)
-            if progress and (i % 10 == 9 or i == iterations - 1):
+            i += 1
+            if every and i % every == 0 and i < iterations:
+                checkpoint(i)
+            if progress and (i % 10 == 0 or i == iterations):
                 m = jax.device_get(metrics)
                 bar.set_postfix(value=f"{float(m.value):.2f}", best=f"{float(m.best_value):.2f}")
-                bar.update(i + 1 - bar.n)
+                bar.update(i - bar.n)
+        if i < iterations:  # SIGINT: keep what we have
+            checkpoint(i)
+            save_policy(out_dir / "policy.msgpack", algorithm.best_policy(state))
+            atomic_write_text(
+                out_dir / "results.json",
+                json.dumps(
+                    {
+                        "experiment": config.experiment.name,
+                        "algorithm": config.experiment.algorithm,
+                        "seed": seed,
+                        "config": config.to_dict(),
+                        "status": "interrupted",
+                        "iteration": i,
+                        "final_value": None,
+                    },
+                    indent=1,
+                ),
+            )
+            raise Interrupted(out_dir, i, iterations)
+    checkpoint(i)
     history = jax.device_get(jax.tree.map(lambda *xs: jnp.stack(xs), *history))
     loop_s = time.perf_counter() - t_loop
 
@@ -143,6 +276,8 @@ def run_training(
         "algorithm": config.experiment.algorithm,
         "seed": seed,
         "config": config.to_dict(),
+        "status": "complete",
+        "resumed_from_iteration": start if resume else None,
         "final_value": final,
         "in_loop_best": float(history.best_value[-1]),
         "iterations": iterations,
@@ -157,7 +292,7 @@ def run_training(
         "jax_version": jax.__version__,
         "backend": jax.default_backend(),
     }
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1))
+    atomic_write_text(out_dir / "results.json", json.dumps(results, indent=1))
     if config.run.plots:
         from cognet_jax.reporting import write_plots
 

@@ -1,0 +1,146 @@
+"""Checkpoint and resume: SIGINT and SIGKILL a training subprocess mid-run, then resume and
+compare with an uninterrupted run bit for bit."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
+from cognet_jax.config import ConfigError, load_config
+from cognet_jax.runner import resume_target, run_training
+
+ROOT = Path(__file__).resolve().parents[1]
+ITERATIONS = 400
+TINY = [
+    f"algorithm.iterations={ITERATIONS}",
+    "algorithm.rollouts=40",
+    "algorithm.top=8",
+    "algorithm.keep=3",
+    "algorithm.eval_rollouts=8",
+    "network.train_steps=2",
+    "evaluation.rollouts=200",
+    "evaluation.batch=200",
+    "run.plots=false",
+    "run.progress=false",
+]
+
+
+def _env():
+    env = dict(os.environ)
+    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
+    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+    env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
+    env["PYTHONPATH"] = str(ROOT)
+    return env
+
+
+def _start(out: Path, extra=()):
+    args = [sys.executable, "-m", "cognet_jax", "train", "--seed", "3", "--out", str(out)]
+    for o in TINY:
+        args += ["--set", o]
+    args += ["--checkpoint-every", "10", *extra]
+    return subprocess.Popen(
+        args, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def _wait_for_checkpoint(proc, path: Path, timeout=240.0):
+    t0 = time.time()
+    while not path.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() - t0 < timeout, "no checkpoint appeared"
+        time.sleep(0.02)
+
+
+def _same_results(a: dict, b: dict, dir_a: Path, dir_b: Path):
+    for k in ("values_per_iteration", "best_per_iteration", "threshold_per_iteration"):
+        assert a[k] == b[k], k
+    assert a["final_value"] == b["final_value"]
+    assert (dir_a / "policy.msgpack").read_bytes() == (dir_b / "policy.msgpack").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref")
+    config = load_config("tagging-thesis-n3", TINY)
+    return run_training(config, 3, out, log=lambda *_: None), out
+
+
+def test_sigint_writes_policy_and_checkpoint_then_resume_is_identical(reference, tmp_path):
+    ref, ref_dir = reference
+    proc = _start(tmp_path)
+    _wait_for_checkpoint(proc, tmp_path / CHECKPOINT_NAME)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted at iteration" in err and "--resume" in err
+    assert (tmp_path / "policy.msgpack").exists()
+    raw = read_checkpoint(tmp_path / CHECKPOINT_NAME)
+    assert 10 <= raw["iteration"] < ITERATIONS
+    partial = json.loads((tmp_path / "results.json").read_text())
+    assert partial["status"] == "interrupted" and partial["iteration"] == raw["iteration"]
+    # the interrupted run's history so far equals the reference's prefix
+    stored = np.asarray(raw["history"]["value"])
+    assert np.array_equal(stored, np.float32(ref["values_per_iteration"][: raw["iteration"]]))
+
+    config, seed = resume_target(tmp_path)
+    assert seed == 3
+    resumed = run_training(config, seed, tmp_path, resume=True, log=lambda *_: None)
+    assert resumed["resumed_from_iteration"] == raw["iteration"]
+    _same_results(ref, resumed, ref_dir, tmp_path)
+
+
+def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, tmp_path):
+    ref, ref_dir = reference
+    proc = _start(tmp_path)
+    ckpt = tmp_path / CHECKPOINT_NAME
+    _wait_for_checkpoint(proc, ckpt)
+    first = read_checkpoint(ckpt)["iteration"]
+    # let it write a few more checkpoints, then kill it without warning
+    t0 = time.time()
+    while read_checkpoint(ckpt)["iteration"] < first + 20 and time.time() - t0 < 60:
+        assert proc.poll() is None
+        time.sleep(0.01)
+    proc.kill()
+    proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    raw = read_checkpoint(ckpt)  # intact: parses, and its history is the reference's prefix
+    n = raw["iteration"]
+    assert n % 10 == 0 and 10 <= n < ITERATIONS
+    assert np.array_equal(
+        np.asarray(raw["history"]["value"]), np.float32(ref["values_per_iteration"][:n])
+    )
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+    assert len(leftovers) <= 1  # at most the temp file the kill interrupted
+
+    # resume through the command line
+    res = subprocess.run(
+        [sys.executable, "-m", "cognet_jax", "train", "--resume", str(tmp_path), "--no-progress"],
+        cwd=ROOT,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    assert f"at iteration {n}/{ITERATIONS}" in res.stdout
+    resumed = json.loads((tmp_path / "results.json").read_text())
+    _same_results(ref, resumed, ref_dir, tmp_path)
+
+
+def test_resume_refuses_changes_outside_run_section(tmp_path):
+    atomic_write_bytes(tmp_path / "x.bin", b"abc")
+    assert (tmp_path / "x.bin").read_bytes() == b"abc"
+    with pytest.raises(ConfigError) as err:
+        resume_target(tmp_path, ["algorithm.nodes=4"])
+    assert err.value.field == "algorithm.nodes"
+    with pytest.raises(FileNotFoundError):
+        resume_target(tmp_path, ["run.plots=false"])
