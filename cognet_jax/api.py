@@ -116,7 +116,10 @@ def build_algorithm(config: Config, env=None, env_params=None):
             eval_rollouts=a.eval_rollouts,
             common_random_numbers=a.common_random_numbers,
             entropy_window=a.entropy_window,
+            evaluator=a.evaluator,
         )
+        if a.evaluator == "exact":
+            _check_exact_cost(env, a)
         hyper = GDiceHyper(
             alpha=a.alpha,
             entropy=EntropyConfig(
@@ -154,6 +157,24 @@ def build_algorithm(config: Config, env=None, env_params=None):
         )
         return CogDice(env, env_params, settings, hyper)
     raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
+
+
+#: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).
+EXACT_EVALUATOR_LIMIT = 2_000_000_000
+
+
+def _check_exact_cost(env, a) -> None:
+    from cognet_jax.config import ConfigError
+    from cognet_jax.exact_jax import exact_cost
+
+    cost = exact_cost(env, a.nodes) * a.samples
+    if cost > EXACT_EVALUATOR_LIMIT:
+        raise ConfigError(
+            "algorithm.evaluator",
+            f"'exact' would need {cost:.2e} multiply-adds per iteration (nodes^agents * S^2 * "
+            f"joint observations * horizon * samples > {EXACT_EVALUATOR_LIMIT:.0e}); use "
+            "'rollouts' or fewer nodes/samples",
+        )
 
 
 def seed_key(config: Config, seed: int) -> jax.Array:

@@ -105,6 +105,9 @@ class GDiceAlgorithmSection:
     entropy_std: float = 0.5
     entropy_window: int = 4
     entropy_patience: int = 5
+    #: "rollouts" (SPEC: mean of eval_rollouts returns) or "exact" (tabular models only: the
+    #: exact expected return over the horizon, computed inside the compiled iteration)
+    evaluator: str = "rollouts"
 
 
 @dataclasses.dataclass
@@ -437,6 +440,16 @@ def validate(config: Config) -> None:
             "env.name",
             "G-DICE needs discrete observations: a .dpomdp problem, or tagging with "
             "env.obs_division > 0",
+        )
+        _require(
+            alg.evaluator in ("rollouts", "exact"),
+            "algorithm.evaluator",
+            f"must be 'rollouts' or 'exact', got {alg.evaluator!r}",
+        )
+        _require(
+            alg.evaluator == "rollouts" or isinstance(env, DpomdpEnvSection),
+            "algorithm.evaluator",
+            "'exact' needs a tabular .dpomdp problem (env.name = 'dpomdp')",
         )
     if isinstance(alg, CogDiceAlgorithmSection):
         _positive(
