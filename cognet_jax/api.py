@@ -116,6 +116,7 @@ def build_algorithm(config: Config, env=None, env_params=None):
             eval_rollouts=a.eval_rollouts,
             common_random_numbers=a.common_random_numbers,
             entropy_window=a.entropy_window,
+            best_rollouts=a.best_rollouts,
             evaluator=a.evaluator,
         )
         if a.evaluator == "exact":
@@ -143,6 +144,7 @@ def build_algorithm(config: Config, env=None, env_params=None):
             eval_rollouts=a.eval_rollouts,
             common_random_numbers=a.common_random_numbers,
             entropy_window=a.entropy_window,
+            best_rollouts=a.best_rollouts,
             beta_eps=a.beta_eps,
             min_denominator=a.min_denominator,
         )

@@ -105,6 +105,9 @@ class GDiceAlgorithmSection:
     entropy_std: float = 0.5
     entropy_window: int = 4
     entropy_patience: int = 5
+    #: 0: best tracking compares the iteration winner's in-loop mean (SPEC); N > 0: a fresh
+    #: mean over N rollouts, free of the winner's selection bias
+    best_rollouts: int = 0
     #: "rollouts" (SPEC: mean of eval_rollouts returns) or "exact" (tabular models only: the
     #: exact expected return over the horizon, computed inside the compiled iteration)
     evaluator: str = "rollouts"
@@ -125,6 +128,8 @@ class CogDiceAlgorithmSection:
     common_random_numbers: bool = True
     beta_eps: float = 1e-6
     min_denominator: float = 1e-6
+    #: as G-DICE's ``best_rollouts``
+    best_rollouts: int = 0
     entropy_injection: bool = False
     entropy_rate: float = 0.02
     entropy_std: float = 0.5
@@ -435,6 +440,7 @@ def validate(config: Config) -> None:
             f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
         )
         _probability(alg, "algorithm", "alpha", "entropy_rate")
+        _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
         _require(
             isinstance(env, DpomdpEnvSection) or getattr(env, "obs_division", 0) > 0,
             "env.name",
@@ -474,6 +480,7 @@ def validate(config: Config) -> None:
             f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
         )
         _probability(alg, "algorithm", "alpha", "entropy_rate")
+        _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
         _require(alg.entropy_std >= 0, "algorithm.entropy_std", "must be >= 0")
         _require(
             0.0 < alg.beta_eps < 0.5,

@@ -103,6 +103,26 @@ def many_returns(
     return out.reshape(-1)[:num]
 
 
+def iteration_best(
+    env, controller, key: jax.Array, env_params: Any, policies: Any, values: jax.Array, fresh: int
+):
+    """The iteration's best candidate and the value that best-policy tracking compares.
+
+    ``values [C]`` are the candidates' in-loop means. With ``fresh == 0`` (the SPEC rule) the
+    value is the winner's own in-loop mean, which is biased upwards: it is the maximum of C noisy
+    means. With ``fresh > 0`` the winner is re-evaluated with ``fresh`` new rollouts (``key``
+    unused by the search otherwise), an unbiased estimate of its value, so the anytime best is not
+    replaced by a lucky candidate. Returns ``(index [], policy, value [])``.
+    """
+    idx = jnp.argmax(values)
+    best = jax.tree.map(lambda x: x[idx], policies)
+    if fresh > 0:
+        value = rollouts(env, controller, key, fresh, env_params, best).mean()
+    else:
+        value = values[idx]
+    return idx, best, value
+
+
 def mean_and_stderr(returns: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Mean and standard error of a 1-D array of returns."""
     r = returns.astype(jnp.float32)

@@ -281,6 +281,11 @@ def run_training(
         "final_value": final,
         "in_loop_best": float(history.best_value[-1]),
         "iterations": iterations,
+        # the search's budget: agent-steps simulated by all its iterations
+        "simulated_agent_steps": iterations
+        * algorithm.rollouts_per_iteration
+        * algorithm.env.horizon
+        * algorithm.env.num_agents,
         "wall_s": wall_s,
         "compile_s": compile_s,
         "loop_s": loop_s,

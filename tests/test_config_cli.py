@@ -113,3 +113,10 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     assert line["rollouts"] == 300 and line["overrides"] == ["env.obs_noise=0.5"]
     assert "value" in capsys.readouterr().out
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
+
+
+@pytest.mark.parametrize("experiment", ["tagging-paper-cogdice", "tagging-paper-gdice-d1"])
+def test_best_rollouts_must_not_be_negative(experiment):
+    with pytest.raises(ConfigError) as err:
+        load_config(experiment, ["algorithm.best_rollouts=-1"])
+    assert err.value.field == "algorithm.best_rollouts"

@@ -239,6 +239,34 @@ def test_step_does_not_retrace_across_iterations_and_hyper_values():
     assert np.isfinite(float(metrics.best_value))
 
 
+def test_best_rollouts_tracks_a_fresh_mean_of_the_winner():
+    """best_rollouts = 0: the best value is the winner's in-loop mean (biased upwards: a maximum
+    of noisy means); best_rollouts = N: a fresh N-rollout mean of that same winner."""
+    from cognet_jax.rollout import rollouts
+
+    env, params = small_env(horizon=4)
+    key, init_key = jax.random.key(3), jax.random.key(4)
+    out = {}
+    for fresh in (0, 2000):
+        algo = GDice(
+            env,
+            params,
+            GDiceSettings(nodes=3, samples=64, elites=4, eval_rollouts=4, best_rollouts=fresh),
+        )
+        state, metrics = jax.jit(algo.step)(key, algo.init(init_key))
+        out[fresh] = (state, metrics)
+    (s0, m0), (s1, m1) = out[0], out[2000]
+    # same samples and in-loop values, same winner
+    assert float(m0.value) == float(m1.value) == float(s0.progress.best_value)
+    chex.assert_trees_all_equal(s0.best_policy, s1.best_policy)
+    fresh_mean = rollouts(
+        env, algo.controller, jax.random.fold_in(key, 1), 2000, params, s1.best_policy
+    ).mean()
+    np.testing.assert_allclose(float(s1.progress.best_value), float(fresh_mean), rtol=1e-6)
+    # 4-rollout means maximised over 64 samples overstate the winner's value
+    assert float(s1.progress.best_value) < float(s0.progress.best_value)
+
+
 # --------------------------------------------------------------------------------------------
 # a known optimum (SPEC section 8) and the command line
 

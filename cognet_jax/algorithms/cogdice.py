@@ -92,7 +92,7 @@ from cognet_jax.algorithms.cross_entropy import (
 )
 from cognet_jax.controllers.base import sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
-from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
 
 
 # --------------------------------------------------------------------------------------------
@@ -136,6 +136,9 @@ class CogDiceSettings:
     eval_rollouts: int = 1000
     common_random_numbers: bool = True
     entropy_window: int = 4
+    #: 0: best tracking compares the winner's in-loop mean (SPEC); > 0: a fresh mean over this
+    #: many rollouts (``rollout.iteration_best``)
+    best_rollouts: int = 0
     beta_eps: float = 1e-6
     min_denominator: float = 1e-6
 
@@ -406,6 +409,12 @@ class CogDice:
             progress=Progress.create(self.settings.entropy_window),
         )
 
+    @property
+    def rollouts_per_iteration(self) -> int:
+        """Simulated rollouts in one ``step``."""
+        s = self.settings
+        return s.samples * s.eval_rollouts + s.best_rollouts
+
     def step(self, key: jax.Array, state: CogDiceState, hyper: CogDiceHyper | None = None):
         """One COG-DICE iteration; returns ``(state, CogDiceMetrics)``."""
         hyper = self.hyper if hyper is None else hyper
@@ -419,11 +428,17 @@ class CogDice:
         injected = progress.should_inject(hyper.entropy)
         dist = self.inject(dist, injected, hyper)
         progress = progress.replace(threshold=threshold).after_injection(injected)
-        best_idx = jnp.argmax(values)
-        progress, improved = progress.record(values[best_idx])
-        best_policy = select_tree(
-            improved, jax.tree.map(lambda x: x[best_idx], samples.policy), state.best_policy
+        best_idx, winner, winner_value = iteration_best(
+            self.env,
+            self.controller,
+            jax.random.fold_in(key, 1),
+            self.env_params,
+            samples.policy,
+            values,
+            self.settings.best_rollouts,
         )
+        progress, improved = progress.record(winner_value)
+        best_policy = select_tree(improved, winner, state.best_policy)
         metrics = CogDiceMetrics(
             value=values[best_idx],
             best_value=progress.best_value,

@@ -253,6 +253,13 @@ class CognetDice:
         return state.best_policy
 
     # -- one iteration -------------------------------------------------------------------------
+    @property
+    def rollouts_per_iteration(self) -> int:
+        """Simulated rollouts in one ``step``: the policy's rollouts, the candidates' evaluations
+        (not in separate training) and the evaluation of the updated policy."""
+        s = self.settings
+        return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + s.eval_rollouts
+
     def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
         """One COGNet-DICE iteration; returns ``(state, CognetMetrics)``."""
         hyper = self.hyper if hyper is None else hyper

@@ -50,7 +50,7 @@ from cognet_jax.controllers.tabular import (
 )
 from cognet_jax.envs.tabular import TabularEnv
 from cognet_jax.exact_jax import exact_value
-from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
 
 
 @struct.dataclass
@@ -70,6 +70,9 @@ class GDiceSettings:
     eval_rollouts: int = 100
     common_random_numbers: bool = True
     entropy_window: int = 4
+    #: 0: best tracking compares the winner's in-loop mean (SPEC); > 0: a fresh mean over this
+    #: many rollouts (``rollout.iteration_best``)
+    best_rollouts: int = 0
     evaluator: str = "rollouts"
 
 
@@ -160,6 +163,13 @@ class GDice:
         counts = jnp.asarray(self.env.action_counts)
         return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
 
+    @property
+    def rollouts_per_iteration(self) -> int:
+        """Simulated rollouts in one ``step`` (the exact evaluator simulates none)."""
+        s = self.settings
+        per_sample = 0 if s.evaluator == "exact" else s.eval_rollouts
+        return s.samples * per_sample + s.best_rollouts
+
     def step(self, key: jax.Array, state: GDiceState, hyper: GDiceHyper | None = None):
         """One G-DICE iteration; returns ``(state, GDiceMetrics)``."""
         hyper = self.hyper if hyper is None else hyper
@@ -184,11 +194,17 @@ class GDice:
             ),
         )
         progress = progress.replace(threshold=threshold).after_injection(injected)
-        best_idx = jnp.argmax(values)
-        progress, improved = progress.record(values[best_idx])
-        best_policy = select_tree(
-            improved, jax.tree.map(lambda x: x[best_idx], policies), state.best_policy
+        best_idx, winner, winner_value = iteration_best(
+            self.env,
+            self.controller,
+            jax.random.fold_in(key, 1),
+            self.env_params,
+            policies,
+            values,
+            self.settings.best_rollouts,
         )
+        progress, improved = progress.record(winner_value)
+        best_policy = select_tree(improved, winner, state.best_policy)
         metrics = GDiceMetrics(
             value=values[best_idx],
             best_value=progress.best_value,

@@ -1,0 +1,163 @@
+"""The 1D tagging experiments (COGNet-DICE, COG-DICE, G-DICE on discretised observations) and
+their generated table in experiments/README.md.
+
+    python experiments/tagging.py                        # every built-in tagging experiment, seed 0
+    python experiments/tagging.py tagging-thesis-n3 tagging-thesis-cogdice-n3 --seeds 0 1 2
+    python experiments/tagging.py --group paper          # only the COG-DICE paper setting
+    python experiments/tagging.py --table-only           # rebuild the table from saved results
+
+Every run goes through ``cognet_jax.runner.run_training`` (exactly what ``cognet-jax train NAME
+--seed N`` does) and writes ``experiments/results/tagging/<name>-seed<N>/``. The table reads the
+results files only: honest value (fresh evaluation of the best policy, >= 10,000 rollouts, a key
+the search never saw), the search budget in simulated agent-steps, wall time, and the published
+numbers of SPEC section 8 beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from _readme import machine, replace_block
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results" / "tagging"
+
+THESIS_REFERENCE = "20.76"
+PAPER_REFERENCE = "108.0"
+
+#: name -> (group, published value, what the published value is)
+EXPERIMENTS = {
+    "tagging-thesis-n3": ("thesis", "1.594", "thesis COGNet-DICE"),
+    "tagging-thesis-n6": ("thesis", "11.103", "thesis COGNet-DICE"),
+    "tagging-separate-n3": ("thesis", "> 2", "thesis, separate training"),
+    "tagging-separate-n6": ("thesis", "> 8", "thesis, separate training"),
+    "tagging-thesis-cogdice-n3": ("thesis", "1.540", "thesis COG-DICE"),
+    "tagging-thesis-cogdice-n6": ("thesis", "1.794", "thesis COG-DICE"),
+    "tagging-paper-cogdice": ("paper", "101.8", "COG-DICE paper"),
+    "tagging-paper-cognet": ("paper", "", ""),
+    "tagging-paper-gdice-d0.5": ("paper", "89.9", "COG-DICE paper, G-DICE"),
+    "tagging-paper-gdice-d1": ("paper", "65.09", "COG-DICE paper, G-DICE"),
+    "tagging-paper-gdice-d2": ("paper", "54.09", "COG-DICE paper, G-DICE"),
+    "tagging-paper-gdice-d4": ("paper", "13.49", "COG-DICE paper, G-DICE"),
+}
+GROUP_TITLES = {
+    "thesis": (
+        "Thesis setting (h 3, gamma 1; thesis Table 5.1)",
+        THESIS_REFERENCE,
+    ),
+    "paper": (
+        "COG-DICE paper setting (h 150, gamma 0.9, respawn)",
+        PAPER_REFERENCE,
+    ),
+}
+
+
+def out_dir(name: str, seed: int) -> Path:
+    return RESULTS / f"{name}-seed{seed}"
+
+
+def run(names: list[str], seeds: list[int]) -> None:
+    from cognet_jax.config import load_config
+    from cognet_jax.runner import run_training
+
+    for name in names:
+        for seed in seeds:
+            config = load_config(name, ["run.progress=false"])
+            run_training(config, seed, out_dir(name, seed))
+
+
+def _settings(r: dict) -> str:
+    alg, algorithm = r["config"]["algorithm"], r["algorithm"]
+    env = r["config"]["env"]
+    if algorithm == "cognet-dice":
+        text = (
+            f"{alg['iterations']} it x ({alg['rollouts']} rollouts + {alg['top']} cand. x "
+            f"{alg['eval_rollouts']})"
+        )
+        if alg["separate"]:
+            text = f"{alg['iterations']} it x {alg['rollouts']} rollouts, separate"
+    else:
+        text = f"{alg['iterations']} it x {alg['samples']} samples x {alg['eval_rollouts']}"
+        text += f", N_b {alg['elites']}"
+        if algorithm == "cogdice":
+            text += f", N_t {alg['regions']}"
+        if env.get("obs_division"):
+            text += f", d {env['obs_division']:g}"
+    text += f", alpha {alg['alpha']:g}"
+    if alg.get("entropy_injection"):
+        text += ", EI"
+    if alg.get("best_rollouts"):
+        text += f", best re-eval {alg['best_rollouts']}"
+    return text
+
+
+def table_rows(group: str) -> list[str]:
+    title, reference = GROUP_TITLES[group]
+    rows = [
+        f"### {title}",
+        "",
+        "| experiment | algorithm | nodes | budget | seed | honest value (mean +- s.e.) | "
+        "in-loop best | simulated agent-steps | wall s (compile s) | published | "
+        "reference controller |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, (g, published, source) in EXPERIMENTS.items():
+        if g != group:
+            continue
+        for path in sorted(RESULTS.glob(f"{name}-seed*/results.json")):
+            r = json.loads(path.read_text())
+            if r["experiment"] != name:
+                continue
+            f = r["final_value"]
+            steps = r.get("simulated_agent_steps")
+            steps_text = f"{steps:.3g}" if steps else "n/a"
+            paper = f"{published} ({source})" if published else "not published"
+            rows.append(
+                f"| {name} | {r['algorithm']} | {r['config']['algorithm']['nodes']} | "
+                f"{_settings(r)} | {r['seed']} | {f['mean']:.3f} +- {f['stderr']:.3f} | "
+                f"{r['in_loop_best']:.3f} | {steps_text} | {r['wall_s']:.1f} "
+                f"({r['compile_s']:.1f}) | {paper} | {reference} |"
+            )
+    return rows
+
+
+NOTES = """\
+Columns. Honest value: a fresh evaluation of the run's best policy (10,000 rollouts, a key
+the search never saw), mean +- standard error. In-loop best: the search's own maximum of noisy
+Monte Carlo means (the thesis reports this kind of number); it is biased upwards and shown
+only to make that bias visible. Simulated agent-steps: the search's budget, iterations x
+rollouts per iteration x horizon x agents (the final honest evaluation not included).
+Reference controller: the reactive 3-node controller of SPEC section 8 (start "move left";
+next node by the region of the observation: (-inf, -1] left, (-1, 1] tag, (1, inf) right)."""
+
+
+def write_table(groups: list[str]) -> None:
+    body = ["## 1D tagging", ""]
+    for group in groups:
+        body += [*table_rows(group), ""]
+    body += [NOTES, "", f"Generated by `python experiments/tagging.py`; machine: {machine()}."]
+    replace_block("tagging", "\n".join(body))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("experiments", nargs="*", help=f"default: all of {', '.join(EXPERIMENTS)}")
+    p.add_argument("--group", choices=sorted(GROUP_TITLES), help="only this setting's runs")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--table-only", action="store_true", help="only rebuild the table")
+    args = p.parse_args(argv)
+    unknown = [n for n in args.experiments if n not in EXPERIMENTS]
+    if unknown:
+        p.error(f"unknown experiment(s) {', '.join(unknown)}; known: {', '.join(EXPERIMENTS)}")
+    names = args.experiments or [n for n, (g, *_) in EXPERIMENTS.items() if args.group in (None, g)]
+    if not args.table_only:
+        run(names, args.seeds)
+    write_table(list(GROUP_TITLES))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
