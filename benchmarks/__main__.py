@@ -1,17 +1,20 @@
 """Benchmark runner: ``python -m benchmarks [--quick|--full]``.
 
-Measures, in one process, JAX (cognet_jax) against the PyTorch references of
+Measures, in one process and one session, cognet_jax against the PyTorch references of
 ``benchmarks/torch_reference`` (when torch is installed) on the same machine and the same work,
-then writes ``benchmarks/README.md`` (generated) and ``benchmarks/results.json``:
+then writes ``benchmarks/results.json`` and the generated ``benchmarks/README.md``:
 
-* rollout throughput (agent-steps/s) on tagging (thesis setting, h = 3) with 3- and 6-node neural
-  controllers at 1e3, 1e4, 1e5 rollouts;
-* one COGNet-DICE iteration at the thesis settings;
-* time-to-value: a full ``tagging-thesis-n3`` run (500 iterations) vs the references'
+* rollout throughput (agent-steps/s) on tagging (thesis setting, h 3) with 3- and 6-node neural
+  controllers at 1e3, 1e4, 1e5 rollouts (``--quick``: 1e3, 1e4): JAX, torch-vectorised,
+  torch-loop, with ratios;
+* one COGNet-DICE iteration at the thesis settings (3 and 6 nodes): JAX vs both references; one
+  iteration of COG-DICE (region controllers) and G-DICE (tabular controllers) in JAX;
+* time-to-value: a full ``tagging-thesis-n3`` run (JAX, measured) against the references'
   per-iteration time x 500 (extrapolated);
-* scaling of the iteration time with rollouts, horizon and nodes (``--full``; PNG).
+* ``--full``: scaling of the COGNet-DICE iteration time with rollouts (1e3..1e6), horizon
+  (3..150) and nodes (3..32), XLA buffer memory vs rollouts, and a PNG of the curves.
 
-Every timing is the median of >= 5 runs after a warm-up, min-max beside it, compile time apart.
+Every timing is the median of >= 5 runs after a warm-up (min-max beside it), compile time apart.
 """
 
 from __future__ import annotations
@@ -26,58 +29,21 @@ from pathlib import Path
 
 import jax
 
-from benchmarks.timing import peak_rss_mib, time_calls, time_jax
+from benchmarks import jax_cases, torch_cases
+from benchmarks.report import write_plots, write_readme
+from benchmarks.timing import peak_rss_mib
 
 HERE = Path(__file__).resolve().parent
+RUNS = 5
 
-
-def jax_rollout_throughput(nodes: int, num: int, runs: int):
-    from cognet_jax.controllers.neural import NeuralController
-    from cognet_jax.envs.tagging import make_tagging
-    from cognet_jax.rollout import rollouts
-
-    env, params = make_tagging("thesis")
-    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
-    policy = ctrl.init(jax.random.key(0))
-    timing = time_jax(
-        lambda k: rollouts(env, ctrl, k, num, params, policy), jax.random.key(1), runs=runs
-    )
-    agent_steps = num * env.horizon * env.num_agents
-    return timing, agent_steps / timing.median_s
-
-
-def jax_iteration(nodes: int, runs: int, **overrides):
-    from cognet_jax.api import make_step
-    from cognet_jax.config import load_config
-
-    sets = [f"algorithm.nodes={nodes}"] + [f"{k}={v}" for k, v in overrides.items()]
-    config = load_config("tagging-thesis-n3", sets)
-    _, init, step = make_step(config)
-    state = init(jax.random.key(0))
-    key = jax.random.key(1)
-    t0 = time.perf_counter()
-    compiled = jax.jit(step).lower(key, state).compile()
-    compile_s = time.perf_counter() - t0
-    holder = {"state": state}
-
-    def one():
-        holder["state"], metrics = compiled(key, holder["state"])
-        return metrics
-
-    timing = time_calls(one, runs=runs)
-    timing.compile_s = compile_s
-    return timing
-
-
-def jax_full_run():
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
-
-    config = load_config("tagging-thesis-n3", ["run.plots=false", "run.progress=false"])
-    out = HERE / ".last_full_run"
-    t0 = time.perf_counter()
-    results = run_training(config, 0, out, log=lambda *_: None)
-    return time.perf_counter() - t0, results
+#: (label, experiment, overrides) of the single-iteration cases
+ITERATION_CASES = [
+    ("COGNet-DICE thesis, 3 nodes", "tagging-thesis-n3", []),
+    ("COGNet-DICE thesis, 6 nodes", "tagging-thesis-n6", []),
+    ("COG-DICE thesis budget, 3 nodes", "tagging-thesis-cogdice-n3", []),
+    ("COG-DICE paper setting (h 150)", "tagging-paper-cogdice", []),
+    ("G-DICE paper setting, d = 1 (h 150)", "tagging-paper-gdice-d1", []),
+]
 
 
 def machine() -> str:
@@ -89,74 +55,125 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    py = platform.python_version()
-    return f"{cpu}, {os.cpu_count()} cores, Python {py}, jax {jax.__version__}"
+    return f"{cpu}, {os.cpu_count()} logical CPUs"
+
+
+def timing_row(timing, **fields) -> dict:
+    return dict(
+        fields,
+        median_s=timing.median_s,
+        min_s=timing.min_s,
+        max_s=timing.max_s,
+        runs=timing.runs,
+        compile_s=timing.compile_s,
+    )
+
+
+def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
+    rows = []
+    for nodes in (3, 6):
+        for num in sizes:
+            timing, rate = jax_cases.rollout_throughput(nodes, num, RUNS)
+            rows.append(timing_row(timing, impl="jax", nodes=nodes, rollouts=num, rate=rate))
+            log(f"rollouts jax       nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
+            if not with_torch:
+                continue
+            timing, rate = torch_cases.rollout_throughput("torch-vectorized", nodes, num, RUNS)
+            rows.append(
+                timing_row(timing, impl="torch-vectorized", nodes=nodes, rollouts=num, rate=rate)
+            )
+            log(f"rollouts torch-vec nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.3f} M/s")
+        if with_torch:
+            timing, rate = torch_cases.rollout_throughput("torch-loop", nodes, 1_000, RUNS)
+            rows.append(
+                timing_row(timing, impl="torch-loop", nodes=nodes, rollouts=1_000, rate=rate)
+            )
+            log(f"rollouts torch-loop nodes={nodes} R=1000: {timing.row()}, {rate:.0f} /s")
+    return rows
+
+
+def measure_iterations(with_torch: bool, quick: bool, log) -> list[dict]:
+    rows = []
+    for label, experiment, sets in ITERATION_CASES:
+        timing, memory = jax_cases.iteration(experiment, sets, runs=10)
+        rows.append(timing_row(timing, impl="jax", case=label, experiment=experiment, **memory))
+        log(f"iteration jax {label}: {timing.row()}, compile {timing.compile_s:.2f} s")
+    if with_torch:
+        for nodes in (3, 6):
+            label = f"COGNet-DICE thesis, {nodes} nodes"
+            for impl in ("torch-vectorized", "torch-loop"):
+                runs = 2 if (quick and impl == "torch-loop") else RUNS
+                timing = torch_cases.iteration(impl, nodes, runs)
+                rows.append(timing_row(timing, impl=impl, case=label))
+                log(f"iteration {impl} {label}: {timing.row()}")
+    return rows
+
+
+def measure_scaling(log) -> list[dict]:
+    """COGNet-DICE iteration time (thesis settings, 3 nodes) when one size changes."""
+    cases = (
+        [("rollouts", n, [f"algorithm.rollouts={n}"]) for n in (1_000, 10_000, 100_000, 1_000_000)]
+        + [("horizon", h, [f"env.horizon={h}"]) for h in (3, 10, 30, 100, 150)]
+        + [("nodes", n, [f"algorithm.nodes={n}"]) for n in (3, 6, 12, 24, 32)]
+    )
+    rows = []
+    for axis, value, sets in cases:
+        runs = 3 if (axis == "rollouts" and value >= 1_000_000) else RUNS
+        timing, memory = jax_cases.iteration("tagging-thesis-n3", sets, runs=runs)
+        rows.append(timing_row(timing, axis=axis, value=value, rss_mib=peak_rss_mib(), **memory))
+        log(f"scaling {axis}={value}: {timing.row()}, compile {timing.compile_s:.2f} s")
+    return rows
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description="cognet_jax benchmarks")
+    p = argparse.ArgumentParser(description="cognet_jax benchmarks against PyTorch references")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--quick", action="store_true", help="fewer sizes and runs")
+    mode.add_argument("--quick", action="store_true", help="smaller sizes (about 2 minutes)")
     mode.add_argument("--full", action="store_true", help="also the scaling curves")
-    p.add_argument("--no-write", action="store_true", help="print only")
+    p.add_argument("--no-torch", action="store_true", help="JAX only")
+    p.add_argument("--no-write", action="store_true", help="print only, write nothing")
     args = p.parse_args(argv)
-    runs = 5
-    sizes = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
+    with_torch = not args.no_torch and torch_cases.available()
+
+    def log(text: str) -> None:
+        print(text, flush=True)
+
+    flag = " --quick" if args.quick else " --full" if args.full else ""
+    command = "python -m benchmarks" + flag
     out: dict = {
         "machine": machine(),
-        "command": "python -m benchmarks"
-        + (" --quick" if args.quick else " --full" if args.full else ""),
-        "rollouts": [],
-        "iteration": [],
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "torch": torch_cases.version() if with_torch else None,
+        "command": command,
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "load_average_before": os.getloadavg(),
     }
-
-    for nodes in (3, 6):
-        for num in sizes:
-            timing, rate = jax_rollout_throughput(nodes, num, runs)
-            row = dict(
-                impl="jax",
-                nodes=nodes,
-                rollouts=num,
-                median_s=timing.median_s,
-                min_s=timing.min_s,
-                max_s=timing.max_s,
-                compile_s=timing.compile_s,
-                agent_steps_per_s=rate,
-            )
-            out["rollouts"].append(row)
-            print(
-                f"rollouts jax nodes={nodes} R={num}: {timing.row()}, "
-                f"{rate / 1e6:.2f} M agent-steps/s, compile {timing.compile_s:.2f} s"
-            )
-    for nodes in (3, 6):
-        timing = jax_iteration(nodes, runs=10)
-        out["iteration"].append(
-            dict(
-                impl="jax",
-                nodes=nodes,
-                median_s=timing.median_s,
-                min_s=timing.min_s,
-                max_s=timing.max_s,
-                compile_s=timing.compile_s,
-            )
-        )
-        print(f"iteration jax nodes={nodes}: {timing.row()}, compile {timing.compile_s:.2f} s")
-    wall, results = jax_full_run()
+    t0 = time.perf_counter()
+    sizes = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
+    out["rollouts"] = measure_rollouts(sizes, with_torch, log)
+    out["iterations"] = measure_iterations(with_torch, args.quick, log)
+    wall, results = jax_cases.full_run()
     out["full_run"] = dict(
-        impl="jax",
+        experiment="tagging-thesis-n3",
         wall_s=wall,
         compile_s=results["compile_s"],
         loop_s=results["loop_s"],
+        iterations=results["iterations"],
         final_value=results["final_value"],
     )
-    print(
-        f"full tagging-thesis-n3 run: {wall:.1f} s wall (compile {results['compile_s']:.1f} s, "
-        f"500 iterations {results['loop_s']:.1f} s)"
-    )
+    log(f"full tagging-thesis-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
+    if args.full:
+        out["scaling"] = measure_scaling(log)
     out["peak_rss_mib"] = peak_rss_mib()
+    out["load_average_after"] = os.getloadavg()
+    out["benchmark_s"] = time.perf_counter() - t0
     if not args.no_write:
         (HERE / "results.json").write_text(json.dumps(out, indent=1))
-        print(f"wrote {HERE / 'results.json'}")
+        if args.full:
+            write_plots(out, HERE)
+        write_readme(out, HERE / "README.md")
+        log(f"wrote {HERE / 'results.json'} and {HERE / 'README.md'}")
     return 0
 
 

@@ -1,0 +1,74 @@
+"""What the benchmark runner measures on the JAX side (cognet_jax): rollout throughput, one
+search iteration of each algorithm, a full run, and iteration time / memory at other sizes."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+
+from benchmarks.timing import Timing, time_calls, time_jax
+
+HERE = Path(__file__).resolve().parent
+
+
+def rollout_throughput(nodes: int, num: int, runs: int) -> tuple[Timing, float]:
+    """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
+    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``)."""
+    from cognet_jax.controllers.neural import NeuralController
+    from cognet_jax.envs.tagging import make_tagging
+    from cognet_jax.rollout import rollouts
+
+    env, params = make_tagging("thesis")
+    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
+    policy = ctrl.init(jax.random.key(0))
+    timing = time_jax(
+        lambda k: rollouts(env, ctrl, k, num, params, policy), jax.random.key(1), runs=runs
+    )
+    return timing, num * env.horizon * env.num_agents / timing.median_s
+
+
+def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict]:
+    """Timing of one compiled search iteration of ``experiment`` (with ``--set`` overrides),
+    compile time apart; the state is carried from call to call as in a real run. Also returns
+    the compiled program's XLA buffer sizes (bytes: arguments, outputs, temporaries)."""
+    from cognet_jax.api import make_step
+    from cognet_jax.config import load_config
+
+    config = load_config(experiment, sets)
+    _, init, step = make_step(config)
+    state = init(jax.random.key(0))
+    key = jax.random.key(1)
+    t0 = time.perf_counter()
+    compiled = jax.jit(step).lower(key, state).compile()
+    compile_s = time.perf_counter() - t0
+    holder = {"state": state}
+
+    def one():
+        holder["state"], metrics = compiled(key, holder["state"])
+        return metrics
+
+    timing = time_calls(one, runs=runs)
+    timing.compile_s = compile_s
+    memory = {}
+    stats = compiled.memory_analysis()
+    if stats is not None:
+        memory = dict(
+            argument_bytes=int(stats.argument_size_in_bytes),
+            output_bytes=int(stats.output_size_in_bytes),
+            temp_bytes=int(stats.temp_size_in_bytes),
+        )
+    return timing, memory
+
+
+def full_run(experiment: str = "tagging-thesis-n3") -> tuple[float, dict]:
+    """Wall seconds of ``cognet-jax train EXPERIMENT`` without plots (compile, all iterations
+    and the honest 10,000-rollout evaluation included) and its results dict."""
+    from cognet_jax.config import load_config
+    from cognet_jax.runner import run_training
+
+    config = load_config(experiment, ["run.plots=false", "run.progress=false"])
+    t0 = time.perf_counter()
+    results = run_training(config, 0, HERE / ".last_full_run", log=lambda *_: None)
+    return time.perf_counter() - t0, results

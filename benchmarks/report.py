@@ -1,0 +1,238 @@
+"""Turns the benchmark runner's measurements into benchmarks/README.md (generated) and, with
+``--full``, benchmarks/scaling.png."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+#: Targets of the benchmark issue (2-core CPU).
+ROLLOUT_TARGET_RATE = 20e6  # agent-steps/s, 6 nodes, 1e5 rollouts
+VEC_RATIO_TARGET = 10.0
+LOOP_RATIO_TARGET = 1000.0
+ITERATION_TARGET_S = 0.050
+FULL_RUN_TARGET_S = 30.0
+COMPILE_TARGET_S = 10.0
+
+
+def _ms(row: dict) -> str:
+    return f"{row['median_s'] * 1e3:.2f} ({row['min_s'] * 1e3:.2f}-{row['max_s'] * 1e3:.2f})"
+
+
+def _find(rows: list[dict], **match) -> dict | None:
+    for row in rows:
+        if all(row.get(k) == v for k, v in match.items()):
+            return row
+    return None
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "**missed**"
+
+
+def rollout_table(out: dict) -> list[str]:
+    rows = out["rollouts"]
+    lines = [
+        "| nodes | rollouts | JAX ms (min-max) | JAX M agent-steps/s | torch-vec ms | "
+        "torch-vec M/s | JAX / torch-vec | torch-loop M/s (at 1e3) | JAX / torch-loop |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in (r for r in rows if r["impl"] == "jax"):
+        vec = _find(rows, impl="torch-vectorized", nodes=r["nodes"], rollouts=r["rollouts"])
+        loop = _find(rows, impl="torch-loop", nodes=r["nodes"])
+        vec_cells = (
+            [_ms(vec), f"{vec['rate'] / 1e6:.3f}", f"{r['rate'] / vec['rate']:.1f}x"]
+            if vec
+            else ["", "", ""]
+        )
+        loop_cells = (
+            [f"{loop['rate'] / 1e6:.5f}", f"{r['rate'] / loop['rate']:.0f}x"] if loop else ["", ""]
+        )
+        lines.append(
+            f"| {r['nodes']} | {r['rollouts']:.0e} | {_ms(r)} | {r['rate'] / 1e6:.2f} | "
+            + " | ".join(vec_cells + loop_cells)
+            + " |"
+        )
+    return lines
+
+
+def iteration_table(out: dict) -> list[str]:
+    rows = out["iterations"]
+    lines = [
+        "| case | implementation | ms per iteration (min-max) | compile s | XLA buffers MiB "
+        "(args + temps) |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else ""
+        mem = ""
+        if "temp_bytes" in r:
+            mem = f"{(r['argument_bytes'] + r['temp_bytes']) / 2**20:.1f}"
+        lines.append(f"| {r['case']} | {r['impl']} | {_ms(r)} | {compile_s} | {mem} |")
+    return lines
+
+
+def time_to_value(out: dict) -> list[str]:
+    full = out["full_run"]
+    n = full["iterations"]
+    fv = full["final_value"]
+    lines = [
+        f"- JAX, measured: `cognet-jax train tagging-thesis-n3` ({n} iterations, no plots) took "
+        f"{full['wall_s']:.1f} s wall, of which {full['compile_s']:.1f} s compile and "
+        f"{full['loop_s']:.1f} s for the iterations; honest value {fv['mean']:.3f} +- "
+        f"{fv['stderr']:.3f}.",
+    ]
+    for impl in ("torch-vectorized", "torch-loop"):
+        r = _find(out["iterations"], impl=impl, case="COGNet-DICE thesis, 3 nodes")
+        if r:
+            total = r["median_s"] * n
+            lines.append(
+                f"- {impl}, **extrapolated** ({n} x the measured median iteration): "
+                f"{total:.0f} s ({total / 60:.1f} min), {total / full['wall_s']:.0f}x the JAX run."
+            )
+    return lines
+
+
+def targets(out: dict) -> list[str]:
+    lines = ["| target | measured | verdict |", "|---|---|---|"]
+    jax6 = _find(out["rollouts"], impl="jax", nodes=6, rollouts=100_000)
+    if jax6:
+        lines.append(
+            f"| >= 20 M agent-steps/s, 6 nodes, 1e5 rollouts | {jax6['rate'] / 1e6:.2f} M/s | "
+            f"{_verdict(jax6['rate'] >= ROLLOUT_TARGET_RATE)} |"
+        )
+        vec = _find(out["rollouts"], impl="torch-vectorized", nodes=6, rollouts=100_000)
+        if vec:
+            ratio = jax6["rate"] / vec["rate"]
+            lines.append(
+                f"| >= 10x torch-vectorised (same case) | {ratio:.1f}x | "
+                f"{_verdict(ratio >= VEC_RATIO_TARGET)} |"
+            )
+        loop = _find(out["rollouts"], impl="torch-loop", nodes=6)
+        if loop:
+            ratio = jax6["rate"] / loop["rate"]
+            lines.append(
+                f"| >= 1000x torch-loop (loop measured at 1e3 rollouts) | {ratio:.0f}x | "
+                f"{_verdict(ratio >= LOOP_RATIO_TARGET)} |"
+            )
+    it = _find(out["iterations"], impl="jax", case="COGNet-DICE thesis, 3 nodes")
+    if it:
+        lines.append(
+            f"| thesis iteration <= 50 ms | {it['median_s'] * 1e3:.1f} ms | "
+            f"{_verdict(it['median_s'] <= ITERATION_TARGET_S)} |"
+        )
+        lines.append(
+            f"| compile of one iteration <= 10 s | {it['compile_s']:.2f} s | "
+            f"{_verdict(it['compile_s'] <= COMPILE_TARGET_S)} |"
+        )
+    full = out["full_run"]
+    lines.append(
+        f"| full 500-iteration run <= 30 s incl. compile | {full['wall_s']:.1f} s | "
+        f"{_verdict(full['wall_s'] <= FULL_RUN_TARGET_S)} |"
+    )
+    return lines
+
+
+def scaling_table(out: dict) -> list[str]:
+    lines = [
+        "| varied | value | ms per iteration (min-max) | compile s | XLA temps MiB | "
+        "process peak RSS MiB |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in out.get("scaling", []):
+        temps = f"{r['temp_bytes'] / 2**20:.1f}" if "temp_bytes" in r else ""
+        lines.append(
+            f"| {r['axis']} | {r['value']} | {_ms(r)} | {r['compile_s']:.2f} | {temps} | "
+            f"{r['rss_mib']:.0f} |"
+        )
+    return lines
+
+
+def write_plots(out: dict, folder: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = out["scaling"]
+    axes_names = ["rollouts", "horizon", "nodes"]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
+    for ax, name in zip(axes, axes_names, strict=False):
+        pts = [r for r in rows if r["axis"] == name]
+        ax.plot([r["value"] for r in pts], [r["median_s"] * 1e3 for r in pts], "o-")
+        ax.set_xlabel(name)
+        ax.set_ylabel("ms per iteration")
+        if name == "rollouts":
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    pts = [r for r in rows if r["axis"] == "rollouts" and "temp_bytes" in r]
+    axes[3].plot(
+        [r["value"] for r in pts], [r["temp_bytes"] / 2**20 for r in pts], "o-", label="XLA temps"
+    )
+    axes[3].set_xscale("log")
+    axes[3].set_yscale("log")
+    axes[3].set_xlabel("rollouts")
+    axes[3].set_ylabel("MiB")
+    axes[3].legend()
+    axes[3].grid(alpha=0.3)
+    fig.suptitle("COGNet-DICE iteration (tagging thesis settings, 3 nodes unless varied)")
+    fig.tight_layout()
+    path = folder / "scaling.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_readme(out: dict, path: Path, notes: str = "") -> None:
+    """The generated README: machine, command, every table; ``notes`` (hand-written analysis
+    kept in benchmarks/NOTES.md) is appended as is."""
+    notes_file = path.parent / "NOTES.md"
+    if not notes and notes_file.exists():
+        notes = notes_file.read_text()
+    lines = [
+        "# Benchmarks",
+        "",
+        "Generated by `python -m benchmarks` (do not edit by hand; the analysis at the end is "
+        "benchmarks/NOTES.md).",
+        "",
+        f"- Machine: {out['machine']}; Python {out['python']}, jax {out['jax']}, "
+        f"{out['torch'] or 'torch not installed'}.",
+        f"- Command: `{out['command']}`, run {out['date']}; load average before "
+        f"{out['load_average_before'][0]:.2f}, after {out['load_average_after'][0]:.2f}; "
+        f"whole benchmark {out['benchmark_s']:.0f} s; peak RSS {out['peak_rss_mib']:.0f} MiB.",
+        "- Timings: median of >= 5 calls after a warm-up call (min-max in brackets), compile "
+        "time measured apart (ahead-of-time `lower().compile()`).",
+        "",
+        "## Targets",
+        "",
+        *targets(out),
+        "",
+        "## Rollout throughput (tagging, thesis setting, h 3, 2 agents, neural controllers)",
+        "",
+        *rollout_table(out),
+        "",
+        "Agent-steps/s = rollouts x horizon x agents / seconds. The loop reference is timed at "
+        "1,000 rollouts; its cost per rollout does not depend on the batch, so the loop ratios at "
+        "1e4 and 1e5 divide by that rate.",
+        "",
+        "## One search iteration",
+        "",
+        *iteration_table(out),
+        "",
+        "## Time to value (tagging-thesis-n3)",
+        "",
+        *time_to_value(out),
+        "",
+    ]
+    if out.get("scaling"):
+        lines += [
+            "## Scaling (COGNet-DICE, thesis settings, one size varied)",
+            "",
+            *scaling_table(out),
+            "",
+            "![scaling](scaling.png)",
+            "",
+        ]
+    if notes:
+        lines += [notes.rstrip(), ""]
+    path.write_text("\n".join(lines))
