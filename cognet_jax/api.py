@@ -22,6 +22,7 @@ from cognet_jax.config import (
     Config,
     DpomdpEnvSection,
     GDiceAlgorithmSection,
+    HeatmapEnvSection,
     TaggingEnvSection,
 )
 
@@ -45,6 +46,20 @@ def build_env(config: Config):
             obs_division=e.obs_division,
             obs_index=obs_index,
             **overrides,
+        )
+    if isinstance(e, HeatmapEnvSection):
+        from cognet_jax.envs.heatmap import make_heatmap
+
+        return make_heatmap(
+            e.start,
+            horizon=e.horizon,
+            discount=e.discount,
+            obs_noise_amplitude=e.obs_noise_amplitude,
+            obs_noise_mean=e.obs_noise_mean,
+            obs_noise_std=e.obs_noise_std,
+            near_reward=e.near_reward,
+            mid_reward=e.mid_reward,
+            far_reward=e.far_reward,
         )
     if isinstance(e, DpomdpEnvSection):
         from cognet_jax.envs.tabular import make_tabular

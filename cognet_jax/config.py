@@ -52,6 +52,24 @@ class TaggingEnvSection:
 
 
 @dataclasses.dataclass
+class HeatmapEnvSection:
+    """2D heatmap (SPEC 7.2). ``start``: ``"thesis"`` ({-1..12}) or ``"default"`` ({2..13});
+    observation noise per pixel ``obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)``;
+    rewards per agent on the pre-move state (``D < 9`` / ``9 <= D < 16`` / else)."""
+
+    name: str = "heatmap"
+    start: str = "default"
+    horizon: int = 4
+    discount: float = 1.0
+    obs_noise_amplitude: float = 1.0
+    obs_noise_mean: float = 0.0
+    obs_noise_std: float = 0.0
+    near_reward: float = 50.0
+    mid_reward: float = 1.0
+    far_reward: float = -1.0
+
+
+@dataclasses.dataclass
 class DpomdpEnvSection:
     """A tabular problem read from the file in ``[problem]``."""
 
@@ -162,7 +180,11 @@ class RunSection:
     checkpoint_every: int = 0
 
 
-ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpEnvSection}
+ENV_SECTIONS: dict[str, type] = {
+    "tagging": TaggingEnvSection,
+    "heatmap": HeatmapEnvSection,
+    "dpomdp": DpomdpEnvSection,
+}
 ALGORITHM_SECTIONS: dict[str, type] = {
     "cognet-dice": CognetAlgorithmSection,
     "gdice": GDiceAlgorithmSection,
@@ -366,6 +388,28 @@ def validate(config: Config) -> None:
             )
         for n in ("motion_noise", "obs_noise", "obs_division"):
             _require(getattr(env, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(env, n)}")
+    if isinstance(env, HeatmapEnvSection):
+        from cognet_jax.envs.heatmap import START_RANGES
+
+        _require(
+            env.start in START_RANGES,
+            "env.start",
+            f"unknown start range {env.start!r} (known: {', '.join(sorted(START_RANGES))})",
+        )
+        _positive(env, "env", "horizon")
+        _require(
+            0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}"
+        )
+        _require(
+            env.obs_noise_std >= 0,
+            "env.obs_noise_std",
+            f"must be >= 0, got {env.obs_noise_std}",
+        )
+        _require(
+            env.obs_noise_amplitude >= 0,
+            "env.obs_noise_amplitude",
+            f"must be >= 0, got {env.obs_noise_amplitude}",
+        )
     if isinstance(env, DpomdpEnvSection):
         _require(
             bool(config.problem.path),

@@ -21,11 +21,13 @@ from cognet_jax import plots
 REFERENCES = {
     ("tagging", "thesis"): {"reactive 3-node controller": 20.76, "random actions": -23.68},
     ("tagging", "cogdice-paper"): {"reactive 3-node controller": 108.0, "COG-DICE (paper)": 101.8},
+    ("heatmap", "thesis"): {"full knowledge of own position": 53.14, "random actions": 19.37},
 }
 
 
 def references_for(config) -> dict[str, float]:
-    return REFERENCES.get((config.env.name, getattr(config.env, "setting", None)), {})
+    setting = getattr(config.env, "setting", getattr(config.env, "start", None))
+    return REFERENCES.get((config.env.name, setting), {})
 
 
 def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
