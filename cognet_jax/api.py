@@ -118,7 +118,7 @@ def build_algorithm(config: Config, env=None, env_params=None):
                 patience=a.entropy_patience,
             ),
         )
-        return CognetDice(env, env_params, settings, hyper)
+        return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
     if isinstance(a, GDiceAlgorithmSection):
         from cognet_jax.algorithms.cross_entropy import EntropyConfig
         from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
@@ -172,6 +172,23 @@ def build_algorithm(config: Config, env=None, env_params=None):
         )
         return CogDice(env, env_params, settings, hyper)
     raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
+
+
+def build_pipeline(config: Config, env):
+    """The COGNet-DICE observation pipeline of ``config.network`` (trains or loads the VAE
+    only when the encoded pipeline or augmentation needs it)."""
+    from cognet_jax.observations import ObservationPipeline, resolve_vae
+
+    net = config.network
+    vae = None
+    if net.observation == "encoded" or net.augment:
+        vae = resolve_vae(net.vae_path, net.vae_seed, net.vae_epochs)
+    return ObservationPipeline(
+        kind=net.observation,
+        raw_shape=env.obs_shape,
+        vae=vae,
+        augment_samples=net.augment_samples if net.augment else 0,
+    )
 
 
 #: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).

@@ -152,13 +152,25 @@ class CogDiceAlgorithmSection:
 
 @dataclasses.dataclass
 class NetworkSection:
-    """Node networks of COGNet-DICE."""
+    """Node networks of COGNet-DICE and what they read (``cognet_jax.observations``).
+
+    ``observation``: ``"raw"`` (the environment's observation) or ``"encoded"`` (heatmap only:
+    the patch VAE's encoder mean). ``vae_path``: a VAE file from ``cognet-jax vae train``; empty:
+    trained on demand from ``vae_seed`` / ``vae_epochs`` (and saved in the run folder).
+    ``augment``: add ``augment_samples`` VAE-sampled training pairs per pair (SPEC section 6).
+    """
 
     hidden: int = 10
     optimizer: str = "adam"
     learning_rate: float = 0.01
     momentum: float = 0.5
     train_steps: int = 20
+    observation: str = "raw"
+    vae_path: str = ""
+    vae_seed: int = 0
+    vae_epochs: int = 60
+    augment: bool = False
+    augment_samples: int = 1
 
 
 @dataclasses.dataclass
@@ -461,6 +473,19 @@ def validate(config: Config) -> None:
         )
         _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
         _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+        _require(
+            net.observation in ("raw", "encoded"),
+            "network.observation",
+            f"must be 'raw' or 'encoded', got {net.observation!r}",
+        )
+        _positive(net, "network", "vae_epochs", "augment_samples")
+        _require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
+        needs_vae = net.observation == "encoded" or net.augment
+        _require(
+            not needs_vae or isinstance(env, HeatmapEnvSection),
+            "network.observation" if net.observation == "encoded" else "network.augment",
+            "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
+        )
     if isinstance(alg, GDiceAlgorithmSection):
         _positive(
             alg,

@@ -5,6 +5,9 @@ distribution), ``node_responses.png`` (next-node probabilities over the observat
 ``controllers.png`` (each agent's controller as a graph: node -> most likely action, edges
 labelled with the observation intervals where that next node is the most likely) and
 ``values.png`` (in-loop value per iteration and running best, with the SPEC's reference values).
+For vector observations (heatmap patches) the two observation plots are skipped, except for the
+encoded pipeline with a 1-D latent, where they are drawn over the VAE mean ``mu`` (range: the mu
+of the clean patches at every reachable position, widened by 10 %).
 """
 
 from __future__ import annotations
@@ -60,6 +63,22 @@ def _action_names(config, env):
     return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
 
 
+def _scalar_feature_grid(algorithm, env, points: int = 401):
+    """``(grid [points], label)`` of a scalar network input, or ``(None, None)`` when the
+    networks read a vector (e.g. raw heatmap patches)."""
+    pipeline = getattr(algorithm, "pipeline", None)
+    if pipeline is not None and pipeline.kind == "encoded" and pipeline.feature_shape == (1,):
+        from cognet_jax.vae import reachable_patches
+
+        mu = np.asarray(pipeline.features(jnp.asarray(reachable_patches())))[:, 0]
+        pad = 0.1 * (mu.max() - mu.min())
+        return np.linspace(mu.min() - pad, mu.max() + pad, points), "VAE mean mu"
+    if env.obs_shape == () and env.obs_range is not None:
+        lo, hi = env.obs_range
+        return np.linspace(lo, hi, points), "observation"
+    return None, None
+
+
 def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]:
     """Write the run's PNG figures to ``out_dir``; returns the paths written."""
     out_dir = Path(out_dir)
@@ -108,9 +127,8 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
             action_probs, names, out_dir / "actions.png", title=f"{title}: action distributions"
         )
     )
-    if env.obs_shape == () and env.obs_range is not None and hasattr(policy, "net_params"):
-        lo, hi = env.obs_range
-        grid = np.linspace(lo, hi, 401)
+    grid, obs_label = _scalar_feature_grid(algorithm, env)
+    if grid is not None and hasattr(policy, "net_params"):
         probs = neural_node_probs(algorithm.controller, policy, grid)
         written.append(
             plots.plot_node_responses(
@@ -118,6 +136,7 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
                 probs,
                 out_dir / "node_responses.png",
                 title=f"{title}: next-node probabilities",
+                obs_label=obs_label,
             )
         )
         edges = [plots.controller_graph_edges(grid, p) for p in probs]

@@ -1,9 +1,12 @@
 """Heatmap experiments with COGNet-DICE: configuration, observation pipelines (raw / encoded),
 augmentation and evaluation under observation noise."""
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
-from cognet_jax.api import build_env
+from cognet_jax.api import build_algorithm, build_env, make_train, seed_key
 from cognet_jax.config import ConfigError, config_from_dict
 from cognet_jax.envs.heatmap import START_RANGES
 
@@ -60,3 +63,100 @@ def test_env_section_reaches_the_params():
     env, params = build_env(heatmap_config(env={"start": "default", "horizon": 6}))
     assert env.horizon == 6
     assert (int(params.start_low), int(params.start_high)) == START_RANGES["default"]
+
+
+# ------------------------------------------------------------------------------------------
+# observation pipelines
+# ------------------------------------------------------------------------------------------
+#: a quickly trained VAE for the tests (the pipeline only needs a working encoder)
+FAST_VAE = {"vae_epochs": 8}
+
+
+def encoded_config(**network):
+    return heatmap_config(network={"observation": "encoded", **FAST_VAE, **network})
+
+
+@pytest.mark.parametrize(
+    "network,field",
+    [
+        ({"observation": "pixels"}, "network.observation"),
+        ({"vae_epochs": 0}, "network.vae_epochs"),
+        ({"augment_samples": 0}, "network.augment_samples"),
+        ({"vae_seed": -1}, "network.vae_seed"),
+        ({"vae_path": "/no/such/vae.msgpack", "observation": "encoded"}, "network.vae_path"),
+    ],
+)
+def test_bad_network_values_name_the_field(network, field):
+    with pytest.raises(ConfigError) as err:
+        build_algorithm(heatmap_config(network=network))
+    assert err.value.field == field
+
+
+def test_vae_pipelines_need_the_heatmap():
+    for network, field in (
+        ({"observation": "encoded"}, "network.observation"),
+        ({"augment": True}, "network.augment"),
+    ):
+        with pytest.raises(ConfigError) as err:
+            config_from_dict(
+                {"env": {"name": "tagging"}, "network": network, "algorithm": {"iterations": 2}}
+            )
+        assert err.value.field == field
+
+
+def test_encoded_controller_reads_the_encoder_mean():
+    algorithm = build_algorithm(encoded_config())
+    ctrl, pipe = algorithm.controller, algorithm.pipeline
+    assert ctrl.obs_shape == (1,) and ctrl.in_features == 1
+    policy = algorithm.init(jax.random.key(0)).policy
+    rng = np.random.default_rng(0)
+    obs = jnp.asarray(rng.uniform(0, 1, (2, 16)), jnp.float32)
+    mu = pipe.vae.encode(obs)[0]
+    np.testing.assert_allclose(np.asarray(pipe.features(obs)), np.asarray(mu), rtol=1e-6)
+    nodes = jnp.array([1, 3])
+    # the encoded controller on patches == the bare networks on the encoder mean
+    np.testing.assert_allclose(
+        np.asarray(ctrl.node_logits(policy.net_params, nodes, pipe.features(obs))),
+        np.asarray(
+            [
+                ctrl.one_net_logits(
+                    jax.tree.map(lambda p, i=i: p[i, nodes[i]], policy.net_params), mu[i]
+                )
+                for i in range(2)
+            ]
+        ),
+        rtol=1e-5,
+        atol=1e-6,
+    )
+    u = jnp.asarray(rng.uniform(size=(64, 2)), jnp.float32)
+    probs = jax.nn.softmax(ctrl.node_logits(policy.net_params, nodes, mu), -1)
+    expect = jax.vmap(
+        lambda v: jax.vmap(lambda p, w: jnp.searchsorted(jnp.cumsum(p), w))(probs, v)
+    )(u)
+    got = jax.vmap(lambda v: ctrl.next_node(v, policy, nodes, obs))(u)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(expect))
+
+
+def test_raw_pipeline_keeps_patches_and_hidden_size():
+    algorithm = build_algorithm(heatmap_config(network={"hidden": 12}))
+    assert algorithm.pipeline.is_identity and algorithm.pipeline.vae is None
+    assert algorithm.controller.obs_shape == (16,) and algorithm.controller.features is None
+    kernel = algorithm.init(jax.random.key(0)).policy.net_params["params"]["Dense_0"]["kernel"]
+    assert kernel.shape == (2, 4, 16, 12)
+
+
+def test_encoded_search_runs_and_is_deterministic():
+    config = encoded_config()
+    train = jax.jit(make_train(config))
+    state_a, metrics_a = train(seed_key(config, 1))
+    state_b, metrics_b = train(seed_key(config, 1))
+    _, metrics_c = train(seed_key(config, 2))
+    np.testing.assert_array_equal(np.asarray(metrics_a.value), np.asarray(metrics_b.value))
+    assert not np.array_equal(np.asarray(metrics_a.value), np.asarray(metrics_c.value))
+    assert np.all(np.isfinite(np.asarray(metrics_a.value)))
+    # returns are sums of 2 agents x 4 steps of rewards in {-1, 1, 50}
+    assert np.all(np.asarray(metrics_a.value) >= -8) and np.all(np.asarray(metrics_a.value) <= 400)
+    probs = np.asarray(state_a.policy.action_probs)
+    np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-5)
+    kernel = state_a.policy.net_params["params"]["Dense_0"]["kernel"]
+    assert kernel.shape == (2, 4, 1, 8)
