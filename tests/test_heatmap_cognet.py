@@ -9,6 +9,7 @@ import pytest
 from cognet_jax.api import build_algorithm, build_env, make_train, seed_key
 from cognet_jax.config import ConfigError, config_from_dict
 from cognet_jax.envs.heatmap import START_RANGES
+from cognet_jax.observations import ObservationPipeline, trained_vae
 
 
 def heatmap_config(env=None, network=None, algorithm=None, **sections):
@@ -160,3 +161,71 @@ def test_encoded_search_runs_and_is_deterministic():
     np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-5)
     kernel = state_a.policy.net_params["params"]["Dense_0"]["kernel"]
     assert kernel.shape == (2, 4, 1, 8)
+
+
+# ------------------------------------------------------------------------------------------
+# augmentation
+# ------------------------------------------------------------------------------------------
+def _pairs(rng, agents=2, p=6):
+    from cognet_jax.vae import reachable_patches
+
+    patches = reachable_patches()
+    obs = jnp.asarray(patches[rng.integers(0, len(patches), (agents, p))])
+    src = jnp.asarray(rng.integers(0, 4, (agents, p)), jnp.int32)
+    tgt = jnp.asarray(rng.integers(0, 4, (agents, p)), jnp.int32)
+    valid = jnp.asarray(rng.uniform(size=(agents, p)) < 0.7)
+    return obs, src, tgt, valid
+
+
+@pytest.mark.parametrize("kind", ["encoded", "raw"])
+def test_augmentation_adds_sampled_pairs(kind):
+    vae = trained_vae(0, FAST_VAE["vae_epochs"])
+    m = 400
+    pipe = ObservationPipeline(kind, (16,), vae, augment_samples=m)
+    obs, src, tgt, valid = _pairs(np.random.default_rng(3))
+    feats, src2, tgt2, valid2 = pipe.training_pairs(jax.random.key(5), obs, src, tgt, valid)
+    width = 1 if kind == "encoded" else 16
+    assert feats.shape == (2, 6 * (1 + m), width)
+    for new, old in ((src2, src), (tgt2, tgt), (valid2, valid)):
+        assert new.shape == (2, 6 * (1 + m))
+        np.testing.assert_array_equal(
+            np.asarray(new).reshape(2, 1 + m, 6), np.asarray(old)[:, None].repeat(1 + m, 1)
+        )
+    np.testing.assert_allclose(np.asarray(feats[:, :6]), np.asarray(pipe.features(obs)), rtol=1e-6)
+    extra = np.asarray(feats[:, 6:]).reshape(2, m, 6, width)
+    mu, logvar = (np.asarray(a) for a in vae.encode(obs))
+    sigma = np.exp(0.5 * logvar)
+    if kind == "encoded":  # latent samples ~ N(mu, sigma): check mean and spread
+        np.testing.assert_allclose(extra.mean(1), mu, atol=4 * sigma.max() / np.sqrt(m))
+        np.testing.assert_allclose(extra.std(1), sigma, rtol=0.2)
+    else:  # decoded samples: patches in (0, 1) that vary around decode(mu)
+        assert extra.min() > 0 and extra.max() < 1
+        assert np.all(extra.std(1).max(-1) > 0)
+        center = np.asarray(vae.decode(jnp.asarray(mu)))
+        assert np.abs(np.median(extra, 1) - center).max() < 0.1
+    # no augmentation: the pairs are the features only
+    plain = ObservationPipeline(kind, (16,), vae).training_pairs(
+        jax.random.key(5), obs, src, tgt, valid
+    )
+    assert plain[0].shape == (2, 6, width)
+
+
+def test_augmentation_changes_training_not_rollouts():
+    one = {"iterations": 1}
+    plain = heatmap_config(network={**FAST_VAE, "observation": "encoded"}, algorithm=one)
+    aug = heatmap_config(
+        network={**FAST_VAE, "observation": "encoded", "augment": True, "augment_samples": 2},
+        algorithm=one,
+    )
+    assert build_algorithm(aug).pipeline.augment_samples == 2
+    assert build_algorithm(plain).pipeline.augment_samples == 0
+    (s0, m0), (s1, m1) = (jax.jit(make_train(c))(seed_key(c, 0)) for c in (plain, aug))
+    # same rollouts and selection in iteration 1 -> same action distributions ...
+    np.testing.assert_array_equal(
+        np.asarray(s0.policy.action_probs), np.asarray(s1.policy.action_probs)
+    )
+    np.testing.assert_array_equal(np.asarray(m0.kept), np.asarray(m1.kept))
+    # ... but the networks were trained on different pair sets
+    k0 = np.asarray(s0.policy.net_params["params"]["Dense_0"]["kernel"])
+    k1 = np.asarray(s1.policy.net_params["params"]["Dense_0"]["kernel"])
+    assert not np.allclose(k0, k1)
