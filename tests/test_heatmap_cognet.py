@@ -229,3 +229,80 @@ def test_augmentation_changes_training_not_rollouts():
     k0 = np.asarray(s0.policy.net_params["params"]["Dense_0"]["kernel"])
     k1 = np.asarray(s1.policy.net_params["params"]["Dense_0"]["kernel"])
     assert not np.allclose(k0, k1)
+
+
+# ------------------------------------------------------------------------------------------
+# built-in experiments and the command line
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "name,nodes,observation,hidden",
+    [
+        ("heatmap-2d-n4", 4, "raw", 160),
+        ("heatmap-2d-n5", 5, "raw", 160),
+        ("heatmap-encoded-n4", 4, "encoded", 10),
+        ("heatmap-encoded-n5", 5, "encoded", 10),
+    ],
+)
+def test_builtin_heatmap_experiments(name, nodes, observation, hidden):
+    from cognet_jax.config import load_config
+
+    c = load_config(name)
+    assert (c.env.name, c.env.start, c.env.horizon) == ("heatmap", "thesis", 4)
+    a = c.algorithm
+    assert (a.nodes, a.iterations, a.rollouts, a.top, a.keep, a.eval_rollouts) == (
+        nodes,
+        500,
+        1000,
+        100,
+        10,
+        100,
+    )
+    assert a.alpha == 0.2 and a.entropy_injection
+    assert (c.network.observation, c.network.hidden, c.network.augment) == (
+        observation,
+        hidden,
+        False,
+    )
+    assert load_config(name, ["env.start=default"]).env.start == "default"
+
+
+def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
+    import json
+
+    from cognet_jax.cli import main
+    from cognet_jax.runner import load_policy
+
+    out = tmp_path / "run"
+    small = [
+        "algorithm.iterations=2",
+        "algorithm.rollouts=64",
+        "algorithm.top=8",
+        "algorithm.keep=4",
+        "algorithm.eval_rollouts=16",
+        "evaluation.rollouts=200",
+        "network.vae_epochs=8",
+        "run.plots=false",
+    ]
+    args = ["train", "heatmap-encoded-n4", "--no-progress", "--out", str(out)]
+    assert main(args + [x for o in small for x in ("--set", o)]) == 0
+    assert (out / "vae.msgpack").is_file()
+    values = {}
+    for std in (0.0, 0.2):
+        code = main(
+            ["evaluate", str(out), "--rollouts", "2000", "--set", f"env.obs_noise_std={std}"]
+        )
+        assert code == 0
+        values[std] = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
+        assert values[std]["overrides"] == [f"env.obs_noise_std={std}"]
+    assert "env.obs_noise_std=0.2" in capsys.readouterr().out
+    # same evaluation seed: the noise is the only difference, and it changes the value
+    assert values[0.0]["mean"] != values[0.2]["mean"]
+    config, algorithm, _ = load_policy(out, ["env.obs_noise_std=0.2", "network.vae_seed=9"])
+    assert float(algorithm.env_params.obs_noise_std) == pytest.approx(0.2)
+    # the run's own VAE file is used, whatever the VAE settings say
+    saved = trained_vae(0, 8)
+    for a, b in zip(jax.tree.leaves(algorithm.pipeline.vae.params), jax.tree.leaves(saved.params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # a bad override still names the field
+    assert main(["evaluate", str(out), "--set", "env.obs_noise_std=-1"]) == 2
+    assert "env.obs_noise_std" in capsys.readouterr().err
