@@ -138,28 +138,6 @@ def _load(name: str, seed: int) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def random_value(start: str, horizon: int = 4, agents: int = 2) -> float:
-    """Exact value of uniformly random moves (numpy DP over positions, averaged over the start
-    range); reproduces SPEC's 19.37 for the thesis range."""
-    import numpy as np
-
-    from cognet_jax.envs.heatmap import HIGH, LOW, MOVES, START_RANGES
-
-    lo, hi = START_RANGES[start]
-    coords = np.arange(lo, HIGH + 1)
-    x, y = np.meshgrid(coords, coords, indexing="ij")
-    d = x**2 + y**2
-    reward = np.where(d < 9, 50.0, np.where(d < 16, 1.0, -1.0))
-    value = np.zeros_like(reward)
-    for _ in range(horizon):
-        nxt = [
-            value[np.clip(x + dx, LOW, HIGH) - lo, np.clip(y + dy, LOW, HIGH) - lo]
-            for dx, dy in MOVES
-        ]
-        value = reward + np.mean(nxt, axis=0)
-    return agents * float(value[: hi - lo + 1, : hi - lo + 1].mean())
-
-
 def first_best_iteration(best_per_iteration: list[float]) -> int:
     """1-based iteration at which the in-loop best reached its final value."""
     final = best_per_iteration[-1]
@@ -242,7 +220,7 @@ def noise_plot() -> Path | None:
 
 
 def write_table(seed: int) -> None:
-    from cognet_jax.envs.heatmap import full_knowledge_value
+    from cognet_jax.envs.heatmap import full_knowledge_value, random_value
 
     rows, iterations = main_rows(seed)
     machine = (

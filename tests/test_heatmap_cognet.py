@@ -306,3 +306,18 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     # a bad override still names the field
     assert main(["evaluate", str(out), "--set", "env.obs_noise_std=-1"]) == 2
     assert "env.obs_noise_std" in capsys.readouterr().err
+
+
+def test_random_value_by_dp_matches_monte_carlo():
+    from cognet_jax.controllers.neural import NeuralController
+    from cognet_jax.envs.heatmap import make_heatmap, random_value
+    from cognet_jax.rollout import mean_and_stderr, rollouts
+
+    ctrl = NeuralController(2, 1, 4, obs_shape=(16,), hidden=4)
+    policy = ctrl.init(jax.random.key(0))  # one node, uniform actions
+    env = make_heatmap("thesis")[0]  # the start range lives in the params
+    run = jax.jit(lambda k, p: rollouts(env, ctrl, k, 100_000, p, policy))
+    for start in ("thesis", "default"):
+        ret = run(jax.random.key(7), make_heatmap(start)[1])
+        mean, se = mean_and_stderr(ret)
+        assert abs(float(mean) - random_value(start)) < 3 * float(se), (start, float(mean))
