@@ -22,6 +22,7 @@ from cognet_jax.config import (
     Config,
     DpomdpEnvSection,
     GDiceAlgorithmSection,
+    HeatmapEnvSection,
     TaggingEnvSection,
 )
 
@@ -45,6 +46,20 @@ def build_env(config: Config):
             obs_division=e.obs_division,
             obs_index=obs_index,
             **overrides,
+        )
+    if isinstance(e, HeatmapEnvSection):
+        from cognet_jax.envs.heatmap import make_heatmap
+
+        return make_heatmap(
+            e.start,
+            horizon=e.horizon,
+            discount=e.discount,
+            obs_noise_amplitude=e.obs_noise_amplitude,
+            obs_noise_mean=e.obs_noise_mean,
+            obs_noise_std=e.obs_noise_std,
+            near_reward=e.near_reward,
+            mid_reward=e.mid_reward,
+            far_reward=e.far_reward,
         )
     if isinstance(e, DpomdpEnvSection):
         from cognet_jax.envs.tabular import make_tabular
@@ -103,7 +118,7 @@ def build_algorithm(config: Config, env=None, env_params=None):
                 patience=a.entropy_patience,
             ),
         )
-        return CognetDice(env, env_params, settings, hyper)
+        return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
     if isinstance(a, GDiceAlgorithmSection):
         from cognet_jax.algorithms.cross_entropy import EntropyConfig
         from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
@@ -159,6 +174,23 @@ def build_algorithm(config: Config, env=None, env_params=None):
         )
         return CogDice(env, env_params, settings, hyper)
     raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
+
+
+def build_pipeline(config: Config, env):
+    """The COGNet-DICE observation pipeline of ``config.network`` (trains or loads the VAE
+    only when the encoded pipeline or augmentation needs it)."""
+    from cognet_jax.observations import ObservationPipeline, resolve_vae
+
+    net = config.network
+    vae = None
+    if net.observation == "encoded" or net.augment:
+        vae = resolve_vae(net.vae_path, net.vae_seed, net.vae_epochs)
+    return ObservationPipeline(
+        kind=net.observation,
+        raw_shape=env.obs_shape,
+        vae=vae,
+        augment_samples=net.augment_samples if net.augment else 0,
+    )
 
 
 #: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).

@@ -52,6 +52,24 @@ class TaggingEnvSection:
 
 
 @dataclasses.dataclass
+class HeatmapEnvSection:
+    """2D heatmap (SPEC 7.2). ``start``: ``"thesis"`` ({-1..12}) or ``"default"`` ({2..13});
+    observation noise per pixel ``obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)``;
+    rewards per agent on the pre-move state (``D < 9`` / ``9 <= D < 16`` / else)."""
+
+    name: str = "heatmap"
+    start: str = "default"
+    horizon: int = 4
+    discount: float = 1.0
+    obs_noise_amplitude: float = 1.0
+    obs_noise_mean: float = 0.0
+    obs_noise_std: float = 0.0
+    near_reward: float = 50.0
+    mid_reward: float = 1.0
+    far_reward: float = -1.0
+
+
+@dataclasses.dataclass
 class DpomdpEnvSection:
     """A tabular problem read from the file in ``[problem]``."""
 
@@ -139,13 +157,25 @@ class CogDiceAlgorithmSection:
 
 @dataclasses.dataclass
 class NetworkSection:
-    """Node networks of COGNet-DICE."""
+    """Node networks of COGNet-DICE and what they read (``cognet_jax.observations``).
+
+    ``observation``: ``"raw"`` (the environment's observation) or ``"encoded"`` (heatmap only:
+    the patch VAE's encoder mean). ``vae_path``: a VAE file from ``cognet-jax vae train``; empty:
+    trained on demand from ``vae_seed`` / ``vae_epochs`` (and saved in the run folder).
+    ``augment``: add ``augment_samples`` VAE-sampled training pairs per pair (SPEC section 6).
+    """
 
     hidden: int = 10
     optimizer: str = "adam"
     learning_rate: float = 0.01
     momentum: float = 0.5
     train_steps: int = 20
+    observation: str = "raw"
+    vae_path: str = ""
+    vae_seed: int = 0
+    vae_epochs: int = 60
+    augment: bool = False
+    augment_samples: int = 1
 
 
 @dataclasses.dataclass
@@ -167,7 +197,11 @@ class RunSection:
     checkpoint_every: int = 0
 
 
-ENV_SECTIONS: dict[str, type] = {"tagging": TaggingEnvSection, "dpomdp": DpomdpEnvSection}
+ENV_SECTIONS: dict[str, type] = {
+    "tagging": TaggingEnvSection,
+    "heatmap": HeatmapEnvSection,
+    "dpomdp": DpomdpEnvSection,
+}
 ALGORITHM_SECTIONS: dict[str, type] = {
     "cognet-dice": CognetAlgorithmSection,
     "gdice": GDiceAlgorithmSection,
@@ -371,6 +405,28 @@ def validate(config: Config) -> None:
             )
         for n in ("motion_noise", "obs_noise", "obs_division"):
             _require(getattr(env, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(env, n)}")
+    if isinstance(env, HeatmapEnvSection):
+        from cognet_jax.envs.heatmap import START_RANGES
+
+        _require(
+            env.start in START_RANGES,
+            "env.start",
+            f"unknown start range {env.start!r} (known: {', '.join(sorted(START_RANGES))})",
+        )
+        _positive(env, "env", "horizon")
+        _require(
+            0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}"
+        )
+        _require(
+            env.obs_noise_std >= 0,
+            "env.obs_noise_std",
+            f"must be >= 0, got {env.obs_noise_std}",
+        )
+        _require(
+            env.obs_noise_amplitude >= 0,
+            "env.obs_noise_amplitude",
+            f"must be >= 0, got {env.obs_noise_amplitude}",
+        )
     if isinstance(env, DpomdpEnvSection):
         _require(
             bool(config.problem.path),
@@ -422,6 +478,19 @@ def validate(config: Config) -> None:
         )
         _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
         _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+        _require(
+            net.observation in ("raw", "encoded"),
+            "network.observation",
+            f"must be 'raw' or 'encoded', got {net.observation!r}",
+        )
+        _positive(net, "network", "vae_epochs", "augment_samples")
+        _require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
+        needs_vae = net.observation == "encoded" or net.augment
+        _require(
+            not needs_vae or isinstance(env, HeatmapEnvSection),
+            "network.observation" if net.observation == "encoded" else "network.augment",
+            "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
+        )
     if isinstance(alg, GDiceAlgorithmSection):
         _positive(
             alg,

@@ -5,6 +5,9 @@ distribution), ``node_responses.png`` (next-node probabilities over the observat
 ``controllers.png`` (each agent's controller as a graph: node -> most likely action, edges
 labelled with the observation intervals where that next node is the most likely) and
 ``values.png`` (in-loop value per iteration and running best, with the SPEC's reference values).
+For vector observations (heatmap patches) the two observation plots are skipped, except for the
+encoded pipeline with a 1-D latent, where they are drawn over the VAE mean ``mu`` (range: the mu
+of the clean patches at every reachable position, widened by 10 %).
 """
 
 from __future__ import annotations
@@ -21,11 +24,13 @@ from cognet_jax import plots
 REFERENCES = {
     ("tagging", "thesis"): {"reactive 3-node controller": 20.76, "random actions": -23.68},
     ("tagging", "cogdice-paper"): {"reactive 3-node controller": 108.0, "COG-DICE (paper)": 101.8},
+    ("heatmap", "thesis"): {"full knowledge of own position": 53.14, "random actions": 19.37},
 }
 
 
 def references_for(config) -> dict[str, float]:
-    return REFERENCES.get((config.env.name, getattr(config.env, "setting", None)), {})
+    setting = getattr(config.env, "setting", getattr(config.env, "start", None))
+    return REFERENCES.get((config.env.name, setting), {})
 
 
 def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
@@ -56,6 +61,22 @@ def _action_names(config, env):
         names = load_problem(config).action_names
         return names[0] if len(set(names)) == 1 else tuple(str(a) for a in range(env.num_actions))
     return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
+
+
+def _scalar_feature_grid(algorithm, env, points: int = 401):
+    """``(grid [points], label)`` of a scalar network input, or ``(None, None)`` when the
+    networks read a vector (e.g. raw heatmap patches)."""
+    pipeline = getattr(algorithm, "pipeline", None)
+    if pipeline is not None and pipeline.kind == "encoded" and pipeline.feature_shape == (1,):
+        from cognet_jax.vae import reachable_patches
+
+        mu = np.asarray(pipeline.features(jnp.asarray(reachable_patches())))[:, 0]
+        pad = 0.1 * (mu.max() - mu.min())
+        return np.linspace(mu.min() - pad, mu.max() + pad, points), "VAE mean mu"
+    if env.obs_shape == () and env.obs_range is not None:
+        lo, hi = env.obs_range
+        return np.linspace(lo, hi, points), "observation"
+    return None, None
 
 
 def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]:
@@ -106,9 +127,8 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
             action_probs, names, out_dir / "actions.png", title=f"{title}: action distributions"
         )
     )
-    if env.obs_shape == () and env.obs_range is not None and hasattr(policy, "net_params"):
-        lo, hi = env.obs_range
-        grid = np.linspace(lo, hi, 401)
+    grid, obs_label = _scalar_feature_grid(algorithm, env)
+    if grid is not None and hasattr(policy, "net_params"):
         probs = neural_node_probs(algorithm.controller, policy, grid)
         written.append(
             plots.plot_node_responses(
@@ -116,6 +136,7 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
                 probs,
                 out_dir / "node_responses.png",
                 title=f"{title}: next-node probabilities",
+                obs_label=obs_label,
             )
         )
         edges = [plots.controller_graph_edges(grid, p) for p in probs]

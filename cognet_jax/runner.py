@@ -8,6 +8,8 @@ Files written to ``out_dir``:
   ``in_loop_best`` (the search's own, optimistically biased, estimate), iterations, wall and
   compile seconds, per-iteration values;
 * ``policy.msgpack`` -- the best policy (Flax serialization), loadable with ``load_policy``;
+* ``vae.msgpack`` -- the patch VAE the observation pipeline used (encoded or augmented
+  COGNet-DICE only); ``load_policy`` reads it back so evaluation uses the same encoder;
 * PNG plots (``run.plots``).
 """
 
@@ -81,20 +83,38 @@ def save_policy(path: Path, policy) -> None:
 
 def load_policy(run_dir: str | Path, overrides: list[str] | None = None):
     """``(config, algorithm, policy)`` of a finished run directory. ``overrides`` (``--set``)
-    may change the evaluation environment, e.g. ``env.obs_noise=0.1``; shapes must match."""
-    from cognet_jax.config import apply_overrides
+    may change the evaluation environment, e.g. ``env.obs_noise=0.1``; shapes must match.
+    The run's own ``vae.msgpack`` (if any) is used unless ``network.vae_path`` is overridden."""
+    from cognet_jax.config import apply_overrides, parse_override
+    from cognet_jax.observations import VAE_FILE
 
     run_dir = Path(run_dir)
     results_path = run_dir / "results.json"
     if not results_path.exists():
         raise FileNotFoundError(f"{results_path} not found: is {run_dir} a training output folder?")
     results = json.loads(results_path.read_text())
-    config = config_from_dict(apply_overrides(results["config"], overrides or []))
+    overrides = list(overrides or [])
+    named = {tuple(parse_override(o)[0]) for o in overrides}
+    if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
+        overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
+    config = config_from_dict(apply_overrides(results["config"], overrides))
     algorithm = build_algorithm(config)
     template = algorithm.best_policy(algorithm.init(jax.random.key(0)))
     policy = serialization.from_bytes(template, (run_dir / "policy.msgpack").read_bytes())
     policy = jax.tree.map(jnp.asarray, policy)
     return config, algorithm, policy
+
+
+def save_vae_of(algorithm, out_dir: Path) -> Path | None:
+    """Write the VAE of ``algorithm``'s observation pipeline (if it has one) to the run folder."""
+    from cognet_jax.observations import VAE_FILE
+    from cognet_jax.vae import save_vae
+
+    vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
+    if vae is None:
+        return None
+    save_vae(out_dir / VAE_FILE, vae)
+    return out_dir / VAE_FILE
 
 
 def _json_ready(x):
@@ -191,6 +211,7 @@ def run_training(
     t_start = time.perf_counter()
 
     algorithm, init, step = make_step(config)
+    save_vae_of(algorithm, out_dir)
     k_init, k_run, k_eval = split_seed_key(seed_key(config, seed))
     state = jax.jit(init)(k_init)
     history = []

@@ -13,8 +13,10 @@ One iteration (``CognetDice.step``, compiled once) -- values are returns to **ma
 6. action distributions: count MLE over the kept *original* rollouts (every visit counts),
    smoothing with ``alpha``, optional entropy injection (SPEC section 2);
 7. node networks: pairs ``(z_{t+1}, q_{t+1})`` for every t with ``q_t = q`` in the kept rollouts
-   train node q's network by softmax cross-entropy (``train_steps`` full-batch optax steps per
-   iteration; members without pairs are masked so their optimiser state does not move them);
+   (mapped by the observation pipeline, ``cognet_jax.observations``: identity, or the VAE
+   encoder's mean, plus optional augmentation pairs) train node q's network by softmax
+   cross-entropy (``train_steps`` full-batch optax steps per iteration; members
+   without pairs are masked so their optimiser state does not move them);
 8. evaluate the updated joint policy with ``eval_rollouts`` fresh rollouts, record the value and
    keep the best policy (anytime).
 
@@ -46,6 +48,7 @@ from cognet_jax.algorithms.cross_entropy import (
     smooth,
 )
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
+from cognet_jax.observations import ObservationPipeline
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
 
@@ -161,20 +164,35 @@ def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
 
 
 class CognetDice:
-    """COGNet-DICE on one environment; ``init`` / ``step`` are pure and jit-able."""
+    """COGNet-DICE on one environment; ``init`` / ``step`` are pure and jit-able.
 
-    def __init__(self, env, env_params, settings: CognetSettings, hyper: CognetHyper | None = None):
+    ``pipeline`` maps the environment's observations to the node networks' input (default: the
+    identity); see ``cognet_jax.observations``.
+    """
+
+    def __init__(
+        self,
+        env,
+        env_params,
+        settings: CognetSettings,
+        hyper: CognetHyper | None = None,
+        pipeline: ObservationPipeline | None = None,
+    ):
         self.env = env
         self.env_params = env_params
         self.settings = settings
         self.hyper = hyper if hyper is not None else CognetHyper()
+        if pipeline is None:
+            pipeline = ObservationPipeline("raw", env.obs_shape)
+        self.pipeline = pipeline
         self.controller = NeuralController(
             num_agents=env.num_agents,
             num_nodes=settings.nodes,
             num_actions=env.num_actions,
-            obs_shape=env.obs_shape,
+            obs_shape=pipeline.feature_shape,
             hidden=settings.hidden,
             action_counts=env.action_counts,
+            features=None if pipeline.is_identity else pipeline.features,
         )
         self.optimizer = make_optimizer(settings)
 
@@ -324,6 +342,8 @@ class CognetDice:
 
         # 7: train the node networks on the kept rollouts' transitions
         pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
+        # fold_in (not a 4th split) keeps the random streams of runs without augmentation
+        pairs = self.pipeline.training_pairs(jax.random.fold_in(key, 3), *pairs)
         net_params, opt_state = self.train_networks(
             policy.net_params, state.opt_state, pairs, hyper
         )

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import flax.linen as nn
 import jax
@@ -66,7 +67,12 @@ class NeuralPolicy:
 
 @dataclasses.dataclass(frozen=True)
 class NeuralController:
-    """Static shape facts of a neural FSC; ``act`` / ``next_node`` are the rollout hooks."""
+    """Static shape facts of a neural FSC; ``act`` / ``next_node`` are the rollout hooks.
+
+    ``obs_shape`` is the shape the node networks read. ``features`` (optional) maps the
+    environment's observation ``[agents, *raw]`` to that input ``[agents, *obs_shape]`` before
+    the networks (e.g. a VAE encoder, ``cognet_jax.observations``); ``None`` is the identity.
+    """
 
     num_agents: int
     num_nodes: int
@@ -74,6 +80,7 @@ class NeuralController:
     obs_shape: tuple[int, ...] = ()
     hidden: int = 10
     action_counts: tuple[int, ...] | None = None
+    features: Callable[[jax.Array], jax.Array] | None = None
 
     @property
     def in_features(self) -> int:
@@ -122,5 +129,8 @@ class NeuralController:
         return sample_categorical(u, probs)
 
     def next_node(self, u, policy: NeuralPolicy, nodes, obs):
+        """Next nodes ``[agents]`` from the raw observations ``obs [agents, *raw]``."""
+        if self.features is not None:
+            obs = self.features(obs)
         probs = jax.nn.softmax(self.node_logits(policy.net_params, nodes, obs), axis=-1)
         return sample_categorical(u, probs)

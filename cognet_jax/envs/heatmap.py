@@ -183,3 +183,22 @@ def full_knowledge_value(start: str = "thesis", horizon: int = 4, num_agents: in
         value = new
     starts = [(x, y) for x in range(lo, hi + 1) for y in range(lo, hi + 1)]
     return num_agents * float(np.mean([value[s] for s in starts]))
+
+
+def random_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
+    """Exact expected return of uniformly random moves: dynamic programming over the (x, y)
+    grid of one agent (value = reward + mean over the 4 moves), averaged over the uniform start
+    range, times the number of agents. Plain numpy."""
+    lo, hi = START_RANGES[start]
+    coords = np.arange(lo, HIGH + 1)
+    x, y = np.meshgrid(coords, coords, indexing="ij")
+    d = x**2 + y**2
+    reward = np.where(d < 9, 50.0, np.where(d < 16, 1.0, -1.0))
+    value = np.zeros_like(reward)
+    for _ in range(horizon):
+        nxt = [
+            value[np.clip(x + dx, LOW, HIGH) - lo, np.clip(y + dy, LOW, HIGH) - lo]
+            for dx, dy in MOVES
+        ]
+        value = reward + np.mean(nxt, axis=0)
+    return num_agents * float(value[: hi - lo + 1, : hi - lo + 1].mean())

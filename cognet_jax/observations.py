@@ -1,0 +1,127 @@
+"""Observation pipelines of COGNet-DICE: what the node networks read, and how training pairs are
+made from what the rollouts saw (SPEC section 6).
+
+Rollouts always see the simulator's raw observation (a heatmap patch ``[16]``). One function,
+``ObservationPipeline.features``, maps it to the node networks' input; it is applied in exactly
+two places, both inside the compiled iteration: where the controller consumes an observation
+(``NeuralController.next_node``) and where training pairs are built
+(``ObservationPipeline.training_pairs``).
+
+* ``"raw"``: the identity; networks read the flattened patch ``[16]`` (2D COGNet-DICE, hidden
+  160 in the thesis experiments).
+* ``"encoded"``: the patch VAE's encoder mean ``mu [latent]`` (encoded COGNet-DICE, hidden 10).
+
+**Augmentation** (thesis Fig. 4.1; ``augment_samples = m > 0``): every training pair
+``(z, q')`` gets ``m`` extra pairs with the same target: the observation's latent sample
+``l ~ N(mu(z), sigma(z))`` itself (encoded) or its decoding ``decode(l) [16]`` (raw). The extra
+pairs count like real ones in the cross-entropy (each pair has weight one).
+
+The VAE (``resolve_vae``) **[choice]**: ``network.vae_path`` names a file written by
+``cognet-jax vae train``; left empty, the VAE is trained on demand, deterministically from
+``network.vae_seed`` with ``network.vae_epochs`` epochs (clean + noisy patches, the defaults of
+``cognet_jax.vae``; a few seconds on CPU), cached for the process. A training run writes the
+VAE it used to ``RUN_DIR/vae.msgpack`` and ``cognet-jax evaluate RUN_DIR`` reads that file, so a
+policy is always evaluated with its own encoder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from cognet_jax.vae import TrainedVAE, load_vae, train_vae
+
+KINDS = ("raw", "encoded")
+#: File name of the VAE a run used, inside its output folder.
+VAE_FILE = "vae.msgpack"
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObservationPipeline:
+    """Maps raw observations ``[..., *raw_shape]`` to network features ``[..., *feature_shape]``.
+
+    ``vae`` is required for ``kind="encoded"`` and for augmentation; its parameters are closed
+    over as constants of the compiled iteration.
+    """
+
+    kind: str = "raw"
+    raw_shape: tuple[int, ...] = ()
+    vae: TrainedVAE | None = None
+    augment_samples: int = 0
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown observation kind {self.kind!r}; choose from {KINDS}")
+        if (self.kind == "encoded" or self.augment_samples > 0) and self.vae is None:
+            raise ValueError("the encoded pipeline and augmentation need a VAE")
+
+    @property
+    def feature_shape(self) -> tuple[int, ...]:
+        return (self.vae.latent,) if self.kind == "encoded" else self.raw_shape
+
+    @property
+    def is_identity(self) -> bool:
+        return self.kind == "raw"
+
+    def features(self, obs: jax.Array) -> jax.Array:
+        """``obs [..., *raw_shape]`` -> ``[..., *feature_shape]`` (identity or encoder mean)."""
+        if self.kind == "raw":
+            return obs
+        return self.vae.encode(obs.astype(jnp.float32))[0]
+
+    def training_pairs(self, key: jax.Array, obs, src, tgt, valid):
+        """Network inputs of the training pairs, with ``augment_samples`` extra pairs per pair.
+
+        Args:
+          key: drives the latent samples (unused without augmentation).
+          obs: raw observations ``[agents, P, *raw_shape]``; ``src, tgt, valid [agents, P]``.
+
+        Returns:
+          ``(features [agents, P * (1 + m), *feature_shape], src, tgt, valid)`` with the
+          ``[agents, P * (1 + m)]`` bookkeeping repeated for the extra pairs.
+        """
+        feats = self.features(obs)
+        m = self.augment_samples
+        if m == 0:
+            return feats, src, tgt, valid
+        mu, logvar = self.vae.encode(obs.astype(jnp.float32))  # [agents, P, latent]
+        eps = jax.random.normal(key, (m,) + mu.shape)
+        latent = mu[None] + jnp.exp(0.5 * logvar)[None] * eps  # [m, agents, P, latent]
+        extra = latent if self.kind == "encoded" else self.vae.decode(latent)
+        extra = jnp.moveaxis(extra, 0, 1)  # [agents, m, P, F]
+        agents, p = src.shape
+        extra = extra.reshape((agents, m * p) + extra.shape[3:]).astype(feats.dtype)
+
+        def repeat(x):  # [agents, P] -> [agents, P * (1 + m)]
+            return jnp.concatenate([x, jnp.tile(x, (1, m))], axis=1)
+
+        return (
+            jnp.concatenate([feats, extra], axis=1),
+            repeat(src),
+            repeat(tgt),
+            repeat(valid),
+        )
+
+
+@functools.lru_cache(maxsize=4)
+def trained_vae(seed: int, epochs: int) -> TrainedVAE:
+    """The on-demand VAE: ``train_vae(seed, epochs)`` on clean + noisy patches, cached."""
+    return train_vae(seed=seed, epochs=epochs)[0]
+
+
+def resolve_vae(vae_path: str, seed: int, epochs: int) -> TrainedVAE:
+    """The VAE in ``vae_path`` or, when it is empty, the on-demand one (see module docstring).
+    A missing file raises ``ConfigError`` naming ``network.vae_path``."""
+    from pathlib import Path
+
+    from cognet_jax.config import ConfigError
+
+    if vae_path:
+        path = Path(vae_path).expanduser()
+        if not path.is_file():
+            raise ConfigError("network.vae_path", f"no such file: {vae_path}")
+        return load_vae(path)
+    return trained_vae(seed, epochs)
