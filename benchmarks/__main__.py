@@ -165,6 +165,9 @@ def main(argv=None) -> int:
     log(f"full tagging-thesis-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
     if args.full:
         out["scaling"] = measure_scaling(log)
+    out["machine_peak"] = jax_cases.machine_peak()
+    out["rollout_cost"] = [jax_cases.rollout_cost(n) for n in (3, 6)]
+    log(f"machine peak: {out['machine_peak']}; rollout cost: {out['rollout_cost']}")
     out["peak_rss_mib"] = peak_rss_mib()
     out["load_average_after"] = os.getloadavg()
     out["benchmark_s"] = time.perf_counter() - t0

@@ -72,3 +72,41 @@ def full_run(experiment: str = "tagging-thesis-n3") -> tuple[float, dict]:
     t0 = time.perf_counter()
     results = run_training(config, 0, HERE / ".last_full_run", log=lambda *_: None)
     return time.perf_counter() - t0, results
+
+
+def machine_peak(runs: int = 5) -> dict:
+    """This machine's measured peaks, for the roofline estimate: float32 matmul GFLOP/s
+    (2048 x 2048 x 2048) and streaming bandwidth GB/s (``y = 2 x + 1`` over 2^26 floats:
+    256 MiB read + 256 MiB written)."""
+    import jax.numpy as jnp
+
+    a = jnp.ones((2048, 2048), jnp.float32)
+    mm = time_jax(lambda x: x @ x, a, runs=runs)
+    x = jnp.ones((1 << 26,), jnp.float32)
+    bw = time_jax(lambda v: 2.0 * v + 1.0, x, runs=runs)
+    return dict(
+        matmul_gflops=2 * 2048**3 / mm.median_s / 1e9,
+        bandwidth_gbs=2 * x.nbytes / bw.median_s / 1e9,
+    )
+
+
+def rollout_cost(nodes: int, num: int = 1_000) -> dict:
+    """XLA's own cost analysis of the rollout program, per agent-step: flops and bytes moved
+    between the compiled kernels. XLA counts a ``while`` (``lax.scan``) body once, so the
+    program's totals are one time step plus the reset; dividing by ``num * agents`` gives the
+    per agent-step figures (the reset is under 1 %)."""
+    from cognet_jax.controllers.neural import NeuralController
+    from cognet_jax.envs.tagging import make_tagging
+    from cognet_jax.rollout import rollouts
+
+    env, params = make_tagging("thesis")
+    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
+    policy = ctrl.init(jax.random.key(0))
+    compiled = (
+        jax.jit(lambda k: rollouts(env, ctrl, k, num, params, policy))
+        .lower(jax.random.key(1))
+        .compile()
+    )
+    cost = compiled.cost_analysis()
+    per = num * env.num_agents
+    return dict(nodes=nodes, flops=cost["flops"] / per, bytes=cost["bytes accessed"] / per)

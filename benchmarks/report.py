@@ -132,6 +132,33 @@ def targets(out: dict) -> list[str]:
     return lines
 
 
+def roofline(out: dict) -> list[str]:
+    """Bound on agent-steps/s from XLA's cost analysis and the measured machine peaks."""
+    peak = out.get("machine_peak")
+    if not peak:
+        return []
+    lines = [
+        f"Measured peaks: float32 matmul {peak['matmul_gflops']:.0f} GFLOP/s, streaming "
+        f"bandwidth {peak['bandwidth_gbs']:.1f} GB/s.",
+        "",
+        "| nodes | flops / agent-step | bytes / agent-step | compute bound M/s | memory bound "
+        "M/s | measured M/s (1e5 rollouts) | measured / memory bound |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for c in out.get("rollout_cost", []):
+        compute = peak["matmul_gflops"] * 1e9 / c["flops"] / 1e6
+        memory = peak["bandwidth_gbs"] * 1e9 / c["bytes"] / 1e6
+        jax_row = _find(out["rollouts"], impl="jax", nodes=c["nodes"], rollouts=100_000) or _find(
+            out["rollouts"], impl="jax", nodes=c["nodes"], rollouts=10_000
+        )
+        measured = jax_row["rate"] / 1e6 if jax_row else float("nan")
+        lines.append(
+            f"| {c['nodes']} | {c['flops']:.0f} | {c['bytes']:.0f} | {compute:.0f} | "
+            f"{memory:.1f} | {measured:.2f} | {measured / memory:.2f} |"
+        )
+    return lines
+
+
 def scaling_table(out: dict) -> list[str]:
     lines = [
         "| varied | value | ms per iteration (min-max) | compile s | XLA temps MiB | "
@@ -222,6 +249,14 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "## Time to value (tagging-thesis-n3)",
         "",
         *time_to_value(out),
+        "",
+        "## Roofline (rollouts, JAX)",
+        "",
+        *roofline(out),
+        "",
+        "Flops and bytes per agent-step are XLA's cost analysis of the compiled rollout program "
+        "(bytes = traffic between compiled kernels); compute bound = matmul peak / flops, memory "
+        "bound = bandwidth / bytes.",
         "",
     ]
     if out.get("scaling"):
