@@ -2,6 +2,9 @@
 
 cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
                  [--checkpoint-every K] [--resume DIR]
+cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out DIR]
+                 [--set section.key=value ...] [--coordinator HOST:PORT --num-processes P
+                 --process-id I | --cluster]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
 cognet-jax list
@@ -52,6 +55,44 @@ def _parser() -> argparse.ArgumentParser:
         metavar="DIR",
         default=None,
         help="continue the interrupted run in DIR from its checkpoint (config and seed from it)",
+    )
+
+    w = sub.add_parser(
+        "sweep",
+        help="many seeds x settings in one compiled program; writes runs.csv/json, summary.md",
+    )
+    w.add_argument(
+        "experiment",
+        nargs="?",
+        default=DEFAULT_EXPERIMENT,
+        help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
+    )
+    w.add_argument("--seeds", type=int, default=1, help="number of seeds (default 1)")
+    w.add_argument("--first-seed", type=int, default=0, help="seeds are first .. first+N-1")
+    w.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V1,V2",
+        help="values of one field to sweep; repeatable (cartesian product)",
+    )
+    w.add_argument("--out", default=None, help="output folder (default runs/sweep-EXPERIMENT)")
+    w.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V",
+        help="override a config field for every run; repeatable",
+    )
+    w.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    w.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="jax.distributed")
+    w.add_argument("--num-processes", type=int, default=None, metavar="P")
+    w.add_argument("--process-id", type=int, default=None, metavar="I")
+    w.add_argument(
+        "--cluster",
+        action="store_true",
+        help="initialise jax.distributed from the scheduler's environment (SLURM, ...)",
     )
 
     e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
@@ -108,6 +149,53 @@ def _train(args) -> int:
     except Interrupted as err:
         print(f"error: {err}", file=sys.stderr)
         return 130
+    return 0
+
+
+def init_distributed(args) -> None:
+    """``jax.distributed.initialize`` from ``--coordinator/--num-processes/--process-id`` or,
+    with ``--cluster``, from the cluster scheduler's environment variables."""
+    import jax
+
+    explicit = (args.coordinator, args.num_processes, args.process_id)
+    if args.cluster:
+        jax.distributed.initialize()
+    elif any(v is not None for v in explicit):
+        from cognet_jax.config import ConfigError
+
+        for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
+            if v is None:
+                raise ConfigError(name.lstrip("-"), f"{name} is needed for a multi-process sweep")
+        if not 0 <= args.process_id < args.num_processes:
+            raise ConfigError("process-id", f"must be in 0 .. {args.num_processes - 1}")
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+
+
+def _sweep(args) -> int:
+    from cognet_jax.config import ConfigError
+    from cognet_jax.sweep import parse_grid, run_sweep, write_outputs
+
+    if args.seeds < 1:
+        raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
+    grid = parse_grid(args.grid)
+    init_distributed(args)
+    import jax
+
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    result = run_sweep(
+        args.experiment,
+        seeds,
+        grid,
+        args.overrides,
+        progress=not args.no_progress and jax.process_index() == 0,
+        log=print if jax.process_index() == 0 else (lambda *a: None),
+    )
+    if jax.process_index() == 0:
+        name = Path(args.experiment).stem
+        out = Path(args.out or f"runs/sweep-{name}")
+        write_outputs(result, out)
+        print((out / "summary.md").read_text())
+        print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png")
     return 0
 
 
@@ -188,9 +276,13 @@ def main(argv: list[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"train": _train, "evaluate": _evaluate, "vae": _vae, "list": _list}[args.command](
-            args
-        )
+        return {
+            "train": _train,
+            "sweep": _sweep,
+            "evaluate": _evaluate,
+            "vae": _vae,
+            "list": _list,
+        }[args.command](args)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
