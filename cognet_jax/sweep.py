@@ -191,10 +191,12 @@ def run_group(group: Group, progress: bool = False, desc: str = "sweep") -> tupl
         algo = with_env_params(algorithm, env_params)
         return algo.policy_returns(k_eval, algo.best_policy(state), ev.rollouts, ev.batch)
 
-    state = jax.jit(jax.vmap(init_one))(keys)
+    # every leaf (state, metrics, keys, params) has the leading [runs] axis: shard it
+    on_runs = dict(in_shardings=sharding, out_shardings=sharding)
+    state = jax.jit(jax.vmap(init_one), **on_runs)(keys)
     t0 = time.perf_counter()
     step = (
-        jax.jit(jax.vmap(step_one), donate_argnums=(1,))
+        jax.jit(jax.vmap(step_one), donate_argnums=(1,), **on_runs)
         .lower(keys, state, hyper, env_params)
         .compile()
     )
@@ -213,7 +215,7 @@ def run_group(group: Group, progress: bool = False, desc: str = "sweep") -> tupl
     loop_s = time.perf_counter() - t_loop
     t_eval = time.perf_counter()
     returns = np.asarray(
-        jax.device_get(jax.jit(jax.vmap(eval_one))(keys, state, env_params)), np.float64
+        jax.device_get(jax.jit(jax.vmap(eval_one), **on_runs)(keys, state, env_params)), np.float64
     )
     best = jax.device_get(jax.vmap(algorithm.best_policy)(state))
     eval_s = time.perf_counter() - t_eval

@@ -1,0 +1,178 @@
+"""Sweeps: one compiled program for seeds x numeric settings, equal to the single runs; grouping
+of shape-changing settings; outputs; the same table on 2 devices and from 2 processes."""
+
+import csv
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cognet_jax.cli import main
+from cognet_jax.config import ConfigError, load_config
+from cognet_jax.runner import run_training
+from cognet_jax.sweep import assign_runs, parse_grid, plan
+
+ROOT = Path(__file__).parents[1]
+SMALL = [
+    "algorithm.iterations=4",
+    "algorithm.rollouts=200",
+    "algorithm.top=20",
+    "algorithm.keep=5",
+    "algorithm.eval_rollouts=20",
+    "network.train_steps=5",
+    "evaluation.rollouts=300",
+]
+GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
+
+
+def _sweep_args(out, seeds=2):
+    args = ["sweep", "tagging-thesis-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
+    return args + [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep1")
+    assert main(_sweep_args(out)) == 0
+    return out, json.loads((out / "runs.json").read_text())
+
+
+def _table(result):
+    """The comparable part of every row: setting, seed, honest value, per-iteration values."""
+    return [
+        (
+            r["setting"],
+            r["seed"],
+            r["final_value"]["mean"],
+            r["final_value"]["stderr"],
+            r["in_loop_best"],
+            tuple(r["values_per_iteration"]),
+        )
+        for r in result["rows"]
+    ]
+
+
+def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
+    """Each run of the sweep is the single run with its seed and alpha, number for number.
+
+    Exact (not to a tolerance): a run's computation inside ``vmap`` is the same sequence of
+    float32 operations on the same keys as the single run, and on this problem (rewards -1, -20,
+    +50, gamma 1) every return and every mean over rollouts is exact in float32, so no
+    reduction-order difference can show; on other problems allow float tolerance."""
+    out, result = one_process
+    rows = result["rows"]
+    assert [(r["setting"], r["seed"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert result["settings"] == [{"algorithm.alpha": 0.1}, {"algorithm.alpha": 0.4}]
+    assert len(result["groups"]) == 1  # one compiled program for all four runs
+    for row in rows:
+        alpha = result["settings"][row["setting"]]["algorithm.alpha"]
+        config = load_config(
+            "tagging-thesis-n3",
+            SMALL + [f"algorithm.alpha={alpha}", "run.plots=false", "run.progress=false"],
+        )
+        single = run_training(config, row["seed"], tmp_path / f"{alpha}-{row['seed']}", log=print)
+        assert row["final_value"] == single["final_value"]
+        assert row["values_per_iteration"] == single["values_per_iteration"]
+        assert row["best_per_iteration"] == single["best_per_iteration"]
+        assert row["in_loop_best"] == single["in_loop_best"]
+    # the settings really differ (alpha reaches the compiled program as data)
+    assert rows[0]["values_per_iteration"] != rows[2]["values_per_iteration"]
+
+
+def test_sweep_outputs(one_process):
+    out, result = one_process
+    with (out / "runs.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 4
+    assert [float(r["algorithm.alpha"]) for r in table] == [0.1, 0.1, 0.4, 0.4]
+    assert float(table[3]["final_mean"]) == result["rows"][3]["final_value"]["mean"]
+    summary = (out / "summary.md").read_text()
+    finals = [r["final_value"]["mean"] for r in result["rows"][:2]]
+    se = np.std(finals, ddof=1) / np.sqrt(2)
+    assert f"| algorithm.alpha=0.1 | 2 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
+    assert (out / "values.png").stat().st_size > 1000
+
+
+def test_plan_groups_shape_changing_settings():
+    grid = parse_grid(["algorithm.nodes=2,3", "algorithm.alpha=0.1,0.2", "env.obs_noise=0,0.5"])
+    groups = plan("tagging-thesis-n3", grid, ["algorithm.iterations=2"])
+    assert len(groups) == 2  # nodes changes shapes; alpha and noise are data
+    assert [len(g.settings) for g in groups] == [4, 4]
+    assert {g.settings[0].config.algorithm.nodes for g in groups} == {2, 3}
+    total = assign_runs(groups, [0, 1, 2], process=1, processes=2)
+    assert total == 24
+    assert sum(len(g.runs) for g in groups) == 12
+
+
+def test_grid_errors_name_the_field():
+    with pytest.raises(ConfigError, match="algorithm.alpha"):
+        parse_grid(["algorithm.alpha=0.1", "algorithm.alpha=0.2"])
+    with pytest.raises(ConfigError, match="algorithm.alpha"):
+        plan("tagging-thesis-n3", parse_grid(["algorithm.alpha=0.1,7"]), [])
+    with pytest.raises(ConfigError, match="algorithm.nodez"):
+        plan("tagging-thesis-n3", parse_grid(["algorithm.nodez=2"]), [])
+    assert main(["sweep", "--seeds", "0"]) == 2
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env(devices: int = 1) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    return env
+
+
+def test_two_devices_same_table(one_process, tmp_path):
+    """The 4 runs sharded over a 2-device mesh (NamedSharding): the same numbers."""
+    _, result = one_process
+    code = (
+        "import sys, jax; assert jax.local_device_count() == 2; "
+        "from cognet_jax.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
+    out = tmp_path / "dev2"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *_sweep_args(out)],
+        env=_env(2),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    sharded = json.loads((out / "runs.json").read_text())
+    assert sharded["local_devices"] == 2
+    assert _table(sharded) == _table(result)
+
+
+def test_two_processes_same_table(one_process, tmp_path):
+    """2 processes on localhost (jax.distributed, CPU collectives): process 0 gathers a table
+    equal to the single-process one; process 1 writes nothing."""
+    _, result = one_process
+    port = _free_port()
+    outs = [tmp_path / f"p{i}" for i in range(2)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "cognet_jax", *_sweep_args(outs[i])]
+            + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
+            + ["--process-id", str(i)],
+            env=_env(1),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    logs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], "\n".join(x[-3000:] for x in logs)
+    gathered = json.loads((outs[0] / "runs.json").read_text())
+    assert gathered["processes"] == 2
+    assert not outs[1].exists()
+    assert _table(gathered) == _table(result)
