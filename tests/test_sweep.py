@@ -26,11 +26,12 @@ SMALL = [
     "algorithm.eval_rollouts=20",
     "network.train_steps=5",
     "evaluation.rollouts=300",
+    "env.obs_noise=0.3",  # env params reach the program as (traced) data too
 ]
 GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
 
 
-def _sweep_args(out, seeds=2):
+def _sweep_args(out, seeds=3):
     args = ["sweep", "tagging-thesis-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
     return args + [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
 
@@ -66,9 +67,9 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
     reduction-order difference can show; on other problems allow float tolerance."""
     out, result = one_process
     rows = result["rows"]
-    assert [(r["setting"], r["seed"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert [(r["setting"], r["seed"]) for r in rows] == [(a, s) for a in (0, 1) for s in (0, 1, 2)]
     assert result["settings"] == [{"algorithm.alpha": 0.1}, {"algorithm.alpha": 0.4}]
-    assert len(result["groups"]) == 1  # one compiled program for all four runs
+    assert len(result["groups"]) == 1  # one compiled program for all six runs
     for row in rows:
         alpha = result["settings"][row["setting"]]["algorithm.alpha"]
         config = load_config(
@@ -81,20 +82,20 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
         assert row["best_per_iteration"] == single["best_per_iteration"]
         assert row["in_loop_best"] == single["in_loop_best"]
     # the settings really differ (alpha reaches the compiled program as data)
-    assert rows[0]["values_per_iteration"] != rows[2]["values_per_iteration"]
+    assert rows[0]["values_per_iteration"] != rows[3]["values_per_iteration"]
 
 
 def test_sweep_outputs(one_process):
     out, result = one_process
     with (out / "runs.csv").open() as f:
         table = list(csv.DictReader(f))
-    assert len(table) == 4
-    assert [float(r["algorithm.alpha"]) for r in table] == [0.1, 0.1, 0.4, 0.4]
-    assert float(table[3]["final_mean"]) == result["rows"][3]["final_value"]["mean"]
+    assert len(table) == 6
+    assert [float(r["algorithm.alpha"]) for r in table] == [0.1] * 3 + [0.4] * 3
+    assert float(table[4]["final_mean"]) == result["rows"][4]["final_value"]["mean"]
     summary = (out / "summary.md").read_text()
-    finals = [r["final_value"]["mean"] for r in result["rows"][:2]]
-    se = np.std(finals, ddof=1) / np.sqrt(2)
-    assert f"| algorithm.alpha=0.1 | 2 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
+    finals = [r["final_value"]["mean"] for r in result["rows"][:3]]
+    se = np.std(finals, ddof=1) / np.sqrt(3)
+    assert f"| algorithm.alpha=0.1 | 3 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
     assert (out / "values.png").stat().st_size > 1000
 
 
@@ -132,7 +133,7 @@ def _env(devices: int = 1) -> dict:
 
 
 def test_two_devices_same_table(one_process, tmp_path):
-    """The 4 runs sharded over a 2-device mesh (NamedSharding): the same numbers."""
+    """The 6 runs sharded over a 2-device mesh (NamedSharding): the same numbers."""
     _, result = one_process
     code = (
         "import sys, jax; assert jax.local_device_count() == 2; "
@@ -153,8 +154,9 @@ def test_two_devices_same_table(one_process, tmp_path):
 
 
 def test_two_processes_same_table(one_process, tmp_path):
-    """2 processes on localhost (jax.distributed, CPU collectives): process 0 gathers a table
-    equal to the single-process one; process 1 writes nothing."""
+    """2 processes on localhost (jax.distributed, CPU collectives), each with 2 devices and 3
+    of the 6 runs (padded to 4 on its mesh): process 0 gathers a table equal to the
+    single-process one; process 1 writes nothing."""
     _, result = one_process
     port = _free_port()
     outs = [tmp_path / f"p{i}" for i in range(2)]
@@ -163,7 +165,7 @@ def test_two_processes_same_table(one_process, tmp_path):
             [sys.executable, "-m", "cognet_jax", *_sweep_args(outs[i])]
             + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
             + ["--process-id", str(i)],
-            env=_env(1),
+            env=_env(2),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -173,6 +175,7 @@ def test_two_processes_same_table(one_process, tmp_path):
     logs = [p.communicate(timeout=600)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], "\n".join(x[-3000:] for x in logs)
     gathered = json.loads((outs[0] / "runs.json").read_text())
-    assert gathered["processes"] == 2
+    assert gathered["processes"] == 2 and gathered["local_devices"] == 2
+    assert [g["runs"] for g in gathered["groups"]] == [3]  # process 0's share
     assert not outs[1].exists()
     assert _table(gathered) == _table(result)
