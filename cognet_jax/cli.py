@@ -3,8 +3,8 @@
 cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
                  [--checkpoint-every K] [--resume DIR]
 cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out DIR]
-                 [--set section.key=value ...] [--coordinator HOST:PORT --num-processes P
-                 --process-id I | --cluster]
+                 [--set section.key=value ...] [--checkpoint-every K] [--resume DIR]
+                 [--coordinator HOST:PORT --num-processes P --process-id I | --cluster]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
 cognet-jax list
@@ -86,6 +86,19 @@ def _parser() -> argparse.ArgumentParser:
         help="override a config field for every run; repeatable",
     )
     w.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    w.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=0,
+        metavar="K",
+        help="write the search state of every run every K iterations (always on Ctrl-C)",
+    )
+    w.add_argument(
+        "--resume",
+        metavar="DIR",
+        default=None,
+        help="continue the interrupted sweep in DIR (experiment, seeds, grid from it)",
+    )
     w.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="jax.distributed")
     w.add_argument("--num-processes", type=int, default=None, metavar="P")
     w.add_argument("--process-id", type=int, default=None, metavar="I")
@@ -173,26 +186,48 @@ def init_distributed(args) -> None:
 
 def _sweep(args) -> int:
     from cognet_jax.config import ConfigError
-    from cognet_jax.sweep import parse_grid, run_sweep, write_outputs
+    from cognet_jax.runner import Interrupted
+    from cognet_jax.sweep import SWEEP_SPEC, Checkpointing, parse_grid, run_sweep, write_outputs
 
-    if args.seeds < 1:
-        raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
-    grid = parse_grid(args.grid)
+    if args.checkpoint_every < 0:
+        raise ConfigError("checkpoint-every", f"must be >= 0, got {args.checkpoint_every}")
+    if args.resume:
+        spec_path = Path(args.resume) / "sweep-state" / SWEEP_SPEC
+        if not spec_path.is_file():
+            raise FileNotFoundError(f"{spec_path} not found: is {args.resume} a sweep folder?")
+        spec = json.loads(spec_path.read_text())
+        experiment, seeds, grid, overrides = (
+            spec["experiment"],
+            spec["seeds"],
+            spec["grid"],
+            spec["overrides"],
+        )
+        out = Path(args.resume)
+    else:
+        if args.seeds < 1:
+            raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
+        experiment, grid, overrides = args.experiment, parse_grid(args.grid), args.overrides
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+        out = Path(args.out or f"runs/sweep-{Path(args.experiment).stem}")
     init_distributed(args)
     import jax
 
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    result = run_sweep(
-        args.experiment,
-        seeds,
-        grid,
-        args.overrides,
-        progress=not args.no_progress and jax.process_index() == 0,
-        log=print if jax.process_index() == 0 else (lambda *a: None),
-    )
-    if jax.process_index() == 0:
-        name = Path(args.experiment).stem
-        out = Path(args.out or f"runs/sweep-{name}")
+    main_process = jax.process_index() == 0
+    checkpointing = Checkpointing(out / "sweep-state", args.checkpoint_every, bool(args.resume))
+    try:
+        result = run_sweep(
+            experiment,
+            seeds,
+            grid,
+            overrides,
+            progress=not args.no_progress and main_process,
+            log=print if main_process else (lambda *a: None),
+            checkpointing=checkpointing,
+        )
+    except Interrupted as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 130
+    if main_process:
         write_outputs(result, out)
         print((out / "summary.md").read_text())
         print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png")

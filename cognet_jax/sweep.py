@@ -40,6 +40,9 @@ import numpy as np
 from cognet_jax.api import build_algorithm, seed_key, split_seed_key
 from cognet_jax.config import Config, ConfigError, load_config, parse_override
 
+#: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
+SWEEP_SPEC = "sweep.json"
+
 #: Fields that live in a params pytree (hyper-parameters or env params): sweeping over them
 #: needs no recompilation.
 DYNAMIC_FIELDS = frozenset(
@@ -156,11 +159,29 @@ def _mesh_sharding():
     return NamedSharding(mesh, PartitionSpec("runs")), devices.size
 
 
-def run_group(group: Group, progress: bool = False, desc: str = "sweep") -> tuple[list, dict]:
+@dataclass
+class Checkpointing:
+    """Where and how often a sweep saves its state (``work_dir`` per process and group:
+    ``{tag}.checkpoint.msgpack`` while a group runs, ``{tag}.rows.json`` once it is done)."""
+
+    work_dir: Path
+    every: int = 0
+    resume: bool = False
+
+
+def run_group(
+    group: Group,
+    progress: bool = False,
+    desc: str = "sweep",
+    checkpointing: Checkpointing | None = None,
+    tag: str = "group0-p0",
+) -> tuple[list, dict]:
     """Run every run of ``group`` in one compiled program; returns ``(rows, timing)``.
 
     Each row: ``{"setting", "seed", "final_value" {mean, stderr, rollouts}, "in_loop_best",
-    "values_per_iteration", "best_per_iteration"}``."""
+    "values_per_iteration", "best_per_iteration"}``. With ``checkpointing`` the stacked search
+    state of all runs is written every ``every`` iterations and on SIGINT (then
+    ``runner.Interrupted`` is raised); ``resume`` continues from it bit for bit."""
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0}
     by_index = {s.index: s for s in group.settings}
@@ -201,16 +222,48 @@ def run_group(group: Group, progress: bool = False, desc: str = "sweep") -> tupl
         .compile()
     )
     compile_s = time.perf_counter() - t0
-    from cognet_jax.runner import _progress_bar
+    from cognet_jax.checkpoint import (
+        read_checkpoint,
+        restore_history,
+        restore_state,
+        save_checkpoint,
+        stack_history,
+    )
+    from cognet_jax.runner import Interrupted, _progress_bar, sigint_guard
 
-    history = []
+    meta = {"kind": "sweep", "tag": tag, "runs": runs, "config": config.to_dict()}
+    ckpt = checkpointing
+    path = ckpt.work_dir / f"{tag}.checkpoint.msgpack" if ckpt else None
+    history, start = [], 0
+    if ckpt and ckpt.resume and path.exists():
+        raw = read_checkpoint(path)
+        if raw["meta"] != json.loads(json.dumps(meta)):
+            raise ValueError(f"{path} was written by another sweep")
+        state = jax.device_put(restore_state(jax.device_get(state), raw), sharding)
+        metrics_shape = jax.eval_shape(jax.vmap(step_one), keys, state, hyper, env_params)[1]
+        history, start = restore_history(metrics_shape, raw), int(raw["iteration"])
+
+    def save(i):
+        if ckpt:
+            save_checkpoint(
+                path, state=state, keys={}, iteration=i, history=stack_history(history), meta=meta
+            )
+
     t_loop = time.perf_counter()
-    with _progress_bar(iterations, progress, desc) as bar:
-        for i in range(iterations):
+    i = start
+    with sigint_guard() as sigint, _progress_bar(iterations, progress, desc) as bar:
+        bar.update(start)
+        while i < iterations and not sigint["stop"]:
             state, metrics = step(keys, state, hyper, env_params)
             history.append(metrics)
-            if progress and ((i + 1) % 10 == 0 or i + 1 == iterations):
-                bar.update(i + 1 - bar.n)
+            i += 1
+            if ckpt and ckpt.every and i % ckpt.every == 0 and i < iterations:
+                save(i)
+            if progress and (i % 10 == 0 or i == iterations):
+                bar.update(i - bar.n)
+        if i < iterations:
+            save(i)
+            raise Interrupted(ckpt.work_dir.parent if ckpt else Path("."), i, iterations)
     history = jax.device_get(jax.tree.map(lambda *xs: jnp.stack(xs, 1), *history))
     loop_s = time.perf_counter() - t_loop
     t_eval = time.perf_counter()
@@ -243,7 +296,9 @@ def run_group(group: Group, progress: bool = False, desc: str = "sweep") -> tupl
                 "best_per_iteration": history.best_value[r].tolist(),
             }
         )
-    return rows, {"compile_s": compile_s, "loop_s": loop_s, "eval_s": eval_s, "runs": n_real}
+    timing = {"compile_s": compile_s, "loop_s": loop_s, "eval_s": eval_s, "runs": n_real}
+    timing["resumed_from_iteration"] = start if start else None
+    return rows, timing
 
 
 # ---------------------------------------------------------------------------------------------
@@ -273,9 +328,12 @@ def run_sweep(
     overrides: list[str] | None = None,
     progress: bool = False,
     log=print,
+    checkpointing: Checkpointing | None = None,
 ) -> dict:
-    """Run the sweep; returns ``{"rows": [...] (every process's, sorted by setting and seed),
-    "groups": [...], "grid": grid, "seeds": seeds, "wall_s": ...}``."""
+    """Run the sweep (checkpointed in ``checkpointing.work_dir`` when given: a finished
+    group's rows are kept, so a resumed sweep skips it). Returns ``{"rows": [...] (every
+    process's, sorted by setting and seed), "groups": [...], "grid", "seeds", "wall_s", ...}``.
+    """
     if not seeds:
         raise ConfigError("seeds", "a sweep needs at least one seed")
     t0 = time.perf_counter()
@@ -283,9 +341,28 @@ def run_sweep(
     groups = plan(experiment, grid, overrides or [])
     total = assign_runs(groups, seeds, jax.process_index(), jax.process_count())
     rows, timings = [], []
+    if checkpointing:
+        from cognet_jax.checkpoint import atomic_write_text
+
+        spec = {"experiment": experiment, "seeds": seeds, "grid": grid, "overrides": overrides}
+        checkpointing.work_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(checkpointing.work_dir / SWEEP_SPEC, json.dumps(spec, indent=1))
     for g_index, g in enumerate(groups):
         desc = f"group {g_index + 1}/{len(groups)}"
-        g_rows, timing = run_group(g, progress=progress, desc=desc)
+        tag = f"group{g_index}-p{jax.process_index()}"
+        done = checkpointing.work_dir / f"{tag}.rows.json" if checkpointing else None
+        if done and checkpointing.resume and done.exists():
+            stored = json.loads(done.read_text())
+            if stored["runs"] != [list(r) for r in g.runs]:
+                raise ValueError(f"{done} was written by another sweep")
+            g_rows, timing = stored["rows"], stored["timing"]
+        else:
+            g_rows, timing = run_group(g, progress, desc, checkpointing, tag)
+            if done:
+                from cognet_jax.checkpoint import atomic_write_text
+
+                record = {"runs": g.runs, "rows": g_rows, "timing": timing}
+                atomic_write_text(done, json.dumps(record))
         for row in g_rows:
             row["group"] = g_index
         rows.extend(g_rows)

@@ -4,14 +4,18 @@ of shape-changing settings; outputs; the same table on 2 devices and from 2 proc
 import csv
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
+from cognet_jax.checkpoint import read_checkpoint
 from cognet_jax.cli import main
 from cognet_jax.config import ConfigError, load_config
 from cognet_jax.runner import run_training
@@ -156,7 +160,7 @@ def test_two_devices_same_table(one_process, tmp_path):
 def test_two_processes_same_table(one_process, tmp_path):
     """2 processes on localhost (jax.distributed, CPU collectives), each with 2 devices and 3
     of the 6 runs (padded to 4 on its mesh): process 0 gathers a table equal to the
-    single-process one; process 1 writes nothing."""
+    single-process one; process 1 writes no table."""
     _, result = one_process
     port = _free_port()
     outs = [tmp_path / f"p{i}" for i in range(2)]
@@ -177,5 +181,56 @@ def test_two_processes_same_table(one_process, tmp_path):
     gathered = json.loads((outs[0] / "runs.json").read_text())
     assert gathered["processes"] == 2 and gathered["local_devices"] == 2
     assert [g["runs"] for g in gathered["groups"]] == [3]  # process 0's share
-    assert not outs[1].exists()
+    assert not (outs[1] / "runs.json").exists()  # process 1 keeps only its sweep-state
     assert _table(gathered) == _table(result)
+
+
+TINY = [
+    "algorithm.iterations=300",
+    "algorithm.rollouts=40",
+    "algorithm.top=8",
+    "algorithm.keep=3",
+    "algorithm.eval_rollouts=8",
+    "network.train_steps=2",
+    "evaluation.rollouts=200",
+]
+
+
+def _tiny_args(out):
+    args = ["sweep", "tagging-thesis-n3", "--seeds", "2", "--grid", "algorithm.alpha=0.1,0.3"]
+    return args + [a for s in TINY for a in ("--set", s)] + ["--out", str(out), "--no-progress"]
+
+
+def test_sigint_then_resume_is_identical(tmp_path):
+    """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
+    with exactly the numbers of an uninterrupted sweep."""
+    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
+    assert main(_tiny_args(ref_dir)) == 0
+    reference = json.loads((ref_dir / "runs.json").read_text())
+    env = _env(1)
+    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", "10"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    ckpt = out / "sweep-state" / "group0-p0.checkpoint.msgpack"
+    t0 = time.time()
+    while not ckpt.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() - t0 < 300, "no checkpoint appeared"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted at iteration" in err and f"--resume {out}" in err
+    raw = read_checkpoint(ckpt)
+    assert 10 <= raw["iteration"] < 300
+    assert np.asarray(raw["state"]["progress"]["iteration"]).tolist() == [raw["iteration"]] * 4
+    assert not (out / "runs.json").exists()
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    resumed = json.loads((out / "runs.json").read_text())
+    assert resumed["groups"][0]["resumed_from_iteration"] == raw["iteration"]
+    assert _table(resumed) == _table(reference)
