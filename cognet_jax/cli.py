@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -98,6 +99,14 @@ def _parser() -> argparse.ArgumentParser:
         metavar="DIR",
         default=None,
         help="continue the interrupted sweep in DIR (experiment, seeds, grid from it)",
+    )
+    w.add_argument(
+        "--cpu-devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="split the CPU into N JAX devices the runs are sharded over (default: one per "
+        "core, at most one per run; ignored when XLA_FLAGS sets the device count)",
     )
     w.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="jax.distributed")
     w.add_argument("--num-processes", type=int, default=None, metavar="P")
@@ -184,6 +193,27 @@ def init_distributed(args) -> None:
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
 
 
+def set_cpu_devices(requested: int | None, runs: int) -> None:
+    """Split the host CPU into ``requested`` JAX devices (default ``min(cores, runs)``) so the
+    sharded ``[runs]`` axis keeps every core busy. Must run before JAX starts its backends;
+    does nothing when ``XLA_FLAGS`` already sets the host device count."""
+    import os
+
+    import jax
+
+    from cognet_jax.config import ConfigError
+
+    if requested is not None and requested < 1:
+        raise ConfigError("cpu-devices", f"must be >= 1, got {requested}")
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return
+    n = requested if requested is not None else max(1, min(os.cpu_count() or 1, runs))
+    try:
+        jax.config.update("jax_num_cpu_devices", n)
+    except RuntimeError:  # backends already started (e.g. called from a running program)
+        pass
+
+
 def _sweep(args) -> int:
     from cognet_jax.config import ConfigError
     from cognet_jax.runner import Interrupted
@@ -209,6 +239,9 @@ def _sweep(args) -> int:
         experiment, grid, overrides = args.experiment, parse_grid(args.grid), args.overrides
         seeds = list(range(args.first_seed, args.first_seed + args.seeds))
         out = Path(args.out or f"runs/sweep-{Path(args.experiment).stem}")
+    processes = args.num_processes or 1
+    total = len(seeds) * math.prod(len(v) for v in grid.values())
+    set_cpu_devices(args.cpu_devices, -(-total // processes))
     init_distributed(args)
     import jax
 

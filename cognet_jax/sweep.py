@@ -15,7 +15,9 @@ a sweep computes the same thing as the single run with its seed and setting (see
 tests/test_sweep.py for how close the numbers are).
 
 Devices: the ``[runs]`` axis is sharded over the local devices (``NamedSharding`` over a 1-D
-mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run).
+mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run); each
+device runs the vmapped search on its block of runs (``shard_map``, no collectives). On CPU the
+CLI splits the host into one device per core (``--cpu-devices``) so that every core works.
 Hosts: with ``jax.distributed`` initialised, process p runs the runs ``p, p + P, ...`` and
 process 0 gathers every row (``process_allgather``) and writes the tables.
 
@@ -152,11 +154,27 @@ def _stack(trees):
 
 
 def _mesh_sharding():
+    """``(NamedSharding of the leading [runs] axis over a 1-D mesh of the local devices,
+    number of devices)``."""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    devices = np.array(jax.local_devices())
-    mesh = Mesh(devices, ("runs",))
-    return NamedSharding(mesh, PartitionSpec("runs")), devices.size
+    mesh = Mesh(np.array(jax.local_devices()), ("runs",))
+    return NamedSharding(mesh, PartitionSpec("runs")), mesh.size
+
+
+def per_run(fn, sharding, num_args: int, **jit_kwargs):
+    """``jit`` of ``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output,
+    each device running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk
+    to each other, so the program holds no collective."""
+    spec = sharding.spec
+    mapped = jax.shard_map(
+        jax.vmap(fn),
+        mesh=sharding.mesh,
+        in_specs=(spec,) * num_args,
+        out_specs=spec,
+        check_vma=False,  # carries start as constants; runs are independent anyway
+    )
+    return jax.jit(mapped, **jit_kwargs)
 
 
 @dataclass
@@ -213,11 +231,10 @@ def run_group(
         return algo.policy_returns(k_eval, algo.best_policy(state), ev.rollouts, ev.batch)
 
     # every leaf (state, metrics, keys, params) has the leading [runs] axis: shard it
-    on_runs = dict(in_shardings=sharding, out_shardings=sharding)
-    state = jax.jit(jax.vmap(init_one), **on_runs)(keys)
+    state = per_run(init_one, sharding, 1)(keys)
     t0 = time.perf_counter()
     step = (
-        jax.jit(jax.vmap(step_one), donate_argnums=(1,), **on_runs)
+        per_run(step_one, sharding, 4, donate_argnums=(1,))
         .lower(keys, state, hyper, env_params)
         .compile()
     )
@@ -268,7 +285,7 @@ def run_group(
     loop_s = time.perf_counter() - t_loop
     t_eval = time.perf_counter()
     returns = np.asarray(
-        jax.device_get(jax.jit(jax.vmap(eval_one), **on_runs)(keys, state, env_params)), np.float64
+        jax.device_get(per_run(eval_one, sharding, 3)(keys, state, env_params)), np.float64
     )
     best = jax.device_get(jax.vmap(algorithm.best_policy)(state))
     eval_s = time.perf_counter() - t_eval

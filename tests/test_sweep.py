@@ -37,7 +37,8 @@ GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
 
 def _sweep_args(out, seeds=3):
     args = ["sweep", "tagging-thesis-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
-    return args + [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
+    args += [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
+    return args + ["--cpu-devices", "1"]  # (ignored where XLA_FLAGS sets the count)
 
 
 @pytest.fixture(scope="module")
@@ -198,7 +199,8 @@ TINY = [
 
 def _tiny_args(out):
     args = ["sweep", "tagging-thesis-n3", "--seeds", "2", "--grid", "algorithm.alpha=0.1,0.3"]
-    return args + [a for s in TINY for a in ("--set", s)] + ["--out", str(out), "--no-progress"]
+    args += [a for s in TINY for a in ("--set", s)] + ["--cpu-devices", "1"]
+    return args + ["--out", str(out), "--no-progress"]
 
 
 def test_sigint_then_resume_is_identical(tmp_path):
