@@ -2,6 +2,9 @@
 
 cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
                  [--checkpoint-every K] [--resume DIR]
+cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out DIR]
+                 [--set section.key=value ...] [--checkpoint-every K] [--resume DIR]
+                 [--coordinator HOST:PORT --num-processes P --process-id I | --cluster]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
 cognet-jax list
@@ -11,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -52,6 +56,65 @@ def _parser() -> argparse.ArgumentParser:
         metavar="DIR",
         default=None,
         help="continue the interrupted run in DIR from its checkpoint (config and seed from it)",
+    )
+
+    w = sub.add_parser(
+        "sweep",
+        help="many seeds x settings in one compiled program; writes runs.csv/json, summary.md",
+    )
+    w.add_argument(
+        "experiment",
+        nargs="?",
+        default=DEFAULT_EXPERIMENT,
+        help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
+    )
+    w.add_argument("--seeds", type=int, default=1, help="number of seeds (default 1)")
+    w.add_argument("--first-seed", type=int, default=0, help="seeds are first .. first+N-1")
+    w.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V1,V2",
+        help="values of one field to sweep; repeatable (cartesian product)",
+    )
+    w.add_argument("--out", default=None, help="output folder (default runs/sweep-EXPERIMENT)")
+    w.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=V",
+        help="override a config field for every run; repeatable",
+    )
+    w.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    w.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=0,
+        metavar="K",
+        help="write the search state of every run every K iterations (always on Ctrl-C)",
+    )
+    w.add_argument(
+        "--resume",
+        metavar="DIR",
+        default=None,
+        help="continue the interrupted sweep in DIR (experiment, seeds, grid from it)",
+    )
+    w.add_argument(
+        "--cpu-devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="split the CPU into N JAX devices the runs are sharded over (default: one per "
+        "core, at most one per run; ignored when XLA_FLAGS sets the device count)",
+    )
+    w.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="jax.distributed")
+    w.add_argument("--num-processes", type=int, default=None, metavar="P")
+    w.add_argument("--process-id", type=int, default=None, metavar="I")
+    w.add_argument(
+        "--cluster",
+        action="store_true",
+        help="initialise jax.distributed from the scheduler's environment (SLURM, ...)",
     )
 
     e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
@@ -108,6 +171,99 @@ def _train(args) -> int:
     except Interrupted as err:
         print(f"error: {err}", file=sys.stderr)
         return 130
+    return 0
+
+
+def init_distributed(args) -> None:
+    """``jax.distributed.initialize`` from ``--coordinator/--num-processes/--process-id`` or,
+    with ``--cluster``, from the cluster scheduler's environment variables."""
+    import jax
+
+    explicit = (args.coordinator, args.num_processes, args.process_id)
+    if args.cluster:
+        jax.distributed.initialize()
+    elif any(v is not None for v in explicit):
+        from cognet_jax.config import ConfigError
+
+        for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
+            if v is None:
+                raise ConfigError(name.lstrip("-"), f"{name} is needed for a multi-process sweep")
+        if not 0 <= args.process_id < args.num_processes:
+            raise ConfigError("process-id", f"must be in 0 .. {args.num_processes - 1}")
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+
+
+def set_cpu_devices(requested: int | None, runs: int) -> None:
+    """Split the host CPU into ``requested`` JAX devices (default ``min(cores, runs)``) so the
+    sharded ``[runs]`` axis keeps every core busy. Must run before JAX starts its backends;
+    does nothing when ``XLA_FLAGS`` already sets the host device count."""
+    import os
+
+    import jax
+
+    from cognet_jax.config import ConfigError
+
+    if requested is not None and requested < 1:
+        raise ConfigError("cpu-devices", f"must be >= 1, got {requested}")
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return
+    n = requested if requested is not None else max(1, min(os.cpu_count() or 1, runs))
+    try:
+        jax.config.update("jax_num_cpu_devices", n)
+    except RuntimeError:  # backends already started (e.g. called from a running program)
+        pass
+
+
+def _sweep(args) -> int:
+    from cognet_jax.config import ConfigError
+    from cognet_jax.runner import Interrupted
+    from cognet_jax.sweep import SWEEP_SPEC, Checkpointing, parse_grid, run_sweep, write_outputs
+
+    if args.checkpoint_every < 0:
+        raise ConfigError("checkpoint-every", f"must be >= 0, got {args.checkpoint_every}")
+    if args.resume:
+        spec_path = Path(args.resume) / "sweep-state" / SWEEP_SPEC
+        if not spec_path.is_file():
+            raise FileNotFoundError(f"{spec_path} not found: is {args.resume} a sweep folder?")
+        spec = json.loads(spec_path.read_text())
+        experiment, seeds, grid, overrides = (
+            spec["experiment"],
+            spec["seeds"],
+            spec["grid"],
+            spec["overrides"],
+        )
+        out = Path(args.resume)
+    else:
+        if args.seeds < 1:
+            raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
+        experiment, grid, overrides = args.experiment, parse_grid(args.grid), args.overrides
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+        out = Path(args.out or f"runs/sweep-{Path(args.experiment).stem}")
+    processes = args.num_processes or 1
+    total = len(seeds) * math.prod(len(v) for v in grid.values())
+    set_cpu_devices(args.cpu_devices, -(-total // processes))
+    init_distributed(args)
+    import jax
+
+    main_process = jax.process_index() == 0
+    checkpointing = Checkpointing(out / "sweep-state", args.checkpoint_every, bool(args.resume))
+    try:
+        result = run_sweep(
+            experiment,
+            seeds,
+            grid,
+            overrides,
+            progress=not args.no_progress and main_process,
+            log=print if main_process else (lambda *a: None),
+            checkpointing=checkpointing,
+        )
+    except Interrupted as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 130
+    if main_process:
+        write_outputs(result, out)
+        print((out / "summary.md").read_text())
+        print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png")
     return 0
 
 
@@ -188,9 +344,13 @@ def main(argv: list[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"train": _train, "evaluate": _evaluate, "vae": _vae, "list": _list}[args.command](
-            args
-        )
+        return {
+            "train": _train,
+            "sweep": _sweep,
+            "evaluate": _evaluate,
+            "vae": _vae,
+            "list": _list,
+        }[args.command](args)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -1,0 +1,238 @@
+"""Sweeps: one compiled program for seeds x numeric settings, equal to the single runs; grouping
+of shape-changing settings; outputs; the same table on 2 devices and from 2 processes."""
+
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from cognet_jax.checkpoint import read_checkpoint
+from cognet_jax.cli import main
+from cognet_jax.config import ConfigError, load_config
+from cognet_jax.runner import run_training
+from cognet_jax.sweep import assign_runs, parse_grid, plan
+
+ROOT = Path(__file__).parents[1]
+SMALL = [
+    "algorithm.iterations=4",
+    "algorithm.rollouts=200",
+    "algorithm.top=20",
+    "algorithm.keep=5",
+    "algorithm.eval_rollouts=20",
+    "network.train_steps=5",
+    "evaluation.rollouts=300",
+    "env.obs_noise=0.3",  # env params reach the program as (traced) data too
+]
+GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
+
+
+def _sweep_args(out, seeds=3):
+    args = ["sweep", "tagging-thesis-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
+    args += [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
+    return args + ["--cpu-devices", "1"]  # (ignored where XLA_FLAGS sets the count)
+
+
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep1")
+    assert main(_sweep_args(out)) == 0
+    return out, json.loads((out / "runs.json").read_text())
+
+
+def _table(result):
+    """The comparable part of every row: setting, seed, honest value, per-iteration values."""
+    return [
+        (
+            r["setting"],
+            r["seed"],
+            r["final_value"]["mean"],
+            r["final_value"]["stderr"],
+            r["in_loop_best"],
+            tuple(r["values_per_iteration"]),
+        )
+        for r in result["rows"]
+    ]
+
+
+def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
+    """Each run of the sweep is the single run with its seed and alpha, number for number.
+
+    Exact (not to a tolerance): a run's computation inside ``vmap`` is the same sequence of
+    float32 operations on the same keys as the single run, and on this problem (rewards -1, -20,
+    +50, gamma 1) every return and every mean over rollouts is exact in float32, so no
+    reduction-order difference can show; on other problems allow float tolerance."""
+    out, result = one_process
+    rows = result["rows"]
+    assert [(r["setting"], r["seed"]) for r in rows] == [(a, s) for a in (0, 1) for s in (0, 1, 2)]
+    assert result["settings"] == [{"algorithm.alpha": 0.1}, {"algorithm.alpha": 0.4}]
+    assert len(result["groups"]) == 1  # one compiled program for all six runs
+    for row in rows:
+        alpha = result["settings"][row["setting"]]["algorithm.alpha"]
+        config = load_config(
+            "tagging-thesis-n3",
+            SMALL + [f"algorithm.alpha={alpha}", "run.plots=false", "run.progress=false"],
+        )
+        single = run_training(config, row["seed"], tmp_path / f"{alpha}-{row['seed']}", log=print)
+        assert row["final_value"] == single["final_value"]
+        assert row["values_per_iteration"] == single["values_per_iteration"]
+        assert row["best_per_iteration"] == single["best_per_iteration"]
+        assert row["in_loop_best"] == single["in_loop_best"]
+    # the settings really differ (alpha reaches the compiled program as data)
+    assert rows[0]["values_per_iteration"] != rows[3]["values_per_iteration"]
+
+
+def test_sweep_outputs(one_process):
+    out, result = one_process
+    with (out / "runs.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 6
+    assert [float(r["algorithm.alpha"]) for r in table] == [0.1] * 3 + [0.4] * 3
+    assert float(table[4]["final_mean"]) == result["rows"][4]["final_value"]["mean"]
+    summary = (out / "summary.md").read_text()
+    finals = [r["final_value"]["mean"] for r in result["rows"][:3]]
+    se = np.std(finals, ddof=1) / np.sqrt(3)
+    assert f"| algorithm.alpha=0.1 | 3 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
+    assert (out / "values.png").stat().st_size > 1000
+
+
+def test_plan_groups_shape_changing_settings():
+    grid = parse_grid(["algorithm.nodes=2,3", "algorithm.alpha=0.1,0.2", "env.obs_noise=0,0.5"])
+    groups = plan("tagging-thesis-n3", grid, ["algorithm.iterations=2"])
+    assert len(groups) == 2  # nodes changes shapes; alpha and noise are data
+    assert [len(g.settings) for g in groups] == [4, 4]
+    assert {g.settings[0].config.algorithm.nodes for g in groups} == {2, 3}
+    total = assign_runs(groups, [0, 1, 2], process=1, processes=2)
+    assert total == 24
+    assert sum(len(g.runs) for g in groups) == 12
+
+
+def test_grid_errors_name_the_field():
+    with pytest.raises(ConfigError, match="algorithm.alpha"):
+        parse_grid(["algorithm.alpha=0.1", "algorithm.alpha=0.2"])
+    with pytest.raises(ConfigError, match="algorithm.alpha"):
+        plan("tagging-thesis-n3", parse_grid(["algorithm.alpha=0.1,7"]), [])
+    with pytest.raises(ConfigError, match="algorithm.nodez"):
+        plan("tagging-thesis-n3", parse_grid(["algorithm.nodez=2"]), [])
+    assert main(["sweep", "--seeds", "0"]) == 2
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env(devices: int = 1) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    return env
+
+
+def test_two_devices_same_table(one_process, tmp_path):
+    """The 6 runs sharded over a 2-device mesh (NamedSharding): the same numbers."""
+    _, result = one_process
+    code = (
+        "import sys, jax; assert jax.local_device_count() == 2; "
+        "from cognet_jax.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
+    out = tmp_path / "dev2"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *_sweep_args(out)],
+        env=_env(2),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    sharded = json.loads((out / "runs.json").read_text())
+    assert sharded["local_devices"] == 2
+    assert _table(sharded) == _table(result)
+
+
+def test_two_processes_same_table(one_process, tmp_path):
+    """2 processes on localhost (jax.distributed, CPU collectives), each with 2 devices and 3
+    of the 6 runs (padded to 4 on its mesh): process 0 gathers a table equal to the
+    single-process one; process 1 writes no table."""
+    _, result = one_process
+    port = _free_port()
+    outs = [tmp_path / f"p{i}" for i in range(2)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "cognet_jax", *_sweep_args(outs[i])]
+            + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
+            + ["--process-id", str(i)],
+            env=_env(2),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    logs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], "\n".join(x[-3000:] for x in logs)
+    gathered = json.loads((outs[0] / "runs.json").read_text())
+    assert gathered["processes"] == 2 and gathered["local_devices"] == 2
+    assert [g["runs"] for g in gathered["groups"]] == [3]  # process 0's share
+    assert not (outs[1] / "runs.json").exists()  # process 1 keeps only its sweep-state
+    assert _table(gathered) == _table(result)
+
+
+TINY = [
+    "algorithm.iterations=300",
+    "algorithm.rollouts=40",
+    "algorithm.top=8",
+    "algorithm.keep=3",
+    "algorithm.eval_rollouts=8",
+    "network.train_steps=2",
+    "evaluation.rollouts=200",
+]
+
+
+def _tiny_args(out):
+    args = ["sweep", "tagging-thesis-n3", "--seeds", "2", "--grid", "algorithm.alpha=0.1,0.3"]
+    args += [a for s in TINY for a in ("--set", s)] + ["--cpu-devices", "1"]
+    return args + ["--out", str(out), "--no-progress"]
+
+
+def test_sigint_then_resume_is_identical(tmp_path):
+    """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
+    with exactly the numbers of an uninterrupted sweep."""
+    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
+    assert main(_tiny_args(ref_dir)) == 0
+    reference = json.loads((ref_dir / "runs.json").read_text())
+    env = _env(1)
+    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", "10"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    ckpt = out / "sweep-state" / "group0-p0.checkpoint.msgpack"
+    t0 = time.time()
+    while not ckpt.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() - t0 < 300, "no checkpoint appeared"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted at iteration" in err and f"--resume {out}" in err
+    raw = read_checkpoint(ckpt)
+    assert 10 <= raw["iteration"] < 300
+    assert np.asarray(raw["state"]["progress"]["iteration"]).tolist() == [raw["iteration"]] * 4
+    assert not (out / "runs.json").exists()
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    resumed = json.loads((out / "runs.json").read_text())
+    assert resumed["groups"][0]["resumed_from_iteration"] == raw["iteration"]
+    assert _table(resumed) == _table(reference)
