@@ -106,6 +106,8 @@ def build_algorithm(config: Config, env=None, env_params=None):
             separate=a.separate,
             common_random_numbers=a.common_random_numbers,
             train_last_transition=a.train_last_transition,
+            train_on=a.train_on,
+            best_rollouts=a.best_rollouts,
             entropy_window=a.entropy_window,
         )
         hyper = CognetHyper(

@@ -100,6 +100,11 @@ class CognetAlgorithmSection:
     separate: bool = False
     common_random_numbers: bool = True
     train_last_transition: bool = True
+    #: "kept" (SPEC) or "top": train the node networks on the pairs of all K_top pre-selected
+    #: rollouts instead of the K_keep kept ones
+    train_on: str = "kept"
+    #: 0 (SPEC): step 8 evaluates the updated policy with eval_rollouts; N > 0: with N
+    best_rollouts: int = 0
     entropy_injection: bool = True
     entropy_rate: float = 0.02
     entropy_std: float = 0.5
@@ -468,6 +473,12 @@ def validate(config: Config) -> None:
             alg.threshold_rule in ("elite", "best"),
             "algorithm.threshold_rule",
             f"must be 'elite' or 'best', got {alg.threshold_rule!r}",
+        )
+        _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+        _require(
+            alg.train_on in ("kept", "top"),
+            "algorithm.train_on",
+            f"must be 'kept' or 'top', got {alg.train_on!r}",
         )
         net = config.network
         _positive(net, "network", "hidden", "train_steps")

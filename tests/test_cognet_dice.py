@@ -177,3 +177,47 @@ def test_same_seed_same_results(tmp_path):
     ):
         assert key in saved
     assert saved["final_value"]["rollouts"] == 500
+
+
+def test_best_rollouts_sets_the_step8_evaluation():
+    """best_rollouts = N: the recorded value is the updated policy's mean over N rollouts with
+    the iteration's evaluation key (SPEC step 8 uses K_eval)."""
+    config = load_config("tagging-thesis-n3", SMALL + ["algorithm.best_rollouts=700"])
+    algorithm, init, _ = make_step(config)
+    key = jax.random.key(5)
+    state, metrics = jax.jit(algorithm.step)(key, init(jax.random.key(4)))
+    k_eval = jax.random.split(key, 3)[2]
+    expected = algorithm.evaluate(k_eval, state.policy, 700)
+    np.testing.assert_allclose(float(metrics.value), float(expected), rtol=1e-6)
+    assert algorithm.rollouts_per_iteration == 200 + 20 * 20 + 700
+
+
+def test_train_on_top_trains_on_more_pairs_than_kept():
+    """train_on = "top": the networks see the pairs of all K_top pre-selected rollouts, so the
+    same iteration moves the weights differently than with the K_keep kept ones."""
+    out = {}
+    for where in ("kept", "top"):
+        config = load_config("tagging-thesis-n3", SMALL + [f"algorithm.train_on={where}"])
+        algorithm, init, _ = make_step(config)
+        state, _ = jax.jit(algorithm.step)(jax.random.key(2), init(jax.random.key(1)))
+        out[where] = state
+    # same rollouts, same candidates, same action update ...
+    np.testing.assert_array_equal(
+        np.asarray(out["kept"].policy.action_probs), np.asarray(out["top"].policy.action_probs)
+    )
+    # ... different training data for the networks
+    leaves = zip(
+        jax.tree.leaves(out["kept"].policy.net_params),
+        jax.tree.leaves(out["top"].policy.net_params),
+        strict=True,
+    )
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b)) for a, b in leaves)
+
+
+@pytest.mark.parametrize("field,value", [("train_on", "all"), ("best_rollouts", "-5")])
+def test_quality_options_are_validated(field, value):
+    from cognet_jax.config import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        load_config("tagging-thesis-n3", [f"algorithm.{field}={value}"])
+    assert err.value.field == f"algorithm.{field}"

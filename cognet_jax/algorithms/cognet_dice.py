@@ -79,6 +79,12 @@ class CognetSettings:
     separate: bool = False
     common_random_numbers: bool = True
     train_last_transition: bool = True
+    #: which rollouts give the networks' training pairs: "kept" (SPEC step 7: the kept
+    #: candidates' original rollouts) or "top" (all K_top pre-selected rollouts)
+    train_on: str = "kept"
+    #: 0: step 8 evaluates the updated policy with K_eval rollouts (SPEC); N > 0: with N, so
+    #: the anytime best is chosen on less noisy values
+    best_rollouts: int = 0
     entropy_window: int = 4
 
 
@@ -276,7 +282,8 @@ class CognetDice:
         """Simulated rollouts in one ``step``: the policy's rollouts, the candidates' evaluations
         (not in separate training) and the evaluation of the updated policy."""
         s = self.settings
-        return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + s.eval_rollouts
+        step8 = s.best_rollouts or s.eval_rollouts
+        return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + step8
 
     def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
         """One COGNet-DICE iteration; returns ``(state, CognetMetrics)``."""
@@ -341,7 +348,10 @@ class CognetDice:
         progress = progress.replace(threshold=threshold).after_injection(injected)
 
         # 7: train the node networks on the kept rollouts' transitions
-        pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
+        if s.train_on == "top" and not s.separate:
+            pairs = training_pairs(traj, top_idx, jnp.ones(s.top, bool), s.train_last_transition)
+        else:
+            pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
         # fold_in (not a 4th split) keeps the random streams of runs without augmentation
         pairs = self.pipeline.training_pairs(jax.random.fold_in(key, 3), *pairs)
         net_params, opt_state = self.train_networks(
@@ -350,7 +360,7 @@ class CognetDice:
         policy = NeuralPolicy(action_probs=action_probs, net_params=net_params)
 
         # 8: evaluate, record, keep the best
-        value = self.evaluate(k_eval, policy, s.eval_rollouts)
+        value = self.evaluate(k_eval, policy, s.best_rollouts or s.eval_rollouts)
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, policy, state.best_policy)
         metrics = CognetMetrics(
