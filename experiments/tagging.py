@@ -149,7 +149,31 @@ Monte Carlo means (the thesis reports this kind of number); it is biased upwards
 only to make that bias visible. Simulated agent-steps: the search's budget, iterations x
 rollouts per iteration x horizon x agents (the final honest evaluation not included).
 Reference controller: the reactive 3-node controller of SPEC section 8 (start "move left";
-next node by the region of the observation: (-inf, -1] left, (-1, 1] tag, (1, inf) right)."""
+next node by the region of the observation: (-inf, -1] left, (-1, 1] tag, (1, inf) right).
+
+COGNet-DICE as SPEC section 5 specifies it (tagging-thesis-n3 / -n6) stays far from the
+reactive controller. Its node networks learn from the pairs of the K_keep = 10 kept rollouts
+only (at most 60 pairs), and in most iterations nothing is kept: the elite threshold V_w, set
+on one iteration's candidate values, is rarely beaten by the next iteration's until an entropy
+injection resets it (kept_per_iteration in results.json). The "+options" rows change two
+SPEC choices: the networks train on the pairs of all K_top = 100 pre-selected rollouts
+(`algorithm.train_on = "top"`, learning rate 0.03), and step 8 evaluates the updated policy
+with 1000 rollouts instead of K_eval = 100 (`algorithm.best_rollouts = 1000`), so the anytime
+best is not a lucky 100-rollout mean. The rest of the gap to 20.76 is a local optimum of the
+action distributions. The start node's action stays mixed between left and right (about
+0.43 / 0.55 in the 3-node "+options" policy): at t = 0 both directions are equally good, and
+every kept rollout's start visit counts in the MLE. That same node is also where the networks
+send z < -1, so the controller never gets a pure "left" node. The SPEC choices we would change
+are the training set of step 7 (top instead of kept), the size of the step-8 evaluation, and
+the action MLE, which should not let the start visit outvote the visits that follow an
+observation. COG-DICE on the same budget does better than SPEC COGNet-DICE here (the thesis
+reports the opposite, with in-loop values).
+
+Separate training fixes node q to action q mod 3, so node 0, the start node, plays "tag". At
+t = 0 a random position tags successfully with probability 0.19, so both taggers together
+expect -13.4 from that first step against -2 for moving, a loss of about 11 before any
+observation. This caps what the separate runs can reach below the
+reactive controller's 20.76. Why the 6-node separate run ends near -25 was not investigated."""
 
 
 def write_table(groups: list[str]) -> None:
