@@ -39,6 +39,9 @@ COGNET_OPTIONS = [
 VARIANTS = {
     "tagging-thesis-n3+options": ("tagging-thesis-n3", COGNET_OPTIONS),
     "tagging-thesis-n6+options": ("tagging-thesis-n6", COGNET_OPTIONS),
+    # separate training has no candidates: only the learning rate and the step-8 evaluation
+    "tagging-separate-n3+options": ("tagging-separate-n3", COGNET_OPTIONS[1:]),
+    "tagging-separate-n6+options": ("tagging-separate-n6", COGNET_OPTIONS[1:]),
 }
 
 #: run name -> (group, published value, what the published value is)
@@ -49,6 +52,8 @@ EXPERIMENTS = {
     "tagging-thesis-n6+options": ("thesis", "11.103", "thesis COGNet-DICE"),
     "tagging-separate-n3": ("thesis", "> 2", "thesis, separate training"),
     "tagging-separate-n6": ("thesis", "> 8", "thesis, separate training"),
+    "tagging-separate-n3+options": ("thesis", "> 2", "thesis, separate training"),
+    "tagging-separate-n6+options": ("thesis", "> 8", "thesis, separate training"),
     "tagging-thesis-cogdice-n3": ("thesis", "1.540", "thesis COG-DICE"),
     "tagging-thesis-cogdice-n6": ("thesis", "1.794", "thesis COG-DICE"),
     "tagging-paper-cogdice": ("paper", "101.8", "COG-DICE paper"),
