@@ -178,7 +178,36 @@ Separate training fixes node q to action q mod 3, so node 0, the start node, pla
 t = 0 a random position tags successfully with probability 0.19, so both taggers together
 expect -13.4 from that first step against -2 for moving, a loss of about 11 before any
 observation. This caps what the separate runs can reach below the
-reactive controller's 20.76. Why the 6-node separate run ends near -25 was not investigated."""
+reactive controller's 20.76. The 6-node separate run's best policy (-25.3 honest against -2.3
+in-loop) is a lucky 100-rollout mean; the "+options" rows choose the best on 1000-rollout
+evaluations.
+
+COG-DICE paper setting. The budget has to fit 10 minutes on 2 cores; the paper used 500
+iterations x 2000 samples x 1000 rollouts. Runs of 300 iterations with seed 0, all with
+3 regions and alpha 0.1, honest values (`cognet-jax train tagging-paper-cogdice --set ...`):
+
+| samples x rollouts, elites | entropy injection | winner re-evaluated | honest |
+|---|---|---|---|
+| 1000 x 50, 50 | no | no | 76.6 |
+| 1000 x 50, 50 | yes | no | 90.6 |
+| 1000 x 50, 50 | yes | 1000 rollouts | 78.5 |
+| 2000 x 25, 50 | yes | 1000 rollouts | 99.1 |
+| 4000 x 25, 50 | yes | 1000 rollouts | 102.1 (the built-in run) |
+
+Without entropy injection the elite threshold froze after about 100 iterations: no sample
+beat a lucky iteration's V_w again, so nothing was kept. Converged policies that fell short had
+the same flaw. One agent's controller never moved left, because finding a "left" node means
+changing its action, the transitions into it and its division points at the same time. More
+samples per iteration find such joint changes more often, so 4000 samples of 25 rollouts
+each did better than fewer samples evaluated more precisely. COGNet-DICE
+(tagging-paper-cognet, SPEC settings) got far less from the same budget of simulated
+agent-steps. Its networks have to learn the region boundaries from the pairs of 10 kept
+rollouts per iteration, while COG-DICE samples the boundaries directly. G-DICE on the
+discretised problem uses the same search settings as COG-DICE. Against the published G-DICE
+values it is lower at d = 0.5, where each agent has 41 observations and so 41 transition rows
+per node to learn. It is also lower at d = 1 and d = 4, and about equal at d = 2. At d = 4 the
+observation cannot tell "close enough to tag" from "4 away", so no controller tags
+reliably."""
 
 
 def write_table(groups: list[str]) -> None:
