@@ -132,7 +132,14 @@ def main(argv=None) -> int:
     mode.add_argument("--full", action="store_true", help="also the scaling curves")
     p.add_argument("--no-torch", action="store_true", help="JAX only")
     p.add_argument("--no-write", action="store_true", help="print only, write nothing")
+    p.add_argument("--report-only", action="store_true", help="rewrite README.md from results.json")
     args = p.parse_args(argv)
+    if args.report_only:
+        out = json.loads((HERE / "results.json").read_text())
+        if out.get("scaling"):
+            write_plots(out, HERE)
+        write_readme(out, HERE / "README.md")
+        return 0
     with_torch = not args.no_torch and torch_cases.available()
 
     def log(text: str) -> None:

@@ -141,8 +141,8 @@ def roofline(out: dict) -> list[str]:
         f"Measured peaks: float32 matmul {peak['matmul_gflops']:.0f} GFLOP/s, streaming "
         f"bandwidth {peak['bandwidth_gbs']:.1f} GB/s.",
         "",
-        "| nodes | flops / agent-step | bytes / agent-step | compute bound M/s | memory bound "
-        "M/s | measured M/s (1e5 rollouts) | measured / memory bound |",
+        "| nodes | flops / agent-step | bytes / agent-step | compute bound M/s | all bytes "
+        "from DRAM M/s | measured M/s (1e5 rollouts) | measured / DRAM estimate |",
         "|---|---|---|---|---|---|---|",
     ]
     for c in out.get("rollout_cost", []):
@@ -255,8 +255,10 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         *roofline(out),
         "",
         "Flops and bytes per agent-step are XLA's cost analysis of the compiled rollout program "
-        "(bytes = traffic between compiled kernels); compute bound = matmul peak / flops, memory "
-        "bound = bandwidth / bytes.",
+        "(bytes = traffic between compiled kernels); compute bound = matmul peak / flops; "
+        "all bytes from DRAM = streaming bandwidth / bytes, the rate if every byte between "
+        "kernels went to main memory (measured above it means part of that traffic stays in "
+        "cache).",
         "",
     ]
     if out.get("scaling"):
