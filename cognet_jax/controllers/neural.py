@@ -111,19 +111,21 @@ class NeuralController:
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
 
-        Applies every node's member of each agent (a static loop over nodes) and keeps the
-        current node's with ``where``, instead of gathering each rollout's member weights: under
-        ``vmap`` over rollouts each member becomes one batched matmul and no per-rollout copy of
-        the weights is made. Rollouts measured side by side on the 2-core CPU: tagging, 6 nodes,
-        1e5 rollouts: 132 ms (gather 135 ms); heatmap, 4 nodes, 16 -> 160 -> 4 networks, 11,000
-        rollouts: 64 ms (gather 307 ms; applying all members with one vmap and summing the
-        selected: 94 ms).
+        A ``lax.scan`` over the nodes applies node n's member of every agent and keeps its
+        logits where the agent is in node n, instead of gathering each rollout's member weights:
+        under ``vmap`` over rollouts each member becomes one batched matmul and no per-rollout
+        copy of the weights is made (benchmarks/NOTES.md has the side-by-side timings: on the
+        heatmap's 16 -> 160 -> 4 networks the gather is about 4x slower).
         """
-        out = None
-        for n in range(self.num_nodes):
-            member = jax.tree.map(lambda p, n=n: p[:, n], net_params)
+        members = jax.tree.map(lambda p: jnp.moveaxis(p, 1, 0), net_params)  # [nodes, agents, ..]
+
+        def keep_if_current(out, node_and_member):
+            n, member = node_and_member
             logits = jax.vmap(self.one_net_logits)(member, obs)  # [agents, next]
-            out = logits if out is None else jnp.where((nodes == n)[:, None], logits, out)
+            return jnp.where((nodes == n)[:, None], logits, out), None
+
+        init = jnp.zeros((self.num_agents, self.num_nodes), jnp.float32)
+        out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
         return out
 
     def all_node_logits(self, net_params: dict, obs: jax.Array) -> jax.Array:
