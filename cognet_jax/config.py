@@ -200,6 +200,10 @@ class RunSection:
     progress: bool = True
     plots: bool = True
     checkpoint_every: int = 0
+    #: lay every batch of rollouts (and the candidates' evaluations) over all local devices
+    #: (``runner.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
+    #: devices it is slower than one device (benchmarks/NOTES.md)
+    shard_rollouts: bool = False
 
 
 ENV_SECTIONS: dict[str, type] = {

@@ -40,6 +40,16 @@ class Trajectory:
     ret: jax.Array
 
 
+def shard_rollouts(tree):
+    """Lay the leading ``[rollouts]`` axis of every leaf over the ``"rollouts"`` axis of the
+    active mesh (``jax.set_mesh``); without such a mesh the arrays are returned unchanged."""
+    mesh = jax.sharding.get_abstract_mesh()
+    if mesh.empty or "rollouts" not in mesh.axis_names:
+        return tree
+    spec = jax.sharding.PartitionSpec("rollouts")
+    return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, spec), tree)
+
+
 def rollouts(
     env, controller, key: jax.Array, num: int, env_params: Any, policy: Any, record: bool = False
 ):
@@ -50,7 +60,7 @@ def rollouts(
     n, h = env.num_agents, env.horizon
     k_reset, k_steps = jax.random.split(key)
     states = jax.vmap(env.reset, (0, None))(
-        jax.random.uniform(k_reset, (num, env.reset_noise)), env_params
+        shard_rollouts(jax.random.uniform(k_reset, (num, env.reset_noise))), env_params
     )
     gamma = jnp.asarray(env_params.discount, jnp.float32)
     act = jax.vmap(controller.act, (0, None, 0))
@@ -59,7 +69,7 @@ def rollouts(
 
     def body(carry, k):
         states, nodes, ret, disc = carry
-        u = jax.random.uniform(k, (num, 2 * n + env.step_noise))
+        u = shard_rollouts(jax.random.uniform(k, (num, 2 * n + env.step_noise)))
         actions = act(u[:, :n], policy, nodes)
         states, obs, reward = env_step(u[:, 2 * n :], states, actions, env_params)
         next_nodes = move(u[:, n : 2 * n], policy, nodes, obs)

@@ -175,7 +175,35 @@ def resume_target(run_dir: str | Path, overrides: list[str] | None = None):
     return config_from_dict(apply_overrides(meta["config"], overrides or [])), int(meta["seed"])
 
 
+def rollout_mesh(config: Config):
+    """The context a run's iterations are compiled in: with ``run.shard_rollouts`` a 1-D mesh
+    ``("rollouts",)`` over the local devices is set (``jax.set_mesh``), and the rollout
+    engine lays every batch of rollouts (and so the candidates' evaluations) over it
+    (``rollout.shard_rollouts``); otherwise nothing changes."""
+    import contextlib
+
+    if not config.run.shard_rollouts:
+        return contextlib.nullcontext()
+    from jax.sharding import Mesh
+
+    return jax.set_mesh(Mesh(np.array(jax.local_devices()), ("rollouts",)))
+
+
 def run_training(
+    config: Config,
+    seed: int,
+    out_dir: str | Path,
+    progress: bool | None = None,
+    log=print,
+    resume: bool = False,
+) -> dict:
+    """Run the search of ``config`` with ``seed`` (see ``_run_training``) inside
+    ``rollout_mesh(config)``."""
+    with rollout_mesh(config):
+        return _run_training(config, seed, out_dir, progress, log, resume)
+
+
+def _run_training(
     config: Config,
     seed: int,
     out_dir: str | Path,
