@@ -165,14 +165,14 @@ SPEC choices: the networks train on the pairs of all K_top = 100 pre-selected ro
 (`algorithm.train_on = "top"`, learning rate 0.03), and step 8 evaluates the updated policy
 with 1000 rollouts instead of K_eval = 100 (`algorithm.best_rollouts = 1000`), so the anytime
 best is not a lucky 100-rollout mean. The rest of the gap to 20.76 is a local optimum of the
-action distributions. The start node's action stays mixed between left and right (about
-0.43 / 0.55 in the 3-node "+options" policy): at t = 0 both directions are equally good, and
-every kept rollout's start visit counts in the MLE. That same node is also where the networks
-send z < -1, so the controller never gets a pure "left" node. The SPEC choices we would change
-are the training set of step 7 (top instead of kept), the size of the step-8 evaluation, and
-the action MLE, which should not let the start visit outvote the visits that follow an
-observation. COG-DICE on the same budget does better than SPEC COGNet-DICE here (the thesis
-reports the opposite, with in-loop values).
+action distributions. In the 3-node "+options" policy the start node's action stays mixed
+between left and right (about 0.43 / 0.55), and that same node is where the networks send
+z < -1, so the controller has no pure "left" node. Leaving the t = 0 visits out of the action
+counts (a one-off experiment, not an option) gave 14.17 and the same mixed node, so the start
+visit alone does not explain it. The SPEC choices we would change are the training set of
+step 7 (top instead of kept) and the size of the step-8 evaluation. COG-DICE on the same
+budget does better than SPEC COGNet-DICE here (the thesis reports the opposite, with in-loop
+values).
 
 Separate training fixes node q to action q mod 3, so node 0, the start node, plays "tag". At
 t = 0 a random position tags successfully with probability 0.19, so both taggers together
