@@ -22,28 +22,37 @@ from pathlib import Path
 DEFAULT_EXPERIMENT = "tagging-thesis-n3"
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cognet-jax", description=__doc__.split("\n\n")[0])
-    sub = p.add_subparsers(dest="command", required=True)
-
-    t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
-    t.add_argument(
+def _add_experiment(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
         "experiment",
         nargs="?",
         default=DEFAULT_EXPERIMENT,
         help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
     )
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
-    t.add_argument(
+
+
+def _add_overrides(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--set SECTION.KEY=V`` (repeatable) and ``--no-progress``."""
+    parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
         default=[],
         metavar="SECTION.KEY=V",
-        help="override a config field; repeatable",
+        help=help_text,
     )
-    t.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cognet-jax", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
+    _add_experiment(t)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
+    _add_overrides(t, "override a config field; repeatable")
     t.add_argument(
         "--checkpoint-every",
         type=int,
@@ -62,12 +71,7 @@ def _parser() -> argparse.ArgumentParser:
         "sweep",
         help="many seeds x settings in one compiled program; writes runs.csv/json, summary.md",
     )
-    w.add_argument(
-        "experiment",
-        nargs="?",
-        default=DEFAULT_EXPERIMENT,
-        help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
-    )
+    _add_experiment(w)
     w.add_argument("--seeds", type=int, default=1, help="number of seeds (default 1)")
     w.add_argument("--first-seed", type=int, default=0, help="seeds are first .. first+N-1")
     w.add_argument(
@@ -78,15 +82,7 @@ def _parser() -> argparse.ArgumentParser:
         help="values of one field to sweep; repeatable (cartesian product)",
     )
     w.add_argument("--out", default=None, help="output folder (default runs/sweep-EXPERIMENT)")
-    w.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=V",
-        help="override a config field for every run; repeatable",
-    )
-    w.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    _add_overrides(w, "override a config field for every run; repeatable")
     w.add_argument(
         "--checkpoint-every",
         type=int,

@@ -396,6 +396,28 @@ def _probability(section: Any, prefix: str, *names: str):
         _require(0.0 <= v <= 1.0, f"{prefix}.{n}", f"must be in [0, 1], got {v}")
 
 
+def _validate_sampler(alg) -> None:
+    """Fields shared by the algorithms that sample deterministic controllers (G-DICE, COG-DICE)."""
+    _positive(
+        alg,
+        "algorithm",
+        "nodes",
+        "iterations",
+        "samples",
+        "elites",
+        "eval_rollouts",
+        "entropy_window",
+        "entropy_patience",
+    )
+    _require(
+        alg.elites <= alg.samples,
+        "algorithm.elites",
+        f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
+    )
+    _probability(alg, "algorithm", "alpha", "entropy_rate")
+    _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+
+
 def validate(config: Config) -> None:
     """Range and consistency checks; raises ``ConfigError`` naming the field."""
     env = config.env
@@ -507,24 +529,7 @@ def validate(config: Config) -> None:
             "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
         )
     if isinstance(alg, GDiceAlgorithmSection):
-        _positive(
-            alg,
-            "algorithm",
-            "nodes",
-            "iterations",
-            "samples",
-            "elites",
-            "eval_rollouts",
-            "entropy_window",
-            "entropy_patience",
-        )
-        _require(
-            alg.elites <= alg.samples,
-            "algorithm.elites",
-            f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
-        )
-        _probability(alg, "algorithm", "alpha", "entropy_rate")
-        _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+        _validate_sampler(alg)
         _require(
             isinstance(env, DpomdpEnvSection) or getattr(env, "obs_division", 0) > 0,
             "env.name",
@@ -542,29 +547,12 @@ def validate(config: Config) -> None:
             "'exact' needs a tabular .dpomdp problem (env.name = 'dpomdp')",
         )
     if isinstance(alg, CogDiceAlgorithmSection):
-        _positive(
-            alg,
-            "algorithm",
-            "nodes",
-            "iterations",
-            "samples",
-            "elites",
-            "eval_rollouts",
-            "entropy_window",
-            "entropy_patience",
-        )
+        _validate_sampler(alg)
         _require(
             alg.regions >= 2,
             "algorithm.regions",
             f"needs >= 2 regions (at least one division point), got {alg.regions}",
         )
-        _require(
-            alg.elites <= alg.samples,
-            "algorithm.elites",
-            f"elites ({alg.elites}) cannot exceed algorithm.samples ({alg.samples})",
-        )
-        _probability(alg, "algorithm", "alpha", "entropy_rate")
-        _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
         _require(alg.entropy_std >= 0, "algorithm.entropy_std", "must be >= 0")
         _require(
             0.0 < alg.beta_eps < 0.5,

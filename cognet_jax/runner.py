@@ -189,6 +189,19 @@ def rollout_mesh(config: Config):
     return jax.set_mesh(Mesh(np.array(jax.local_devices()), ("rollouts",)))
 
 
+def _in_rollout_mesh(fn):
+    """Runs ``fn(config, ...)`` inside ``rollout_mesh(config)``."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapped(config: Config, *args, **kwargs):
+        with rollout_mesh(config):
+            return fn(config, *args, **kwargs)
+
+    return wrapped
+
+
+@_in_rollout_mesh
 def run_training(
     config: Config,
     seed: int,
@@ -197,21 +210,8 @@ def run_training(
     log=print,
     resume: bool = False,
 ) -> dict:
-    """Run the search of ``config`` with ``seed`` (see ``_run_training``) inside
-    ``rollout_mesh(config)``."""
-    with rollout_mesh(config):
-        return _run_training(config, seed, out_dir, progress, log, resume)
-
-
-def _run_training(
-    config: Config,
-    seed: int,
-    out_dir: str | Path,
-    progress: bool | None = None,
-    log=print,
-    resume: bool = False,
-) -> dict:
-    """Run the search of ``config`` with ``seed``; write outputs to ``out_dir``; return results.
+    """Run the search of ``config`` with ``seed`` (inside ``rollout_mesh(config)``); write
+    outputs to ``out_dir``; return results.
 
     Every ``run.checkpoint_every`` iterations (0: never), at the end and on SIGINT the full
     search state is written atomically to ``out_dir/checkpoint.msgpack``; on SIGINT the best
