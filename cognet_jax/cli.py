@@ -259,7 +259,8 @@ def _sweep(args) -> int:
     if main_process:
         write_outputs(result, out)
         print((out / "summary.md").read_text())
-        print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png")
+        print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png; each run's policy in")
+        print(f"  {out}/runs/setting{{k}}-seed{{s}}/ (cognet-jax evaluate works on it)")
     return 0
 
 

@@ -23,6 +23,9 @@ process 0 gathers every row (``process_allgather``) and writes the tables.
 
 Outputs (``write_outputs``): ``runs.csv`` / ``runs.json`` (one row per run), ``summary.md``
 (mean +- s.e. over seeds per setting) and ``values.png`` (value per iteration per setting).
+With a checkpointing work folder (the CLI always has one) every run also gets its own training
+folder ``OUT/runs/setting{k}-seed{s}/`` (``policy.msgpack``, ``results.json``), written when its
+group ends and on Ctrl-C, so ``cognet-jax evaluate`` works on any run of a sweep.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from cognet_jax.config import Config, ConfigError, load_config, parse_override
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
 SWEEP_SPEC = "sweep.json"
+RUNS_DIR = "runs"  # OUT/runs/setting{k}-seed{s}/: each run's best policy and results.json
 
 #: Fields that live in a params pytree (hyper-parameters or env params): sweeping over them
 #: needs no recompilation.
@@ -266,6 +270,20 @@ def run_group(
                 path, state=state, keys={}, iteration=i, history=stack_history(history), meta=meta
             )
 
+    def write_policies(i, rows=None):
+        """Each run's best policy (and ``results.json``) in ``runs/setting{k}-seed{s}/``."""
+        if ckpt:
+            write_run_folders(
+                ckpt.work_dir.parent / RUNS_DIR,
+                by_index,
+                runs[:n_real],
+                state,
+                algorithm,
+                i,
+                iterations,
+                rows,
+            )
+
     t_loop = time.perf_counter()
     i = start
     with sigint_guard() as sigint, _progress_bar(iterations, progress, desc) as bar:
@@ -280,6 +298,7 @@ def run_group(
                 bar.update(i - bar.n)
         if i < iterations:
             save(i)
+            write_policies(i)
             raise Interrupted(ckpt.work_dir.parent if ckpt else Path("."), i, iterations)
     history = jax.device_get(jax.tree.map(lambda *xs: jnp.stack(xs, 1), *history))
     loop_s = time.perf_counter() - t_loop
@@ -313,9 +332,46 @@ def run_group(
                 "best_per_iteration": history.best_value[r].tolist(),
             }
         )
+    write_policies(iterations, rows)
     timing = {"compile_s": compile_s, "loop_s": loop_s, "eval_s": eval_s, "runs": n_real}
     timing["resumed_from_iteration"] = start if start else None
     return rows, timing
+
+
+def run_folder_name(setting: int, seed: int) -> str:
+    """``setting{k}-seed{s}``: the folder of one run under ``OUT/runs/``."""
+    return f"setting{setting}-seed{seed}"
+
+
+def write_run_folders(runs_dir, by_index, runs, state, algorithm, iteration, iterations, rows):
+    """One training-output folder per run (``policy.msgpack``, ``results.json``, the VAE if the
+    pipeline has one), so ``cognet-jax evaluate OUT/runs/setting0-seed3`` works on a sweep's
+    runs as on a ``train`` folder. ``rows=None``: the sweep was interrupted at ``iteration``
+    (``status`` ``"interrupted"``, no final value); otherwise each run's row is stored too."""
+    from cognet_jax.checkpoint import atomic_write_text
+    from cognet_jax.runner import save_policy, save_vae_of
+
+    best = jax.device_get(jax.vmap(algorithm.best_policy)(state))
+    for r, (index, seed) in enumerate(runs):
+        folder = Path(runs_dir) / run_folder_name(index, seed)
+        folder.mkdir(parents=True, exist_ok=True)
+        config = by_index[index].config
+        save_policy(folder / "policy.msgpack", _take(best, r))
+        save_vae_of(algorithm, folder)
+        record = {
+            "experiment": config.experiment.name,
+            "algorithm": config.experiment.algorithm,
+            "seed": seed,
+            "config": config.to_dict(),
+            "grid": by_index[index].values,
+            "status": "complete" if rows is not None else "interrupted",
+            "iteration": iteration,
+            "iterations": iterations,
+            "final_value": rows[r]["final_value"] if rows is not None else None,
+        }
+        if rows is not None:
+            record.update({k: rows[r][k] for k in ("in_loop_best", "values_per_iteration")})
+        atomic_write_text(folder / "results.json", json.dumps(record, indent=1))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from flax.serialization import msgpack_restore
 
 from cognet_jax.checkpoint import read_checkpoint
 from cognet_jax.cli import main
@@ -81,8 +82,19 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
             "tagging-thesis-n3",
             SMALL + [f"algorithm.alpha={alpha}", "run.plots=false", "run.progress=false"],
         )
-        single = run_training(config, row["seed"], tmp_path / f"{alpha}-{row['seed']}", log=print)
+        single_dir = tmp_path / f"{alpha}-{row['seed']}"
+        single = run_training(config, row["seed"], single_dir, log=print)
         assert row["final_value"] == single["final_value"]
+        # the run's own folder holds the same best policy (network weights to float32
+        # rounding: batched training may sum gradients in another order)
+        folder = out / "runs" / f"setting{row['setting']}-seed{row['seed']}"
+        swept = msgpack_restore((folder / "policy.msgpack").read_bytes())
+        alone = msgpack_restore((single_dir / "policy.msgpack").read_bytes())
+        assert jax.tree.structure(swept) == jax.tree.structure(alone)
+        for a, b in zip(jax.tree.leaves(swept), jax.tree.leaves(alone)):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        stored = json.loads((folder / "results.json").read_text())
+        assert stored["status"] == "complete" and stored["final_value"] == single["final_value"]
         assert row["values_per_iteration"] == single["values_per_iteration"]
         assert row["best_per_iteration"] == single["best_per_iteration"]
         assert row["in_loop_best"] == single["in_loop_best"]
@@ -102,6 +114,12 @@ def test_sweep_outputs(one_process):
     se = np.std(finals, ddof=1) / np.sqrt(3)
     assert f"| algorithm.alpha=0.1 | 3 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
     assert (out / "values.png").stat().st_size > 1000
+    # every run's folder works with `cognet-jax evaluate` (here under observation noise)
+    run_dir = out / "runs" / "setting1-seed2"
+    args = ["evaluate", str(run_dir), "--rollouts", "50", "--set", "env.obs_noise=0.5"]
+    assert main(args) == 0
+    logged = json.loads((run_dir / "evaluations.jsonl").read_text().splitlines()[-1])
+    assert logged["rollouts"] == 50 and np.isfinite(logged["mean"])
 
 
 def test_plan_groups_shape_changing_settings():
@@ -232,7 +250,57 @@ def test_sigint_then_resume_is_identical(tmp_path):
     assert 10 <= raw["iteration"] < 300
     assert np.asarray(raw["state"]["progress"]["iteration"]).tolist() == [raw["iteration"]] * 4
     assert not (out / "runs.json").exists()
+    # the best policy so far of every run is written on Ctrl-C
+    for setting in (0, 1):
+        for seed in (0, 1):
+            folder = out / "runs" / f"setting{setting}-seed{seed}"
+            assert (folder / "policy.msgpack").stat().st_size > 0
+            stored = json.loads((folder / "results.json").read_text())
+            assert stored["status"] == "interrupted" and stored["iteration"] == raw["iteration"]
     assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
     resumed = json.loads((out / "runs.json").read_text())
     assert resumed["groups"][0]["resumed_from_iteration"] == raw["iteration"]
+    assert _table(resumed) == _table(reference)
+
+
+def test_sigkill_leaves_an_intact_checkpoint_then_resume_is_identical(tmp_path):
+    """A sweep killed without warning (SIGKILL) keeps its last checkpoint intact (atomic
+    writes: it parses and its history is a prefix of the uninterrupted sweep's); --resume
+    finishes with exactly the numbers of an uninterrupted sweep."""
+    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
+    assert main(_tiny_args(ref_dir)) == 0
+    reference = json.loads((ref_dir / "runs.json").read_text())
+    env = _env(1)
+    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", "5"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    ckpt = out / "sweep-state" / "group0-p0.checkpoint.msgpack"
+    t0 = time.time()
+    while not ckpt.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() - t0 < 300, "no checkpoint appeared"
+        time.sleep(0.02)
+    first = read_checkpoint(ckpt)["iteration"]
+    while read_checkpoint(ckpt)["iteration"] < first + 20 and time.time() - t0 < 300:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.01)
+    proc.kill()
+    proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    raw = read_checkpoint(ckpt)
+    n = raw["iteration"]
+    assert n % 5 == 0 and first + 20 <= n < 300
+    values = np.asarray(raw["history"]["value"]).T  # stored [iterations, runs]
+    expected = [r["values_per_iteration"][:n] for r in reference["rows"]]
+    assert np.array_equal(values, np.float32(expected))
+    leftovers = [p.name for p in ckpt.parent.iterdir() if p.name.endswith(".tmp")]
+    assert len(leftovers) <= 1  # at most the temp file the kill interrupted
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    resumed = json.loads((out / "runs.json").read_text())
+    assert resumed["groups"][0]["resumed_from_iteration"] == n
     assert _table(resumed) == _table(reference)
