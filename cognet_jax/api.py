@@ -214,7 +214,9 @@ def _check_exact_cost(env, a) -> None:
 
 
 def seed_key(config: Config, seed: int) -> jax.Array:
-    return jax.random.key(seed, impl=config.run.prng_impl)
+    from cognet_jax.prng import make_key
+
+    return make_key(seed, config.run.prng_impl)
 
 
 def split_seed_key(key: jax.Array):

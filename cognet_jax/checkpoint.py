@@ -115,4 +115,6 @@ def restore_history(template: Any, raw: dict) -> list:
 
 
 def restore_key(raw: dict, name: str, impl: str) -> jax.Array:
-    return jax.random.wrap_key_data(np.asarray(raw["keys"][name]), impl=impl)
+    from cognet_jax.prng import impl_of
+
+    return jax.random.wrap_key_data(np.asarray(raw["keys"][name]), impl=impl_of(impl))

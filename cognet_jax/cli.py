@@ -265,8 +265,8 @@ def _sweep(args) -> int:
 
 
 def _evaluate(args) -> int:
-    import jax
 
+    from cognet_jax.prng import make_key
     from cognet_jax.runner import honest_evaluation, load_policy
 
     config, algorithm, policy = load_policy(args.run_dir, args.overrides)
@@ -274,7 +274,7 @@ def _evaluate(args) -> int:
     if rollouts < 2:
         raise SystemExit("error: --rollouts must be >= 2")
     t0 = time.perf_counter()
-    key = jax.random.key(args.seed, impl=config.run.prng_impl)
+    key = make_key(args.seed, config.run.prng_impl)
     value = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
     value.update(seed=args.seed, overrides=args.overrides, wall_s=time.perf_counter() - t0)
     print(

@@ -196,6 +196,8 @@ class RunSection:
     """How a run is driven. ``checkpoint_every``: write the full search state every K
     iterations (0: only at the end and on Ctrl-C)."""
 
+    #: "threefry2x32" (default), "rbg", "unsafe_rbg", or "hash": the fast counter-based
+    #: generator of ``cognet_jax.prng`` (about 1.35x faster rollouts on CPU; other numbers)
     prng_impl: str = "threefry2x32"
     progress: bool = True
     plots: bool = True
@@ -577,7 +579,7 @@ def validate(config: Config) -> None:
         f"must be >= 0, got {config.run.checkpoint_every}",
     )
     _require(
-        config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg"),
+        config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg", "hash"),
         "run.prng_impl",
-        f"must be threefry2x32, rbg or unsafe_rbg, got {config.run.prng_impl!r}",
+        f"must be threefry2x32, rbg, unsafe_rbg or hash, got {config.run.prng_impl!r}",
     )

@@ -70,8 +70,23 @@ def normal_from_uniform(u: jax.Array) -> jax.Array:
     return ndtri(jnp.clip(u, eps, 1.0 - eps))
 
 
+#: Up to this many categories the inverse CDF is written out as K running sums and K
+#: comparisons, which XLA fuses into one loop; ``jnp.cumsum`` becomes a reduce-window kernel on
+#: CPU and costs more than the whole draw (benchmarks/NOTES.md).
+UNROLLED_CATEGORIES = 16
+
+
 def categorical_from_uniform(u: jax.Array, probs: jax.Array) -> jax.Array:
-    """Index drawn from ``probs [..., K]`` with uniform ``u [...]`` (inverse CDF)."""
-    cdf = jnp.cumsum(probs, axis=-1)
-    idx = jnp.sum(cdf <= u[..., None] * cdf[..., -1:], axis=-1)
-    return jnp.minimum(idx, probs.shape[-1] - 1).astype(jnp.int32)
+    """Index drawn from ``probs [..., K]`` with uniform ``u [...]`` (inverse CDF): the number of
+    running sums ``p_0 + ... + p_k`` that are ``<= u * sum(p)``, at most ``K - 1``."""
+    k = probs.shape[-1]
+    if k > UNROLLED_CATEGORIES:
+        cdf = jnp.cumsum(probs, axis=-1)
+        idx = jnp.sum(cdf <= u[..., None] * cdf[..., -1:], axis=-1)
+        return jnp.minimum(idx, k - 1).astype(jnp.int32)
+    running = [probs[..., 0]]
+    for i in range(1, k):
+        running.append(running[-1] + probs[..., i])
+    threshold = u * running[-1]
+    idx = sum((c <= threshold).astype(jnp.int32) for c in running)
+    return jnp.minimum(idx, k - 1).astype(jnp.int32)
