@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.controllers.base import sample_categorical, uniform_distribution
+from cognet_jax.envs.base import UNROLLED_CATEGORIES
 
 #: Node nets with at most this many inputs and hidden units are evaluated as unrolled scalar
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
@@ -169,5 +170,19 @@ class NeuralController:
         """Next nodes ``[agents]`` from the raw observations ``obs [agents, *raw]``."""
         if self.features is not None:
             obs = self.features(obs)
-        probs = jax.nn.softmax(self.node_logits(policy.net_params, nodes, obs), axis=-1)
-        return sample_categorical(u, probs)
+        weights = softmax_weights(self.node_logits(policy.net_params, nodes, obs))
+        return sample_categorical(u, weights)
+
+
+def softmax_weights(logits: jax.Array) -> jax.Array:
+    """``exp(logits - max(logits))`` over the last axis: the softmax without its division, which
+    the inverse-CDF draw does not need (it scales ``u`` by the sum). With few categories the
+    maximum is written out over the K slices, so XLA fuses it with the draw; a ``reduce`` over
+    an axis of 3-6 is a kernel of its own on CPU (benchmarks/NOTES.md)."""
+    k = logits.shape[-1]
+    if k > UNROLLED_CATEGORIES:
+        return jnp.exp(logits - jnp.max(logits, axis=-1, keepdims=True))
+    top = logits[..., 0]
+    for i in range(1, k):
+        top = jnp.maximum(top, logits[..., i])
+    return jnp.exp(logits - top[..., None])
