@@ -221,16 +221,13 @@ def _tiny_args(out):
     return args + ["--out", str(out), "--no-progress"]
 
 
-def test_sigint_then_resume_is_identical(tmp_path):
-    """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
-    with exactly the numbers of an uninterrupted sweep."""
-    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
-    assert main(_tiny_args(ref_dir)) == 0
-    reference = json.loads((ref_dir / "runs.json").read_text())
+def _start_until_checkpoint(out, every):
+    """Start a tiny sweep in a subprocess checkpointing every ``every`` iterations; return it
+    and its checkpoint path once the first checkpoint exists."""
     env = _env(1)
     env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", "10"],
+        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", str(every)],
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -242,6 +239,16 @@ def test_sigint_then_resume_is_identical(tmp_path):
         assert proc.poll() is None, proc.communicate()
         assert time.time() - t0 < 300, "no checkpoint appeared"
         time.sleep(0.02)
+    return proc, ckpt
+
+
+def test_sigint_then_resume_is_identical(tmp_path):
+    """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
+    with exactly the numbers of an uninterrupted sweep."""
+    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
+    assert main(_tiny_args(ref_dir)) == 0
+    reference = json.loads((ref_dir / "runs.json").read_text())
+    proc, ckpt = _start_until_checkpoint(out, 10)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
@@ -270,21 +277,8 @@ def test_sigkill_leaves_an_intact_checkpoint_then_resume_is_identical(tmp_path):
     ref_dir, out = tmp_path / "ref", tmp_path / "cut"
     assert main(_tiny_args(ref_dir)) == 0
     reference = json.loads((ref_dir / "runs.json").read_text())
-    env = _env(1)
-    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", "5"],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    ckpt = out / "sweep-state" / "group0-p0.checkpoint.msgpack"
+    proc, ckpt = _start_until_checkpoint(out, 5)
     t0 = time.time()
-    while not ckpt.exists():
-        assert proc.poll() is None, proc.communicate()
-        assert time.time() - t0 < 300, "no checkpoint appeared"
-        time.sleep(0.02)
     first = read_checkpoint(ckpt)["iteration"]
     while read_checkpoint(ckpt)["iteration"] < first + 20 and time.time() - t0 < 300:
         assert proc.poll() is None, proc.communicate()
