@@ -5,14 +5,16 @@ Measures, in one process and one session, cognet_jax against the PyTorch referen
 then writes ``benchmarks/results.json`` and the generated ``benchmarks/README.md``:
 
 * rollout throughput (agent-steps/s) on tagging (thesis setting, h 3) with 3- and 6-node neural
-  controllers at 1e3, 1e4, 1e5 rollouts (``--quick``: 1e3, 1e4): JAX, torch-vectorised,
-  torch-loop, with ratios;
+  controllers at 1e3, 1e4, 1e5 rollouts (``--quick``: 1e3, 1e4): JAX (default threefry2x32
+  generator, and the opt-in ``hash`` generator), torch-vectorised, torch-loop, with ratios;
 * one COGNet-DICE iteration at the thesis settings (3 and 6 nodes): JAX vs both references; one
   iteration of COG-DICE (region controllers) and G-DICE (tabular controllers) in JAX;
 * time-to-value: a full ``tagging-thesis-n3`` run (JAX, measured) against the references'
   per-iteration time x 500 (extrapolated);
 * ``--full``: scaling of the COGNet-DICE iteration time with rollouts (1e3..1e6), horizon
-  (3..150) and nodes (3..32), XLA buffer memory vs rollouts, and a PNG of the curves.
+  (3..150) and nodes (3..32), XLA buffer memory vs rollouts, and a PNG of the curves; and the
+  wall time of a 32-seed ``cognet-jax sweep tagging-thesis-n3`` against one seed (fresh
+  processes, median of 3 each).
 
 Every timing is the median of >= 5 runs after a warm-up (min-max beside it), compile time apart.
 """
@@ -76,6 +78,9 @@ def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
             timing, rate = jax_cases.rollout_throughput(nodes, num, RUNS)
             rows.append(timing_row(timing, impl="jax", nodes=nodes, rollouts=num, rate=rate))
             log(f"rollouts jax       nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
+            timing, rate = jax_cases.rollout_throughput(nodes, num, RUNS, prng="hash")
+            rows.append(timing_row(timing, impl="jax-hash", nodes=nodes, rollouts=num, rate=rate))
+            log(f"rollouts jax-hash  nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
             if not with_torch:
                 continue
             timing, rate = torch_cases.rollout_throughput("torch-vectorized", nodes, num, RUNS)
@@ -172,6 +177,11 @@ def main(argv=None) -> int:
     log(f"full tagging-thesis-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
     if args.full:
         out["scaling"] = measure_scaling(log)
+        out["sweep"] = jax_cases.sweep_ratio()
+        s = out["sweep"]
+        log(
+            f"sweep {s['seeds']} seeds vs 1: {s['median_many_s']:.1f} s / {s['median_one_s']:.1f} s"
+        )
     out["machine_peak"] = jax_cases.machine_peak()
     out["rollout_cost"] = [jax_cases.rollout_cost(n) for n in (3, 6)]
     log(f"machine peak: {out['machine_peak']}; rollout cost: {out['rollout_cost']}")

@@ -13,18 +13,22 @@ from benchmarks.timing import Timing, time_calls, time_jax
 HERE = Path(__file__).resolve().parent
 
 
-def rollout_throughput(nodes: int, num: int, runs: int) -> tuple[Timing, float]:
+def rollout_throughput(
+    nodes: int, num: int, runs: int, prng: str = "threefry2x32"
+) -> tuple[Timing, float]:
     """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
-    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``)."""
+    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``).
+    ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
+    from cognet_jax.prng import make_key
     from cognet_jax.rollout import rollouts
 
     env, params = make_tagging("thesis")
     ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     policy = ctrl.init(jax.random.key(0))
     timing = time_jax(
-        lambda k: rollouts(env, ctrl, k, num, params, policy), jax.random.key(1), runs=runs
+        lambda k: rollouts(env, ctrl, k, num, params, policy), make_key(1, prng), runs=runs
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
@@ -60,6 +64,36 @@ def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict
             temp_bytes=int(stats.temp_size_in_bytes),
         )
     return timing, memory
+
+
+def sweep_ratio(seeds: int = 32, repeats: int = 3, experiment: str = "tagging-thesis-n3") -> dict:
+    """Process wall seconds of ``cognet-jax sweep EXPERIMENT --seeds 1`` and ``--seeds N``
+    (fresh processes, as a user runs them: imports, compile, all iterations, honest evaluation
+    and outputs included), ``repeats`` times each, alternating; the medians and their ratio."""
+    import statistics
+    import subprocess
+    import sys
+    import tempfile
+
+    walls: dict[int, list[float]] = {1: [], seeds: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats):
+            for n in (1, seeds):
+                cmd = [sys.executable, "-m", "cognet_jax", "sweep", experiment, "--seeds", str(n)]
+                cmd += ["--no-progress", "--out", f"{tmp}/s{n}-{r}"]
+                t0 = time.perf_counter()
+                subprocess.run(cmd, check=True, capture_output=True)
+                walls[n].append(time.perf_counter() - t0)
+    one, many = statistics.median(walls[1]), statistics.median(walls[seeds])
+    return dict(
+        experiment=experiment,
+        seeds=seeds,
+        walls_one=walls[1],
+        walls_many=walls[seeds],
+        median_one_s=one,
+        median_many_s=many,
+        ratio=many / one,
+    )
 
 
 def full_run(experiment: str = "tagging-thesis-n3") -> tuple[float, dict]:

@@ -9,6 +9,7 @@ from pathlib import Path
 ROLLOUT_TARGET_RATE = 20e6  # agent-steps/s, 6 nodes, 1e5 rollouts
 VEC_RATIO_TARGET = 10.0
 LOOP_RATIO_TARGET = 1000.0
+SWEEP_RATIO_TARGET = 4.0  # issue 7: 32 seeds in one sweep vs one seed
 ITERATION_TARGET_S = 0.050
 FULL_RUN_TARGET_S = 30.0
 COMPILE_TARGET_S = 10.0
@@ -32,13 +33,16 @@ def _verdict(ok: bool) -> str:
 def rollout_table(out: dict) -> list[str]:
     rows = out["rollouts"]
     lines = [
-        "| nodes | rollouts | JAX ms (min-max) | JAX M agent-steps/s | torch-vec ms | "
-        "torch-vec M/s | JAX / torch-vec | torch-loop M/s (at 1e3) | JAX / torch-loop |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| nodes | rollouts | JAX ms (min-max) | JAX M agent-steps/s | JAX hash-PRNG M/s | "
+        "torch-vec ms | torch-vec M/s | JAX / torch-vec | torch-loop M/s (at 1e3) | "
+        "JAX / torch-loop |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in (r for r in rows if r["impl"] == "jax"):
         vec = _find(rows, impl="torch-vectorized", nodes=r["nodes"], rollouts=r["rollouts"])
         loop = _find(rows, impl="torch-loop", nodes=r["nodes"])
+        fast = _find(rows, impl="jax-hash", nodes=r["nodes"], rollouts=r["rollouts"])
+        fast_cell = f"{fast['rate'] / 1e6:.2f}" if fast else ""
         vec_cells = (
             [_ms(vec), f"{vec['rate'] / 1e6:.3f}", f"{r['rate'] / vec['rate']:.1f}x"]
             if vec
@@ -49,7 +53,7 @@ def rollout_table(out: dict) -> list[str]:
         )
         lines.append(
             f"| {r['nodes']} | {r['rollouts']:.0e} | {_ms(r)} | {r['rate'] / 1e6:.2f} | "
-            + " | ".join(vec_cells + loop_cells)
+            + " | ".join([fast_cell] + vec_cells + loop_cells)
             + " |"
         )
     return lines
@@ -114,6 +118,31 @@ def targets(out: dict) -> list[str]:
                 f"| >= 1000x torch-loop (loop measured at 1e3 rollouts) | {ratio:.0f}x | "
                 f"{_verdict(ratio >= LOOP_RATIO_TARGET)} |"
             )
+    fast6 = _find(out["rollouts"], impl="jax-hash", nodes=6, rollouts=100_000)
+    if fast6:
+        lines.append(
+            f'| the same with `run.prng_impl = "hash"` (opt-in generator) | '
+            f"{fast6['rate'] / 1e6:.2f} M/s | {_verdict(fast6['rate'] >= ROLLOUT_TARGET_RATE)} |"
+        )
+        for impl, label, target in (
+            ("torch-vectorized", "10x torch-vectorised", VEC_RATIO_TARGET),
+            ("torch-loop", "1000x torch-loop", LOOP_RATIO_TARGET),
+        ):
+            ref = _find(out["rollouts"], impl=impl, nodes=6)
+            if impl == "torch-vectorized":
+                ref = _find(out["rollouts"], impl=impl, nodes=6, rollouts=100_000)
+            if ref:
+                ratio = fast6["rate"] / ref["rate"]
+                lines.append(
+                    f"| >= {label}, hash generator | {ratio:.1f}x | {_verdict(ratio >= target)} |"
+                )
+    sweep = out.get("sweep")
+    if sweep:
+        lines.append(
+            f"| {sweep['seeds']}-seed sweep <= 4x one seed (process wall, median of "
+            f"{len(sweep['walls_one'])}) | {sweep['ratio']:.2f}x ({sweep['median_many_s']:.1f} s / "
+            f"{sweep['median_one_s']:.1f} s) | {_verdict(sweep['ratio'] <= SWEEP_RATIO_TARGET)} |"
+        )
     it = _find(out["iterations"], impl="jax", case="COGNet-DICE thesis, 3 nodes")
     if it:
         lines.append(
@@ -240,7 +269,9 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "",
         "Agent-steps/s = rollouts x horizon x agents / seconds. The loop reference is timed at "
         "1,000 rollouts; its cost per rollout does not depend on the batch, so the loop ratios at "
-        "1e4 and 1e5 divide by that rate.",
+        "1e4 and 1e5 divide by that rate. JAX hash-PRNG: the same rollouts driven by the opt-in "
+        'counter-based generator (`run.prng_impl = "hash"`, `cognet_jax/prng.py`) instead of '
+        "threefry2x32; the ratio columns use the default generator.",
         "",
         "## One search iteration",
         "",
