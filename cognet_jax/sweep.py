@@ -157,6 +157,14 @@ def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
 
 
+def _same_tree(a, b) -> bool:
+    """Whether two pytrees of arrays have the same structure and values."""
+    leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b)
+    )
+
+
 def _mesh_sharding():
     """``(NamedSharding of the leading [runs] axis over a 1-D mesh of the local devices,
     number of devices)``."""
@@ -224,14 +232,21 @@ def run_group(
         k_init, _, _ = split_seed_key(key)
         return algorithm.init(k_init)
 
+    # env params that no setting changes stay constants of the program, as in a single run:
+    # batched, a zero noise level could not skip its draws (``envs.base.scaled_normal``)
+    shared_env = all(_same_tree(a.env_params, algorithm.env_params) for a in per_setting.values())
+
+    def run_algorithm(env_params):
+        return algorithm if shared_env else with_env_params(algorithm, env_params)
+
     def step_one(key, state, hyper, env_params):
         _, k_run, _ = split_seed_key(key)
-        algo = with_env_params(algorithm, env_params)
+        algo = run_algorithm(env_params)
         return algo.step(jax.random.fold_in(k_run, state.progress.iteration), state, hyper)
 
     def eval_one(key, state, env_params):
         _, _, k_eval = split_seed_key(key)
-        algo = with_env_params(algorithm, env_params)
+        algo = run_algorithm(env_params)
         return algo.policy_returns(k_eval, algo.best_policy(state), ev.rollouts, ev.batch)
 
     # every leaf (state, metrics, keys, params) has the leading [runs] axis: shard it
@@ -300,7 +315,8 @@ def run_group(
             save(i)
             write_policies(i)
             raise Interrupted(ckpt.work_dir.parent if ckpt else Path("."), i, iterations)
-    history = jax.device_get(jax.tree.map(lambda *xs: jnp.stack(xs, 1), *history))
+    # on the host ([runs, iterations]): a jnp.stack of 500 arrays compiles a concatenation
+    history = jax.tree.map(lambda x: np.moveaxis(x, 0, 1), stack_history(history))
     loop_s = time.perf_counter() - t_loop
     t_eval = time.perf_counter()
     returns = np.asarray(

@@ -31,7 +31,7 @@ SMALL = [
     "algorithm.eval_rollouts=20",
     "network.train_steps=5",
     "evaluation.rollouts=300",
-    "env.obs_noise=0.3",  # env params reach the program as (traced) data too
+    "env.obs_noise=0.3",  # shared env params stay constants of the program
 ]
 GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
 
@@ -298,3 +298,24 @@ def test_sigkill_leaves_an_intact_checkpoint_then_resume_is_identical(tmp_path):
     resumed = json.loads((out / "runs.json").read_text())
     assert resumed["groups"][0]["resumed_from_iteration"] == n
     assert _table(resumed) == _table(reference)
+
+
+def test_env_params_grid_equals_single_runs(tmp_path):
+    """A grid over an env param (noise 0 and 0.5) batches the env params as data: zero noise
+    then runs through the select of ``scaled_normal``, and every run still equals its single
+    run."""
+    sets = SMALL[:-1] + ["algorithm.iterations=3"]
+    out = tmp_path / "sweep"
+    args = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--grid", "env.obs_noise=0,0.5"]
+    args += [a for x in sets for a in ("--set", x)] + ["--out", str(out), "--no-progress"]
+    assert main(args + ["--cpu-devices", "1"]) == 0
+    rows = json.loads((out / "runs.json").read_text())["rows"]
+    for row, noise in zip(rows, (0, 0.5)):
+        config = load_config(
+            "tagging-thesis-n3",
+            sets + [f"env.obs_noise={noise}", "run.plots=false", "run.progress=false"],
+        )
+        single = run_training(config, 0, tmp_path / f"n{noise}", log=lambda *_: None)
+        assert row["final_value"] == single["final_value"]
+        assert row["values_per_iteration"] == single["values_per_iteration"]
+    assert rows[0]["values_per_iteration"] != rows[1]["values_per_iteration"]

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from cognet_jax.envs.base import normal_from_uniform
+from cognet_jax.envs.base import scaled_normal
 
 SIZE = 16
 PATCH = 4
@@ -132,8 +132,8 @@ class Heatmap:
             return jax.lax.dynamic_slice(image, (p[0] - 2, p[1] - 2), (PATCH, PATCH)).reshape(-1)
 
         clean = jax.vmap(patch)(pos)
-        normal = normal_from_uniform(u).reshape(clean.shape)
-        noise = params.obs_noise_amplitude * (params.obs_noise_mean + params.obs_noise_std * normal)
+        spread = scaled_normal(params.obs_noise_std, u).reshape(clean.shape)  # std * N(0, 1)
+        noise = params.obs_noise_amplitude * (params.obs_noise_mean + spread)
         return clean + noise
 
     def step(

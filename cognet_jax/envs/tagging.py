@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.envs.base import normal_from_uniform
+from cognet_jax.envs.base import scaled_normal
 
 
 @struct.dataclass
@@ -147,7 +147,7 @@ class Tagging:
             )
         )
         move = jnp.where(actions == LEFT, -1.0, jnp.where(actions == RIGHT, 1.0, 0.0))
-        noise = params.motion_noise * normal_from_uniform(u_motion)
+        noise = scaled_normal(params.motion_noise, u_motion)
         p_next = jnp.clip(p + move + noise, 0.0, self.length)
         d = jnp.sum(p_next - e)
         e_next = jnp.clip(e - jnp.sign(d), 0.0, self.length)
@@ -155,7 +155,7 @@ class Tagging:
         do_respawn = jnp.logical_and(params.respawn, jnp.any(hit))
         p_next = jnp.where(do_respawn, respawned.taggers, p_next)
         e_next = jnp.where(do_respawn, respawned.evader, e_next)
-        obs = e_next - p_next + params.obs_noise * normal_from_uniform(u_obs)
+        obs = e_next - p_next + scaled_normal(params.obs_noise, u_obs)
         obs = discretise(obs, self.obs_division)
         if self.obs_index:
             obs = observation_index(obs, self.obs_division, self._half_count)
