@@ -163,7 +163,7 @@ class NeuralController:
         return jax.vmap(jax.vmap(self.one_net_logits, (0, None)), (0, 0))(net_params, obs)
 
     def act(self, u, policy: NeuralPolicy, nodes):
-        probs = policy.action_probs[jnp.arange(self.num_agents), nodes]
+        probs = rows_at(policy.action_probs, nodes)
         return sample_categorical(u, probs)
 
     def next_node(self, u, policy: NeuralPolicy, nodes, obs):
@@ -172,6 +172,20 @@ class NeuralController:
             obs = self.features(obs)
         weights = softmax_weights(self.node_logits(policy.net_params, nodes, obs))
         return sample_categorical(u, weights)
+
+
+def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
+    """``table[a, nodes[a]]`` for every agent a: ``table [agents, nodes, K]`` -> ``[agents, K]``.
+
+    With few nodes a chain of ``where`` over the nodes, which XLA fuses into the draw that uses
+    it; a gather of each rollout's row is a kernel of its own and writes the rows to memory."""
+    n = table.shape[1]
+    if n > UNROLLED_CATEGORIES:
+        return table[jnp.arange(table.shape[0]), nodes]
+    out = table[:, 0]
+    for q in range(1, n):
+        out = jnp.where((nodes == q)[:, None], table[:, q], out)
+    return out
 
 
 def softmax_weights(logits: jax.Array) -> jax.Array:

@@ -76,6 +76,19 @@ def normal_from_uniform(u: jax.Array) -> jax.Array:
 UNROLLED_CATEGORIES = 16
 
 
+def sum_last(x: jax.Array) -> jax.Array:
+    """Sum over the last axis; for up to ``UNROLLED_CATEGORIES`` entries (agents) as a chain of
+    adds in index order, which XLA fuses with its neighbours, where a ``reduce`` over an axis of
+    2-16 becomes a library kernel of its own on CPU (benchmarks/NOTES.md)."""
+    k = x.shape[-1]
+    if k > UNROLLED_CATEGORIES:
+        return jnp.sum(x, axis=-1)
+    total = x[..., 0]
+    for i in range(1, k):
+        total = total + x[..., i]
+    return total
+
+
 def scaled_normal(scale: jax.Array | float, u: jax.Array) -> jax.Array:
     """``scale * normal_from_uniform(u)``, skipping the inverse CDF when ``scale`` is zero.
 

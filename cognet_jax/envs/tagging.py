@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.envs.base import scaled_normal
+from cognet_jax.envs.base import scaled_normal, sum_last
 
 
 @struct.dataclass
@@ -141,7 +141,7 @@ class Tagging:
         p, e = state.taggers, state.evader
         tagging = actions == TAG
         hit = tagging & (jnp.abs(p - e) <= params.tag_radius)
-        reward = jnp.sum(
+        reward = sum_last(
             jnp.where(
                 tagging, jnp.where(hit, params.tag_reward, params.miss_reward), params.move_reward
             )
@@ -149,7 +149,7 @@ class Tagging:
         move = jnp.where(actions == LEFT, -1.0, jnp.where(actions == RIGHT, 1.0, 0.0))
         noise = scaled_normal(params.motion_noise, u_motion)
         p_next = jnp.clip(p + move + noise, 0.0, self.length)
-        d = jnp.sum(p_next - e)
+        d = sum_last(p_next - e)
         e_next = jnp.clip(e - jnp.sign(d), 0.0, self.length)
         respawned = self.reset(u_respawn, params)
         do_respawn = jnp.logical_and(params.respawn, jnp.any(hit))
