@@ -108,7 +108,7 @@ def targets(out: dict) -> list[str]:
         if vec:
             ratio = jax6["rate"] / vec["rate"]
             lines.append(
-                f"| >= 10x torch-vectorised (same case) | {ratio:.1f}x | "
+                f"| >= 10x torch-vectorised (same case) | {ratio:.2f}x | "
                 f"{_verdict(ratio >= VEC_RATIO_TARGET)} |"
             )
         loop = _find(out["rollouts"], impl="torch-loop", nodes=6)
@@ -134,7 +134,7 @@ def targets(out: dict) -> list[str]:
             if ref:
                 ratio = fast6["rate"] / ref["rate"]
                 lines.append(
-                    f"| >= {label}, hash generator | {ratio:.1f}x | {_verdict(ratio >= target)} |"
+                    f"| >= {label}, hash generator | {ratio:.2f}x | {_verdict(ratio >= target)} |"
                 )
     sweep = out.get("sweep")
     if sweep:
