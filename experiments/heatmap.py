@@ -48,9 +48,10 @@ thesis-range run took its best at iteration 140 because the runs share seed 0 an
 evaluation keys. Re-evaluating each iteration's policy with 1000 rollouts
 (`cognet-jax train heatmap-encoded-n4 --set algorithm.best_rollouts=1000`) gave honest 37.5 with
 in-loop 47.7: a less biased choice of the same kind of policy. The encoded variant's iterations
-are 4-10x faster than the raw ones (s / iteration column); whether it reaches its best in half
-the iterations cannot be read from these runs, since the best iteration is set by the shared
-evaluation keys."""
+are 4-10x faster than the raw ones (s / iteration column). The iteration of the in-loop best
+cannot say whether it converges in half the iterations, since it is set by the shared evaluation
+keys; the learning curves of the section "does the encoded variant converge in half the
+iterations?" below answer that (it does not)."""
 NOISE_STDS = (0.0, 0.01, 0.05, 0.1, 0.2)
 THESIS_ITERATIONS = 500
 
