@@ -285,19 +285,11 @@ def run_group(
                 path, state=state, keys={}, iteration=i, history=stack_history(history), meta=meta
             )
 
-    def write_policies(i, rows=None):
+    def write_policies(i, best, rows=None):
         """Each run's best policy (and ``results.json``) in ``runs/setting{k}-seed{s}/``."""
         if ckpt:
-            write_run_folders(
-                ckpt.work_dir.parent / RUNS_DIR,
-                by_index,
-                runs[:n_real],
-                state,
-                algorithm,
-                i,
-                iterations,
-                rows,
-            )
+            out = ckpt.work_dir.parent / RUNS_DIR
+            write_run_folders(out, by_index, runs[:n_real], best, algorithm, i, iterations, rows)
 
     t_loop = time.perf_counter()
     i = start
@@ -313,7 +305,7 @@ def run_group(
                 bar.update(i - bar.n)
         if i < iterations:
             save(i)
-            write_policies(i)
+            write_policies(i, jax.device_get(jax.vmap(algorithm.best_policy)(state)))
             raise Interrupted(ckpt.work_dir.parent if ckpt else Path("."), i, iterations)
     # on the host ([runs, iterations]): a jnp.stack of 500 arrays compiles a concatenation
     history = jax.tree.map(lambda x: np.moveaxis(x, 0, 1), stack_history(history))
@@ -348,7 +340,7 @@ def run_group(
                 "best_per_iteration": history.best_value[r].tolist(),
             }
         )
-    write_policies(iterations, rows)
+    write_policies(iterations, best, rows)
     timing = {"compile_s": compile_s, "loop_s": loop_s, "eval_s": eval_s, "runs": n_real}
     timing["resumed_from_iteration"] = start if start else None
     return rows, timing
@@ -359,15 +351,15 @@ def run_folder_name(setting: int, seed: int) -> str:
     return f"setting{setting}-seed{seed}"
 
 
-def write_run_folders(runs_dir, by_index, runs, state, algorithm, iteration, iterations, rows):
+def write_run_folders(runs_dir, by_index, runs, best, algorithm, iteration, iterations, rows):
     """One training-output folder per run (``policy.msgpack``, ``results.json``, the VAE if the
     pipeline has one), so ``cognet-jax evaluate OUT/runs/setting0-seed3`` works on a sweep's
-    runs as on a ``train`` folder. ``rows=None``: the sweep was interrupted at ``iteration``
+    runs as on a ``train`` folder. ``best``: the runs' best policies on the host, leading
+    ``[runs]`` axis. ``rows=None``: the sweep was interrupted at ``iteration``
     (``status`` ``"interrupted"``, no final value); otherwise each run's row is stored too."""
     from cognet_jax.checkpoint import atomic_write_text
     from cognet_jax.runner import save_policy, save_vae_of
 
-    best = jax.device_get(jax.vmap(algorithm.best_policy)(state))
     for r, (index, seed) in enumerate(runs):
         folder = Path(runs_dir) / run_folder_name(index, seed)
         folder.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -37,13 +38,14 @@ WINDOW, TAIL, FRACTION = 25, 100, 0.9
 
 
 def run_variant(experiment: str, seeds: int) -> Path:
-    """Run the sweep through the CLI (as a user would) and keep its runs.json."""
-    out = RESULTS / "sweeps" / experiment
-    cmd = [sys.executable, "-m", "cognet_jax", "sweep", experiment, "--seeds", str(seeds)]
-    cmd += [a for s in SETS for a in ("--set", s)] + ["--no-progress", "--out", str(out)]
-    subprocess.run(cmd, check=True)
-    kept = RESULTS / f"{experiment}.runs.json"
-    kept.write_text((out / "runs.json").read_text())
+    """Run the sweep through the CLI (as a user would) and keep only its runs.json (the
+    policies and sweep state go to a temporary folder)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "cognet_jax", "sweep", experiment, "--seeds", str(seeds)]
+        cmd += [a for s in SETS for a in ("--set", s)] + ["--no-progress", "--out", tmp]
+        subprocess.run(cmd, check=True)
+        kept = RESULTS / f"{experiment}.runs.json"
+        kept.write_text((Path(tmp) / "runs.json").read_text())
     return kept
 
 
