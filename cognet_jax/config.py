@@ -196,8 +196,8 @@ class RunSection:
     """How a run is driven. ``checkpoint_every``: write the full search state every K
     iterations (0: only at the end and on Ctrl-C)."""
 
-    #: "threefry2x32" (default), "rbg", "unsafe_rbg", or "hash": the fast counter-based
-    #: generator of ``cognet_jax.prng`` (about 1.35x faster rollouts on CPU; other numbers)
+    #: "threefry2x32" (default), "rbg", "unsafe_rbg", or "hash": the counter-based generator
+    #: of ``cognet_jax.prng`` (rollouts about 1.3x faster on CPU than threefry; other numbers)
     prng_impl: str = "threefry2x32"
     progress: bool = True
     plots: bool = True

@@ -1,15 +1,22 @@
-"""PRNG implementations selectable with ``run.prng_impl``, and ``make_key``.
+"""PRNG implementations selectable with ``run.prng_impl``, ``make_key`` and ``fast_key``.
 
-Besides JAX's own ``threefry2x32`` (the default), ``rbg`` and ``unsafe_rbg``, this module
-defines ``"hash"``: a counter-based generator registered through
-``jax.extend.random.define_prng_impl``, so every ``jax.random`` function (``uniform``,
-``split``, ``fold_in``, ...) works on its keys unchanged.
+``"threefry2x32"`` (the default) is JAX's own implementation. JAX lowers the Threefry hash on
+CPU as a rolled loop (a ``while`` of 5 iterations whose state goes to memory between
+iterations, chosen for compile time). ``THREEFRY_IMPL`` computes the same stream, bit for bit
+(same seed, ``split``, ``fold_in`` and ``random_bits``; tests/test_prng.py compares them), with
+the 20 rounds written out as plain element-wise operations: one ``[1e5, 11]`` block of uniforms
+takes about 1.1 ms instead of 9 ms. ``fast_key`` converts a threefry key (typed, or a raw
+``uint32[..., 2]`` key of the old ``jax.random.PRNGKey`` kind) to it. The rollout engine uses
+it for its large per-step blocks, whatever key the caller passed; elsewhere keys stay JAX's,
+because the unrolled rounds, inlined at each of an iteration's many small draws, double the
+compile time. With ``jax_threefry_partitionable`` off (JAX's older stream) ``THREEFRY_IMPL``
+defers to JAX's functions and stays exact.
 
-Why: on a CPU, threefry2x32 is most of the cost of a rollout step. One ``[1e5, 11]`` block of
-uniforms takes about 13 ms with threefry and 1.2 ms with this hash (benchmarks/NOTES.md), and
-100,000 rollouts of a 6-node tagging controller run about 1.35x faster.
+Besides it, ``rbg`` and ``unsafe_rbg`` (JAX's own) and ``"hash"``: a counter-based generator
+registered through ``jax.extend.random.define_prng_impl``, so every ``jax.random`` function
+(``uniform``, ``split``, ``fold_in``, ...) works on its keys unchanged.
 
-How: a key is two 32-bit words ``(k0, k1)``. Word ``c`` of a key's stream is
+The hash: a key is two 32-bit words ``(k0, k1)``. Word ``c`` of a key's stream is
 
     fmix32(fmix32(c * 0x9E3779B9 ^ k0) + k1)
 
@@ -17,13 +24,11 @@ with murmur3's 32-bit finaliser ``fmix32`` (a bijection of uint32). For a fixed 
 ``c -> word`` is a bijection, and the key enters non-linearly (through ``fmix32``), so the
 streams of two keys are not shifted copies of each other. ``split`` and ``fold_in`` derive
 child keys from the same construction with the key's first word tweaked (a stream of its own).
-64-bit draws combine two words.
-
-What it is not: a cryptographic generator, nor one that passes every statistical battery.
-tests/test_prng.py checks the moments of the uniforms, the independence of neighbouring draws,
-of sibling keys and of folded-in keys, and that a search with it reaches the same values as
-with threefry. Choosing it changes every random number of a run: results are reproducible
-with the same ``run.prng_impl`` only.
+64-bit draws combine two words. It is not a cryptographic generator, nor one that passes every
+statistical battery: tests/test_prng.py checks the moments of the uniforms, the independence of
+neighbouring draws, of sibling keys and of folded-in keys, and that a search with it reaches
+the same values as with threefry. Choosing it changes every random number of a run: results
+are reproducible with the same ``run.prng_impl`` only.
 """
 
 from __future__ import annotations
@@ -39,6 +44,96 @@ _GOLDEN = np.uint32(0x9E3779B9)
 _SPLIT_TWEAK = np.uint32(0x5BD1E995)
 _FOLD_TWEAK = np.uint32(0x27D4EB2F)
 _SEED_TWEAK = np.uint32(0x165667B1)
+
+
+# --- Threefry-2x32, unrolled (JAX's stream, bit for bit) -------------------------------------
+
+_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+_THREEFRY_PARITY = np.uint32(0x1BD11BDA)
+
+
+def _rotate_left(x: jax.Array, d: int) -> jax.Array:
+    return (x << np.uint32(d)) | (x >> np.uint32(32 - d))
+
+
+def threefry2x32(
+    k1: jax.Array, k2: jax.Array, x1: jax.Array, x2: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The Threefry-2x32 block function (20 rounds) on counter words ``x1, x2`` (uint32, any
+    shape) under the key ``(k1, k2)``, written out round by round (JAX's CPU lowering is a
+    rolled loop). Returns the two output words, shaped like ``x1``."""
+    ks = (k1, k2, k1 ^ k2 ^ _THREEFRY_PARITY)
+    a, b = x1 + ks[0], x2 + ks[1]
+    for i in range(5):
+        for r in _THREEFRY_ROTATIONS[i % 2]:
+            a = a + b
+            b = a ^ _rotate_left(b, r)
+        a = a + ks[(i + 1) % 3]
+        b = b + ks[(i + 2) % 3] + np.uint32(i + 1)
+    return a, b
+
+
+def _partitionable() -> bool:
+    return bool(jax.config.jax_threefry_partitionable)
+
+
+def _as_threefry(key: jax.Array) -> jax.Array:
+    return jax.random.wrap_key_data(key, impl="threefry2x32")
+
+
+def _counters(shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
+    """The 64-bit flat index of every element of ``shape`` as (high, low) uint32 words."""
+    n = math.prod(shape)
+    if n >= 2**32:
+        raise ValueError(f"random draws of {n} >= 2**32 elements at once are not supported")
+    low = jax.lax.iota(jnp.uint32, n).reshape(shape)
+    return jnp.zeros(shape, jnp.uint32), low
+
+
+def _threefry_bits(key: jax.Array, bit_width: int, shape: tuple[int, ...]) -> jax.Array:
+    if not _partitionable():
+        return jax.random.bits(
+            _as_threefry(key),
+            shape,
+            {8: jnp.uint8, 16: jnp.uint16, 32: jnp.uint32, 64: jnp.uint64}[bit_width],
+        )
+    b1, b2 = threefry2x32(key[0], key[1], *_counters(shape))
+    if bit_width == 64:
+        return (b1.astype(jnp.uint64) << np.uint64(32)) | b2.astype(jnp.uint64)
+    bits = b1 ^ b2
+    return bits if bit_width == 32 else bits.astype({8: jnp.uint8, 16: jnp.uint16}[bit_width])
+
+
+def _threefry_seed(seed: jax.Array) -> jax.Array:
+    return jax.random.key_data(jax.random.key(seed, impl="threefry2x32"))
+
+
+def _threefry_split(key: jax.Array, shape: tuple[int, ...]) -> jax.Array:
+    if not _partitionable():
+        return jax.random.key_data(jax.random.split(_as_threefry(key), shape))
+    b1, b2 = threefry2x32(key[0], key[1], *_counters(shape))
+    return jnp.stack([b1, b2], axis=-1)
+
+
+def _threefry_fold_in(key: jax.Array, data: jax.Array) -> jax.Array:
+    # JAX: threefry_2x32(key, threefry_seed(data)); a 2-word count is split into halves
+    seeded = _threefry_seed(data)
+    b1, b2 = threefry2x32(key[0], key[1], seeded[:1], seeded[1:])
+    return jnp.concatenate([b1, b2])
+
+
+THREEFRY_IMPL = jax.extend.random.define_prng_impl(
+    key_shape=(2,),
+    seed=_threefry_seed,
+    split=_threefry_split,
+    random_bits=_threefry_bits,
+    fold_in=_threefry_fold_in,
+    name="threefry2x32_unrolled",
+    tag="fru",
+)
+
+
+# --- counter-based hash (opt-in) ---------------------------------------------------------
 
 
 def fmix32(x: jax.Array) -> jax.Array:
@@ -117,3 +212,19 @@ def impl_of(name: str):
 def make_key(seed: int, name: str = "threefry2x32") -> jax.Array:
     """A typed PRNG key of implementation ``name`` (``run.prng_impl``)."""
     return jax.random.key(seed, impl=impl_of(name))
+
+
+def fast_key(key: jax.Array) -> jax.Array:
+    """``key`` with JAX's threefry implementation swapped for ``THREEFRY_IMPL`` (the same
+    stream, computed faster on CPU); keys of other implementations are returned unchanged. A
+    raw ``uint32[..., 2]`` key (``jax.random.PRNGKey``) is read as JAX's default implementation
+    and converted only when that is threefry. Works on traced keys (inside ``jit``)."""
+    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if str(jax.random.key_impl(key)) != "threefry2x32":
+            return key
+        return jax.random.wrap_key_data(jax.random.key_data(key), impl=THREEFRY_IMPL)
+    if key.dtype == jnp.uint32 and key.shape[-1:] == (2,):
+        if jax.config.jax_default_prng_impl != "threefry2x32":
+            return key
+        return jax.random.wrap_key_data(key, impl=THREEFRY_IMPL)
+    return key

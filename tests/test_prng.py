@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cognet_jax.config import ConfigError, load_config
-from cognet_jax.prng import make_key
+from cognet_jax.prng import THREEFRY_IMPL, fast_key, make_key
 from cognet_jax.runner import run_training
 
 N = 1_000_000
@@ -111,3 +111,86 @@ def test_search_with_hash_is_deterministic_and_as_good(tmp_path):
     for run in (finals["threefry2x32"][0], a):  # both improve on the first iteration ...
         assert run["final_value"]["mean"] > run["values_per_iteration"][0] + 5
     assert abs(t["mean"] - h["mean"]) < 5 * np.hypot(t["stderr"], h["stderr"])  # ... alike
+
+
+# --- the unrolled Threefry (THREEFRY_IMPL): JAX's stream, bit for bit ------------------------
+
+
+def _fast(seed):
+    return jax.random.wrap_key_data(jax.random.key_data(jax.random.key(seed)), impl=THREEFRY_IMPL)
+
+
+@pytest.mark.parametrize("shape", [(), (1,), (7,), (3, 5), (100_001, 11), (2, 3, 4), (0, 3)])
+@pytest.mark.parametrize("dtype", [jnp.uint8, jnp.uint16, jnp.uint32, jnp.uint64])
+def test_threefry_impl_bits_equal_jax(shape, dtype):
+    with jax.enable_x64(dtype == jnp.uint64):  # 64-bit draws need x64
+        for seed in (0, 1, 2**31 + 5):
+            expected = jax.random.bits(jax.random.key(seed), shape, dtype)
+            np.testing.assert_array_equal(jax.random.bits(_fast(seed), shape, dtype), expected)
+
+
+def test_threefry_impl_split_fold_in_seed_and_distributions_equal_jax():
+    ref, fast = jax.random.key(42), _fast(42)
+    for shape in [(2,), (3,), (4, 5)]:
+        np.testing.assert_array_equal(
+            jax.random.key_data(jax.random.split(fast, shape)),
+            jax.random.key_data(jax.random.split(ref, shape)),
+        )
+    for data in (0, 1, 17, 2**32 - 1):
+        np.testing.assert_array_equal(
+            jax.random.key_data(jax.random.fold_in(fast, data)),
+            jax.random.key_data(jax.random.fold_in(ref, data)),
+        )
+    for seed in (0, 3, 2**40 + 9):
+        np.testing.assert_array_equal(
+            jax.random.key_data(jax.random.key(seed, impl=THREEFRY_IMPL)),
+            jax.random.key_data(jax.random.key(seed)),
+        )
+    draws = {
+        "uniform": lambda k: jax.random.uniform(k, (1000, 3)),
+        "normal": lambda k: jax.random.normal(k, (999,)),
+        "categorical": lambda k: jax.random.categorical(
+            k, jnp.log(jnp.arange(1.0, 6.0)), shape=(500,)
+        ),
+        "beta": lambda k: jax.random.beta(k, 2.0, 3.0, (200,)),
+        "chained": lambda k: jax.random.uniform(
+            jax.random.split(jax.random.fold_in(k, 3))[1], (9,)
+        ),
+    }
+    for name, draw in draws.items():
+        np.testing.assert_array_equal(jax.jit(draw)(fast), draw(ref), err_msg=name)
+        # under vmap over keys too
+        keys_ref, keys_fast = jax.random.split(ref, 4), jax.random.split(fast, 4)
+        np.testing.assert_array_equal(
+            jax.vmap(draw)(keys_fast), jax.vmap(draw)(keys_ref), err_msg=name
+        )
+
+
+def test_threefry_impl_follows_the_non_partitionable_stream_too():
+    previous = jax.config.jax_threefry_partitionable
+    jax.config.update("jax_threefry_partitionable", False)
+    try:
+        for shape in [(5,), (4, 3)]:
+            np.testing.assert_array_equal(
+                jax.random.uniform(_fast(9), shape), jax.random.uniform(jax.random.key(9), shape)
+            )
+        np.testing.assert_array_equal(
+            jax.random.key_data(jax.random.split(_fast(9), 3)),
+            jax.random.key_data(jax.random.split(jax.random.key(9), 3)),
+        )
+    finally:
+        jax.config.update("jax_threefry_partitionable", previous)
+
+
+def test_fast_key_converts_threefry_keys_only():
+    assert jax.random.key_impl(fast_key(jax.random.key(1))) == jax.random.key_impl(_fast(1))
+    raw = jax.random.PRNGKey(1)  # the old raw uint32[2] kind
+    np.testing.assert_array_equal(jax.random.key_data(fast_key(raw)), raw)
+    assert jax.random.key_impl(fast_key(raw)) == jax.random.key_impl(_fast(1))
+    batch = jax.random.split(jax.random.key(1), 3)
+    assert fast_key(batch).shape == (3,)
+    for other in (make_key(1, "hash"), jax.random.key(1, impl="rbg")):
+        assert jax.random.key_impl(fast_key(other)) == jax.random.key_impl(other)
+    # inside jit, on a traced key
+    u = jax.jit(lambda k: jax.random.uniform(fast_key(k), (4,)))(jax.random.key(2))
+    np.testing.assert_array_equal(u, jax.random.uniform(jax.random.key(2), (4,)))
