@@ -9,8 +9,10 @@ import pytest
 
 from cognet_jax.controllers.neural import NeuralController
 from cognet_jax.envs.heatmap import (
+    START_RANGES,
     HeatmapState,
     all_patches,
+    first_move_blind_value,
     full_knowledge_value,
     make_heatmap,
 )
@@ -87,6 +89,32 @@ def test_reset_covers_start_range():
 
 def test_full_knowledge_optimum_is_53_14():
     assert full_knowledge_value("thesis") == pytest.approx(53.14, abs=0.005)
+
+
+def test_first_move_blind_bound_and_the_reactive_controller_that_attains_it():
+    """No policy that moves before it observes beats 46.898 in the thesis range (the target 50
+    of the issue is above it), and the 2-node reactive controller reaches it exactly when run
+    through the simulator's own step: x-1 first, then x-1 while the patch says x > 2, else
+    y-1. The patch gives x: log v(x-1, y) - log v(x, y) = (2x - 1) / 50."""
+    x_minus, y_minus = 1, 2  # actions
+    for start, bound in (("thesis", 46.898), ("default", 4.431)):
+        assert first_move_blind_value(start) == pytest.approx(bound, abs=5e-4)
+        assert first_move_blind_value(start) < full_knowledge_value(start)
+        env, params = make_heatmap(start)
+        lo, hi = START_RANGES[start]
+        grid = np.array([(x, y) for x in range(lo, hi + 1) for y in range(lo, hi + 1)])
+        pos = np.stack([grid, grid[::-1]], axis=1)  # [starts, agents, 2]: both agents, all starts
+        state = HeatmapState(pos=jnp.asarray(pos, jnp.int32))
+        actions = jnp.full(pos.shape[:2], x_minus)
+        total = jnp.zeros(len(grid))
+        step = jax.vmap(env.step, (None, 0, 0, None))
+        for _ in range(env.horizon):
+            state, obs, reward = step(jnp.zeros(env.step_noise), state, actions, params)
+            total = total + reward
+            x_seen = jnp.round((50 * (jnp.log(obs[..., 6]) - jnp.log(obs[..., 10])) + 1) / 2)
+            np.testing.assert_array_equal(x_seen, state.pos[..., 0])  # the patch tells x
+            actions = jnp.where(x_seen > 2, x_minus, y_minus)
+        assert float(total.mean()) == pytest.approx(first_move_blind_value(start), abs=1e-4)
 
 
 def test_random_policy_value_19_37():

@@ -159,30 +159,62 @@ def make_heatmap(
     return Heatmap(horizon=horizon), params
 
 
-def full_knowledge_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
-    """Best expected return with full knowledge of each agent's own position: backward dynamic
-    programming over the (x, y) grid for one agent, averaged over the uniform start range, times
-    the number of agents (agents are independent; the joint reward is a sum). Plain numpy."""
-    lo, hi = START_RANGES[start]
-    coords = np.arange(lo, HIGH + 1)  # every position reachable or startable
+def _knowledge_values(start: str, horizon: int) -> tuple[dict, dict]:
+    """Per-agent optimal values with full knowledge of the own position: ``value[k][(x, y)]``
+    with ``k`` steps to go (reward of the current state, then the best move), backward dynamic
+    programming over every position that can be started in or reached."""
+    lo, _ = START_RANGES[start]
+    coords = np.arange(lo, HIGH + 1)
 
     def r(x, y):
         d = x * x + y * y
         return 50.0 if d < 9 else (1.0 if d < 16 else -1.0)
 
-    value = {(x, y): 0.0 for x in coords for y in coords}
+    values = [{(x, y): 0.0 for x in coords for y in coords}]
     for _ in range(horizon):
-        new = {}
+        value, new = values[-1], {}
         for x in coords:
             for y in coords:
-                best = -np.inf
-                for dx, dy in MOVES:
-                    nx, ny = min(max(x + dx, LOW), HIGH), min(max(y + dy, LOW), HIGH)
-                    best = max(best, value[(nx, ny)])
+                best = max(value[_moved(x, y, dx, dy)] for dx, dy in MOVES)
                 new[(x, y)] = r(x, y) + best
-        value = new
-    starts = [(x, y) for x in range(lo, hi + 1) for y in range(lo, hi + 1)]
-    return num_agents * float(np.mean([value[s] for s in starts]))
+        values.append(new)
+    return values, {(x, y): r(x, y) for x in coords for y in coords}
+
+
+def _moved(x, y, dx, dy) -> tuple[int, int]:
+    return min(max(x + dx, LOW), HIGH), min(max(y + dy, LOW), HIGH)
+
+
+def _starts(start: str) -> list[tuple[int, int]]:
+    lo, hi = START_RANGES[start]
+    return [(x, y) for x in range(lo, hi + 1) for y in range(lo, hi + 1)]
+
+
+def full_knowledge_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
+    """Best expected return with full knowledge of each agent's own position from the start:
+    backward dynamic programming over the (x, y) grid for one agent, averaged over the uniform
+    start range, times the number of agents (agents are independent; the joint reward is a
+    sum). Plain numpy. SPEC's 53.14 (thesis range)."""
+    values, _ = _knowledge_values(start, horizon)
+    return num_agents * float(np.mean([values[horizon][s] for s in _starts(start)]))
+
+
+def first_move_blind_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
+    """Upper bound on the expected return of any policy that makes its first move before it
+    observes anything, as every controller here does (all agents start in node 0 and act from
+    it; the first observation comes after the first move): the best single first move for the
+    whole start range, then full knowledge of the own position. Plain numpy.
+
+    It is attained, so it is the optimum of that class: a noise-free patch determines the
+    position, and the 2-node reactive controller "move x-1 first; then x-1 while x > 2, else
+    y-1" reaches it (tests/test_heatmap.py). Thesis range: 46.898 (against 53.143 for a first
+    move that knows the start)."""
+    values, reward = _knowledge_values(start, horizon)
+    starts = _starts(start)
+    return num_agents * max(
+        float(np.mean([reward[s] + values[horizon - 1][_moved(*s, dx, dy)] for s in starts]))
+        for dx, dy in MOVES
+    )
 
 
 def random_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -> float:
