@@ -114,19 +114,70 @@ def measure_iterations(with_torch: bool, quick: bool, log) -> list[dict]:
     return rows
 
 
-def measure_scaling(log) -> list[dict]:
-    """COGNet-DICE iteration time (thesis settings, 3 nodes) when one size changes."""
-    cases = (
-        [("rollouts", n, [f"algorithm.rollouts={n}"]) for n in (1_000, 10_000, 100_000, 1_000_000)]
-        + [("horizon", h, [f"env.horizon={h}"]) for h in (3, 10, 30, 100, 150)]
-        + [("nodes", n, [f"algorithm.nodes={n}"]) for n in (3, 6, 12, 24, 32)]
-    )
+#: (algorithm, experiment, rollout-axis cases): one size varied at a time from each base.
+#: COGNet-DICE varies K_roll (its 100 candidates x 100 evaluations stay); the sample-based
+#: algorithms vary the number of samples, so the rollouts per iteration are samples x N_sim.
+SCALING_BASES = (
+    (
+        "COGNet-DICE",
+        "tagging-thesis-n3",
+        [(n, [f"algorithm.rollouts={n}"]) for n in (1_000, 10_000, 100_000, 1_000_000)],
+    ),
+    (
+        "COG-DICE",
+        "tagging-thesis-cogdice-n3",  # 100 samples x 100 rollouts, h 3
+        [(s * 100, [f"algorithm.samples={s}"]) for s in (10, 100, 1_000, 10_000)],
+    ),
+    (
+        "G-DICE",
+        "tagging-paper-gdice-d1",  # 4000 samples x 25 rollouts, h 150
+        [(s * 25, [f"algorithm.samples={s}"]) for s in (100, 400, 4_000, 40_000)],
+    ),
+)
+
+
+def scaling_cases() -> list[tuple[str, str, str, int, list[str]]]:
+    """``(algorithm, experiment, axis, value, overrides)`` of every scaling measurement, each
+    config checked (``load_config``) so that a bad case fails before the long measurements."""
+    from cognet_jax.config import load_config
+
+    cases = []
+    for algorithm, experiment, rollout_cases in SCALING_BASES:
+        cases += (
+            [(algorithm, experiment, "rollouts", n, sets) for n, sets in rollout_cases]
+            + [
+                (algorithm, experiment, "horizon", h, [f"env.horizon={h}"])
+                for h in (3, 10, 30, 100, 150)
+            ]
+            + [
+                (algorithm, experiment, "nodes", n, [f"algorithm.nodes={n}"])
+                for n in (3, 6, 12, 24, 32)
+            ]
+        )
+    for _, experiment, _, _, sets in cases:
+        load_config(experiment, sets)
+    return cases
+
+
+def measure_scaling(cases, log) -> list[dict]:
+    """Iteration time of each algorithm (from its base experiment) when one size changes:
+    rollouts per iteration, horizon, nodes."""
     rows = []
-    for axis, value, sets in cases:
+    for algorithm, experiment, axis, value, sets in cases:
         runs = 3 if (axis == "rollouts" and value >= 1_000_000) else RUNS
-        timing, memory = jax_cases.iteration("tagging-thesis-n3", sets, runs=runs)
-        rows.append(timing_row(timing, axis=axis, value=value, rss_mib=peak_rss_mib(), **memory))
-        log(f"scaling {axis}={value}: {timing.row()}, compile {timing.compile_s:.2f} s")
+        timing, memory = jax_cases.iteration(experiment, sets, runs=runs)
+        rows.append(
+            timing_row(
+                timing,
+                algorithm=algorithm,
+                experiment=experiment,
+                axis=axis,
+                value=value,
+                rss_mib=peak_rss_mib(),
+                **memory,
+            )
+        )
+        log(f"scaling {algorithm} {axis}={value}: {timing.row()}, compile {timing.compile_s:.2f} s")
     return rows
 
 
@@ -161,6 +212,7 @@ def main(argv=None) -> int:
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "load_average_before": os.getloadavg(),
     }
+    cases = scaling_cases() if args.full else []
     t0 = time.perf_counter()
     sizes = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
     out["rollouts"] = measure_rollouts(sizes, with_torch, log)
@@ -176,7 +228,7 @@ def main(argv=None) -> int:
     )
     log(f"full tagging-thesis-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
     if args.full:
-        out["scaling"] = measure_scaling(log)
+        out["scaling"] = measure_scaling(cases, log)
         out["sweep"] = jax_cases.sweep_ratio()
         s = out["sweep"]
         log(

@@ -188,17 +188,22 @@ def roofline(out: dict) -> list[str]:
     return lines
 
 
+def _algorithm(row: dict) -> str:
+    return row.get("algorithm", "COGNet-DICE")  # results written before COG-DICE / G-DICE rows
+
+
 def scaling_table(out: dict) -> list[str]:
     lines = [
-        "| varied | value | ms per iteration (min-max) | compile s | XLA temps MiB | "
-        "process peak RSS MiB |",
-        "|---|---|---|---|---|---|",
+        "| algorithm (base experiment) | varied | value | ms per iteration (min-max) | "
+        "compile s | XLA temps MiB | process peak RSS MiB |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in out.get("scaling", []):
         temps = f"{r['temp_bytes'] / 2**20:.1f}" if "temp_bytes" in r else ""
+        base = f" ({r['experiment']})" if "experiment" in r else ""
         lines.append(
-            f"| {r['axis']} | {r['value']} | {_ms(r)} | {r['compile_s']:.2f} | {temps} | "
-            f"{r['rss_mib']:.0f} |"
+            f"| {_algorithm(r)}{base} | {r['axis']} | {r['value']} | {_ms(r)} | "
+            f"{r['compile_s']:.2f} | {temps} | {r['rss_mib']:.0f} |"
         )
     return lines
 
@@ -210,28 +215,40 @@ def write_plots(out: dict, folder: Path) -> Path:
     import matplotlib.pyplot as plt
 
     rows = out["scaling"]
+    algorithms = list(dict.fromkeys(_algorithm(r) for r in rows))
     axes_names = ["rollouts", "horizon", "nodes"]
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4))
+    for algorithm in algorithms:
+        mine = [r for r in rows if _algorithm(r) == algorithm]
+        for ax, name in zip(axes, axes_names, strict=False):
+            pts = [r for r in mine if r["axis"] == name]
+            ax.plot(
+                [r["value"] for r in pts],
+                [r["median_s"] * 1e3 for r in pts],
+                "o-",
+                label=algorithm,
+            )
+        pts = [r for r in mine if r["axis"] == "rollouts" and "temp_bytes" in r]
+        axes[3].plot(
+            [r["value"] for r in pts], [r["temp_bytes"] / 2**20 for r in pts], "o-", label=algorithm
+        )
     for ax, name in zip(axes, axes_names, strict=False):
-        pts = [r for r in rows if r["axis"] == name]
-        ax.plot([r["value"] for r in pts], [r["median_s"] * 1e3 for r in pts], "o-")
-        ax.set_xlabel(name)
+        ax.set_xlabel(f"{name} per iteration" if name == "rollouts" else name)
         ax.set_ylabel("ms per iteration")
+        ax.set_yscale("log")
         if name == "rollouts":
             ax.set_xscale("log")
-            ax.set_yscale("log")
         ax.grid(alpha=0.3)
-    pts = [r for r in rows if r["axis"] == "rollouts" and "temp_bytes" in r]
-    axes[3].plot(
-        [r["value"] for r in pts], [r["temp_bytes"] / 2**20 for r in pts], "o-", label="XLA temps"
-    )
+    axes[0].legend()
     axes[3].set_xscale("log")
     axes[3].set_yscale("log")
-    axes[3].set_xlabel("rollouts")
-    axes[3].set_ylabel("MiB")
-    axes[3].legend()
+    axes[3].set_xlabel("rollouts per iteration")
+    axes[3].set_ylabel("XLA temporaries, MiB")
     axes[3].grid(alpha=0.3)
-    fig.suptitle("COGNet-DICE iteration (tagging thesis settings, 3 nodes unless varied)")
+    fig.suptitle(
+        "iteration time, one size varied (COGNet-DICE: tagging thesis, 3 nodes; COG-DICE: "
+        "tagging thesis budget; G-DICE: tagging paper setting, d = 1)"
+    )
     fig.tight_layout()
     path = folder / "scaling.png"
     fig.savefig(path, dpi=100)
@@ -294,7 +311,7 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
     ]
     if out.get("scaling"):
         lines += [
-            "## Scaling (COGNet-DICE, thesis settings, one size varied)",
+            "## Scaling (one size varied from each algorithm's base experiment)",
             "",
             *scaling_table(out),
             "",
