@@ -97,6 +97,17 @@ def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
     return rows
 
 
+def measure_controller_kinds(sizes: list[int], log) -> list[dict]:
+    """JAX rollout throughput of each controller kind (neural, regions, tabular), 6 nodes."""
+    rows = []
+    for kind in jax_cases.CONTROLLER_KINDS:
+        for num in sizes:
+            timing, rate = jax_cases.controller_throughput(kind, 6, num, RUNS)
+            rows.append(timing_row(timing, kind=kind, nodes=6, rollouts=num, rate=rate))
+            log(f"rollouts {kind} nodes=6 R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
+    return rows
+
+
 def measure_iterations(with_torch: bool, quick: bool, log) -> list[dict]:
     rows = []
     for label, experiment, sets in ITERATION_CASES:
@@ -216,6 +227,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     sizes = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
     out["rollouts"] = measure_rollouts(sizes, with_torch, log)
+    out["controller_kinds"] = measure_controller_kinds(sizes, log)
     out["iterations"] = measure_iterations(with_torch, args.quick, log)
     wall, results = jax_cases.full_run()
     out["full_run"] = dict(

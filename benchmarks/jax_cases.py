@@ -33,6 +33,38 @@ def rollout_throughput(
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
 
+#: controller kind -> (experiment whose controller and env are used, overrides): tagging with
+#: the thesis horizon 3; the tabular controller reads the observation discretised by 1
+CONTROLLER_KINDS = {
+    "neural (COGNet-DICE)": ("tagging-thesis-n3", []),
+    "regions (COG-DICE)": ("tagging-thesis-cogdice-n3", []),
+    "tabular (G-DICE, d = 1)": ("tagging-paper-gdice-d1", ["env.horizon=3"]),
+}
+
+
+def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[Timing, float]:
+    """Like ``rollout_throughput`` for each controller kind of ``CONTROLLER_KINDS``: ``num``
+    rollouts of one controller drawn from the algorithm's initial distribution."""
+    from cognet_jax.api import build_algorithm
+    from cognet_jax.config import load_config
+    from cognet_jax.rollout import rollouts
+
+    experiment, sets = CONTROLLER_KINDS[kind]
+    algorithm = build_algorithm(load_config(experiment, [*sets, f"algorithm.nodes={nodes}"]))
+    env, params, ctrl = algorithm.env, algorithm.env_params, algorithm.controller
+    if kind.startswith("neural"):
+        policy = ctrl.init(jax.random.key(0))
+    elif kind.startswith("regions"):
+        sample = algorithm.draw(jax.random.key(0), algorithm.init_distribution(), 1)
+        policy = jax.tree.map(lambda x: x[0], sample.policy)
+    else:
+        policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
+    timing = time_jax(
+        lambda k: rollouts(env, ctrl, k, num, params, policy), jax.random.key(1), runs=runs
+    )
+    return timing, num * env.horizon * env.num_agents / timing.median_s
+
+
 def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict]:
     """Timing of one compiled search iteration of ``experiment`` (with ``--set`` overrides),
     compile time apart; the state is carried from call to call as in a real run. Also returns

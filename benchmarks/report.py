@@ -192,6 +192,16 @@ def _algorithm(row: dict) -> str:
     return row.get("algorithm", "COGNet-DICE")  # results written before COG-DICE / G-DICE rows
 
 
+def controller_kinds_table(out: dict) -> list[str]:
+    lines = [
+        "| controller | rollouts | ms (min-max) | M agent-steps/s |",
+        "|---|---|---|---|",
+    ]
+    for r in out.get("controller_kinds", []):
+        lines.append(f"| {r['kind']} | {r['rollouts']:.0e} | {_ms(r)} | {r['rate'] / 1e6:.2f} |")
+    return lines
+
+
 def scaling_table(out: dict) -> list[str]:
     lines = [
         "| algorithm (base experiment) | varied | value | ms per iteration (min-max) | "
@@ -290,6 +300,20 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         'counter-based generator (`run.prng_impl = "hash"`, `cognet_jax/prng.py`) instead of '
         "threefry2x32; the ratio columns use the default generator.",
         "",
+    ]
+    if out.get("controller_kinds"):
+        lines += [
+            "### Every controller kind (JAX, tagging h 3, 6 nodes, default generator)",
+            "",
+            *controller_kinds_table(out),
+            "",
+            "One controller drawn from each algorithm's initial distribution: the neural one "
+            "(the rows above), the region controller of COG-DICE, and the tabular controller of "
+            "G-DICE on observations discretised by 1 (tagging-paper-gdice-d1's env at h 3). "
+            "No torch reference exists for the last two.",
+            "",
+        ]
+    lines += [
         "## One search iteration",
         "",
         *iteration_table(out),
