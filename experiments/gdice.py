@@ -348,8 +348,8 @@ time. The same holds with exact values and 1000 samples for entropy rates 0.3 (4
 0.5 (5 nodes), and with 2 nodes, which already hold the reactive controller (`cognet-jax train
 gdice-dpomdp --set problem.path=.../recycling.dpomdp --set problem.horizon=100 --set
 problem.discount=0.9 --set algorithm.evaluator='"exact"' --set algorithm.samples=1000 --set
-algorithm.nodes=N --set algorithm.entropy_rate=R`). Larger controllers converge to that same
-2-node behaviour.
+algorithm.nodes=N --set algorithm.entropy_rate=R`). Larger controllers converge to controllers
+of that same value.
 
 Rows "-exact" use `algorithm.evaluator = "exact"`: samples are ranked by their exact expected
 return over the horizon (compiled dynamic programming, `cognet_jax/exact_jax.py`) instead of
