@@ -44,6 +44,8 @@ _GOLDEN = np.uint32(0x9E3779B9)
 _SPLIT_TWEAK = np.uint32(0x5BD1E995)
 _FOLD_TWEAK = np.uint32(0x27D4EB2F)
 _SEED_TWEAK = np.uint32(0x165667B1)
+#: unsigned dtype of each ``random_bits`` width
+_UINT = {8: jnp.uint8, 16: jnp.uint16, 32: jnp.uint32, 64: jnp.uint64}
 
 
 # --- Threefry-2x32, unrolled (JAX's stream, bit for bit) -------------------------------------
@@ -92,16 +94,12 @@ def _counters(shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
 
 def _threefry_bits(key: jax.Array, bit_width: int, shape: tuple[int, ...]) -> jax.Array:
     if not _partitionable():
-        return jax.random.bits(
-            _as_threefry(key),
-            shape,
-            {8: jnp.uint8, 16: jnp.uint16, 32: jnp.uint32, 64: jnp.uint64}[bit_width],
-        )
+        return jax.random.bits(_as_threefry(key), shape, _UINT[bit_width])
     b1, b2 = threefry2x32(key[0], key[1], *_counters(shape))
     if bit_width == 64:
         return (b1.astype(jnp.uint64) << np.uint64(32)) | b2.astype(jnp.uint64)
     bits = b1 ^ b2
-    return bits if bit_width == 32 else bits.astype({8: jnp.uint8, 16: jnp.uint16}[bit_width])
+    return bits.astype(_UINT[bit_width])
 
 
 def _threefry_seed(seed: jax.Array) -> jax.Array:
@@ -157,7 +155,7 @@ def _bits(key: jax.Array, bit_width: int, shape: tuple[int, ...]) -> jax.Array:
         w = _words(key, jnp.arange(2 * n, dtype=jnp.uint32)).reshape(n, 2).astype(jnp.uint64)
         return ((w[:, 0] << 32) | w[:, 1]).reshape(shape)
     w = _words(key, jnp.arange(n, dtype=jnp.uint32)).reshape(shape)
-    dtype = {8: jnp.uint8, 16: jnp.uint16, 32: jnp.uint32}[bit_width]
+    dtype = _UINT[bit_width]
     return w if bit_width == 32 else (w >> (32 - bit_width)).astype(dtype)
 
 
