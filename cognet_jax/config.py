@@ -134,6 +134,9 @@ class GDiceAlgorithmSection:
     #: "rollouts" (SPEC: mean of eval_rollouts returns) or "exact" (tabular models only: the
     #: exact expected return over the horizon, computed inside the compiled iteration)
     evaluator: str = "rollouts"
+    #: identical agents: each sample is one controller used by every agent (a search over
+    #: symmetric joint controllers; SPEC's G-DICE samples every agent independently)
+    shared_controller: bool = False
 
 
 @dataclasses.dataclass

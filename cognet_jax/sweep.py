@@ -483,8 +483,15 @@ def _stderr(x: np.ndarray) -> float:
     return float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
 
 
+def exact_of(final_value: dict) -> float | None:
+    """The exact value of a run's best policy (tabular problems): the infinite discounted value
+    when the discount is below 1, else the value at the horizon; ``None`` when not computed."""
+    return final_value.get("exact_infinite", final_value.get("exact"))
+
+
 def summarize(result: dict) -> list[dict]:
-    """Per setting: mean +- s.e. over seeds of the honest final value and the in-loop best."""
+    """Per setting: mean +- s.e. over seeds of the honest final value and the in-loop best, and
+    for tabular problems the exact values' mean, minimum and maximum over seeds."""
     out = []
     for index, values in enumerate(result["settings"]):
         rows = [r for r in result["rows"] if r["setting"] == index]
@@ -502,6 +509,11 @@ def summarize(result: dict) -> list[dict]:
                 "in_loop_best_se": _stderr(best),
             }
         )
+        exact = [exact_of(r["final_value"]) for r in rows]
+        if exact and all(e is not None for e in exact):
+            out[-1].update(
+                exact_mean=float(np.mean(exact)), exact_min=min(exact), exact_max=max(exact)
+            )
     return out
 
 
@@ -516,17 +528,21 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result["grid"])
+    # tabular problems: the exact values of each best policy (runner.exact_evaluation)
+    exact_keys = [k for k in ("exact", "exact_infinite") if k in result["rows"][0]["final_value"]]
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
             ["setting", "group", "seed", *names, "final_mean", "final_stderr", "final_rollouts"]
             + ["in_loop_best"]
+            + [f"final_{k}" for k in exact_keys]
         )
         for r in result["rows"]:
             fv = r["final_value"]
             w.writerow(
                 [r["setting"], r["group"], r["seed"], *(r["grid"][n] for n in names)]
                 + [repr(fv["mean"]), repr(fv["stderr"]), fv["rollouts"], repr(r["in_loop_best"])]
+                + [repr(fv.get(k)) for k in exact_keys]
             )
     atomic_write_text(out / "runs.json", json.dumps(result, indent=1))
     summary = summarize(result)
@@ -538,15 +554,29 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
         f"{result['wall_s']:.1f} s. Honest value: mean over seeds of each run's fresh "
         f"evaluation of its best policy ({result['rows'][0]['final_value']['rollouts']} "
         "rollouts, the seed's eval key); +- is the standard error over seeds.",
+    ]
+    with_exact = all("exact_mean" in s for s in summary)
+    if with_exact:
+        infinite = "exact_infinite" in exact_keys
+        lines[-1] += (
+            " Exact value: the best policy's value by dynamic programming ("
+            + ("infinite discounted sum" if infinite else "at the horizon")
+            + "), mean over seeds and [min, max]."
+        )
+    header = "| setting | seeds | honest value | in-loop best |"
+    lines += [
         "",
-        "| setting | seeds | honest value | in-loop best |",
-        "|---|---|---|---|",
+        header + (" exact value |" if with_exact else ""),
+        "|---|---|---|---|" + ("---|" if with_exact else ""),
     ]
     for s in summary:
-        lines.append(
+        row = (
             f"| {_setting_label(s['grid'])} | {s['seeds']} | {s['final_mean']:.3f} +- "
             f"{s['final_se']:.3f} | {s['in_loop_best_mean']:.3f} +- {s['in_loop_best_se']:.3f} |"
         )
+        if with_exact:
+            row += f" {s['exact_mean']:.6f} [{s['exact_min']:.6f}, {s['exact_max']:.6f}] |"
+        lines.append(row)
     atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
     _plot_values(result, out / "values.png")
     return [out / n for n in ("runs.csv", "runs.json", "summary.md", "values.png")]

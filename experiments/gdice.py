@@ -63,8 +63,36 @@ class GDiceRun:
         return out
 
 
+# Recycling with gamma 0.9 (infinite horizon; h = 100 is the Monte Carlo horizon)
+RECYCLING_G09 = GDiceRun(
+    name="recycling-g0.9",
+    problem="recycling",
+    horizon=100,
+    discount=0.9,
+    optimum=31.93,
+    reference="best known; target >= 31.5",
+    settings=dict(
+        nodes=3,
+        iterations=100,
+        samples=200,
+        elites=10,
+        eval_rollouts=100,
+        alpha=0.1,
+        entropy_injection=True,
+    ),
+    seed=0,
+    target=31.5,
+)
+# ... in the recycling setting of the COG-DICE paper (SPEC 3), 100 instead of 500 iterations
+RECYCLING_PAPER = dataclasses.replace(
+    RECYCLING_G09,
+    name="recycling-g0.9-paper",
+    settings={**RECYCLING_G09.settings, "samples": 2000, "elites": 25},
+)
+
+
 #: The configurations of the issue. Why these settings: see the G-DICE notes the table prints.
-RUNS = [
+BASE_RUNS = [
     GDiceRun(
         name="dectiger-h3",
         problem="dectiger",
@@ -119,24 +147,28 @@ RUNS = [
         ),
         seed=1,
     ),
-    GDiceRun(
-        name="recycling-g0.9",
-        problem="recycling",
-        horizon=100,
-        discount=0.9,
-        optimum=31.93,
-        reference="best known; target >= 31.5",
-        settings=dict(
-            nodes=3,
-            iterations=100,
-            samples=200,
-            elites=10,
-            eval_rollouts=100,
-            alpha=0.1,
-            entropy_injection=True,
-        ),
-        seed=0,
-        target=31.5,
+    RECYCLING_G09,
+    RECYCLING_PAPER,
+]
+RUNS = [
+    *BASE_RUNS,
+    # the same problems and settings with one controller sampled for both (identical) agents
+    # (algorithm.shared_controller): a search over symmetric joint controllers
+    *[
+        dataclasses.replace(
+            base,
+            name=f"{base.name}-shared",
+            settings={**base.settings, "shared_controller": True},
+            seed=0,
+        )
+        for base in BASE_RUNS
+    ],
+    # ... and with the anytime best chosen by a fresh 1000-rollout mean of each iteration's
+    # winner (algorithm.best_rollouts) instead of its in-loop mean: no winner's curse
+    dataclasses.replace(
+        RECYCLING_PAPER,
+        name="recycling-g0.9-paper-shared-fresh",
+        settings={**RECYCLING_PAPER.settings, "shared_controller": True, "best_rollouts": 1000},
     ),
     # the same problems with G-DICE ranking its samples by exact values (algorithm.evaluator)
     GDiceRun(
@@ -225,7 +257,10 @@ def _fmt_settings(alg: dict) -> str:
     values = f"N_sim {alg['eval_rollouts']}"
     if alg.get("evaluator", "rollouts") == "exact":
         values = "exact values"
-    return f"N_b {alg['elites']}, {values}, alpha {alg['alpha']:g}, {ei}"
+    extra = ", shared controller" if alg.get("shared_controller", False) else ""
+    if alg.get("best_rollouts", 0):
+        extra += f", best by {alg['best_rollouts']} fresh rollouts"
+    return f"N_b {alg['elites']}, {values}, alpha {alg['alpha']:g}, {ei}{extra}"
 
 
 def _reached(spec: GDiceRun, achieved: float) -> bool:
@@ -335,21 +370,46 @@ moving. Dec-Tiger h = 4 needs alpha 0.3 (alpha 0.1 moves the distributions too s
 between freezes) and many rollouts per sample, because its returns are very noisy. Recycling
 h = 3 uses 3 nodes (a 3-node controller represents the optimal depth-3 tree; with 7 nodes
 G-DICE stalls at local optima) and the 2000 samples / 25 elites of the COG-DICE paper.
-Recycling with gamma 0.9 converges on every seed to the reactive controller (act on the
-last observation, 31.496063), just below 31.5. A hill climber over deterministic controllers
-with exact values (random restarts, single and paired changes) finds 31.929134 (the best
-known 31.93) with 4 nodes: both agents *wait and recharge* first, then follow the reactive
-controller. Changing only one agent's first action loses 2.3 (29.21), so the independent
-per-agent distributions must flip both at once; and in every controller G-DICE converged to,
-node 0 sits inside the reactive loop (it returns to itself on observation 0), so the first
-action cannot change alone. We tried 3-6 nodes, 200-1000 samples, 10-50 elites, alpha
-0.03-0.2, entropy rates 0.02-0.1, with Monte Carlo and with exact values: 31.496063 every
-time. The same holds with exact values and 1000 samples for entropy rates 0.3 (4 nodes) and
-0.5 (5 nodes), and with 2 nodes, which already hold the reactive controller (`cognet-jax train
-gdice-dpomdp --set problem.path=.../recycling.dpomdp --set problem.horizon=100 --set
-problem.discount=0.9 --set algorithm.evaluator='"exact"' --set algorithm.samples=1000 --set
-algorithm.nodes=N --set algorithm.entropy_rate=R`). Larger controllers converge to controllers
-of that same value.
+
+Recycling with gamma 0.9, independent agents (SPEC's G-DICE): every seed converges to the
+reactive controller (act on the last observation, 31.496063), just below 31.5; the published
+G-DICE value is 31.27. The best known 31.929134 is a 3-node controller in which *both* agents
+first take action 2 (`waitandrecharge` in the file; the joint action (2, 2) pays 5 in the start
+state, the largest reward of the file), then follow the reactive controller. Changing only one
+agent's first action loses 2.3 (29.21): each agent's best response to the other's reactive
+controller is reactive, so the product of independent per-agent distributions moves away from
+the joint change (among the 25 best of 20,000 uniform samples, SAMPLE_STUDY_INDEPENDENT; a
+third each in the whole sample: `python experiments/gdice.py --sample-study`). In every
+controller G-DICE converged to, node 0 also sits inside the reactive loop, so the first action
+cannot change alone. We tried 3-6 nodes, 200-20,000 samples, 10-50 elites, alpha 0.03-0.2,
+entropy rates 0.02-0.5, with Monte Carlo and with exact values: 31.496063 every time, as in the
+rows recycling-g0.9, recycling-g0.9-paper (the COG-DICE paper's 2000 samples and 25 elites) and
+recycling-g0.9-exact.
+
+Shared controller (rows "-shared"): the same settings with `algorithm.shared_controller =
+true`, which gives both (identical) robots one sampled controller per sample, so G-DICE
+searches over symmetric joint controllers and the joint first move (2, 2) is one draw. Among
+20,000 uniform symmetric samples, SAMPLE_STUDY_SHARED. With the paper's 2000 samples and 25
+elites, G-DICE then finds 31.929134 on 3 of the 4 seeds in the table, and on 7 of 8 in a sweep;
+on the eighth the anytime best is a reactive controller whose lucky 100-rollout mean (32.059)
+no later winner's mean beat, SPEC section 2's winner's curse. Choosing the anytime best by a
+fresh 1000-rollout mean of each iteration's winner (`algorithm.best_rollouts=1000`, row
+recycling-g0.9-paper-shared-fresh) gives 31.929134 on 4 of 4 seeds in the table and 8 of 8 in
+the sweep (`cognet-jax sweep gdice-dpomdp --seeds 8 --set problem.path=.../recycling.dpomdp
+--set problem.horizon=100 --set problem.discount=0.9 --set algorithm.nodes=3 --set
+algorithm.samples=2000 --set algorithm.elites=25 --set algorithm.shared_controller=true --set
+algorithm.entropy_injection=true --grid algorithm.best_rollouts=0,1000`;
+experiments/results/gdice-shared-sweep/paper-setting/, with the commands in its README). With
+exact values, 3 nodes, 2000 samples and 25 elites, independent G-DICE gives 31.496063 on 16 of
+16 seeds and shared G-DICE 31.929134 on 16 of 16
+(experiments/results/gdice-shared-sweep/exact-independent-vs-shared/); shared, with 4 and 5
+nodes also 16 of 16, and with 200 samples 13, 13 and 12 of 16 for 3, 4 and 5 nodes
+(.../exact-shared-nodes-samples/). With only 200 samples and Monte Carlo values (row
+recycling-g0.9-shared), 2 of 4 seeds. On the other problems sharing does not hurt: Dec-Tiger h
+= 3 and 4 reach the optimum on 4 of 4 seeds as before, Recycling h = 3 on 4 of 4 instead of 2
+of 4. Sharing restricts the policy space: on a problem whose optimum is asymmetric it can only
+find the best symmetric controller, and agents with different action or observation counts are
+refused (a config error naming `algorithm.shared_controller`).
 
 Rows "-exact" use `algorithm.evaluator = "exact"`: samples are ranked by their exact expected
 return over the horizon (compiled dynamic programming, `cognet_jax/exact_jax.py`) instead of
@@ -357,6 +417,62 @@ N_sim-rollout means. Without Monte Carlo noise the threshold V_w no longer freez
 means, and runs need neither thousands of rollouts (Dec-Tiger h = 4) nor luck (Recycling
 h = 3); SPEC's G-DICE evaluates by rollouts, so the rows without "-exact" are the reference
 behaviour."""
+
+
+def notes() -> str:
+    """NOTES with the sample-study figures filled in (computed, never typed)."""
+    import textwrap
+
+    paragraphs = NOTES.split("\n\n")
+    for key, value in _study_text(sample_study()).items():
+        for i, text in enumerate(paragraphs):
+            if key in text:
+                text = " ".join(text.replace(key, value).split())
+                paragraphs[i] = textwrap.fill(text, width=95, break_on_hyphens=False)
+    return "\n\n".join(paragraphs)
+
+
+def sample_study(samples: int = 20_000, top: int = 25, seed: int = 0) -> dict:
+    """Exact values (gamma 0.9) of uniform random 3-node controllers on Recycling, independent
+    per agent and symmetric (one controller for both): which first actions the best have."""
+    import numpy as np
+
+    from cognet_jax.exact import exact_values
+    from cognet_jax.io.dpomdp import load_dpomdp
+
+    model = load_dpomdp(DPOMDP_DIR / "recycling.dpomdp", discount=0.9)
+    rng = np.random.default_rng(seed)
+    nodes = 3
+    actions = rng.integers(0, 3, (samples, 2, nodes))
+    transitions = rng.integers(0, nodes, (samples, 2, nodes, 2))
+    out = {}
+    for kind in ("independent", "shared"):
+        if kind == "shared":
+            actions[:, 1], transitions[:, 1] = actions[:, 0], transitions[:, 0]
+        values = exact_values(model, actions, transitions, None, 0.9)
+        best = np.argsort(-values)[:top]
+        first = actions[best][:, :, 0]
+        out[kind] = {
+            "best_values": values[best].round(6).tolist(),
+            "first_action_share": (np.bincount(first.ravel(), minlength=3) / first.size).tolist(),
+            "both_first_action_2": float(np.mean((first == 2).all(1))),
+        }
+    return out
+
+
+def _study_text(study: dict) -> dict:
+    ind, sh = study["independent"], study["shared"]
+    share = ind["first_action_share"]
+    n_opt = sum(v >= 31.9 for v in sh["best_values"])
+    return {
+        "SAMPLE_STUDY_INDEPENDENT": (
+            f"{share[1]:.0%} of the agents start with action 1 and {share[2]:.0%} with action 2"
+        ),
+        "SAMPLE_STUDY_SHARED": (
+            f"the {n_opt} best are the 31.93 controller ({sh['best_values'][0]:.6f} at h = "
+            "infinity)"
+        ),
+    }
 
 
 def write_table() -> None:
@@ -368,7 +484,7 @@ def write_table() -> None:
             "",
             *summary_rows(),
             "",
-            NOTES,
+            notes(),
             "",
             f"Generated by `python experiments/gdice.py`; machine: {machine()}.",
         ]
@@ -381,7 +497,15 @@ def main(argv=None) -> int:
     p.add_argument("runs", nargs="*", help=f"default: all of {', '.join(BY_NAME)}")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default: each run's seed")
     p.add_argument("--table-only", action="store_true", help="only rebuild the table")
+    p.add_argument(
+        "--sample-study",
+        action="store_true",
+        help="print the first actions of the best uniform random Recycling controllers",
+    )
     args = p.parse_args(argv)
+    if args.sample_study:
+        print(json.dumps(sample_study(), indent=1))
+        return 0
     unknown = [n for n in args.runs if n not in BY_NAME]
     if unknown:
         p.error(f"unknown run(s) {', '.join(unknown)}; known: {', '.join(BY_NAME)}")

@@ -319,3 +319,46 @@ def test_env_params_grid_equals_single_runs(tmp_path):
         assert row["final_value"] == single["final_value"]
         assert row["values_per_iteration"] == single["values_per_iteration"]
     assert rows[0]["values_per_iteration"] != rows[1]["values_per_iteration"]
+
+
+def test_summary_reports_exact_values_of_tabular_runs(tmp_path):
+    """Sweeps of .dpomdp problems carry each best policy's exact value into runs.csv and
+    summarise it per setting (mean, min, max over seeds)."""
+    from cognet_jax.sweep import write_outputs
+
+    def row(setting, seed, exact):
+        return {
+            "setting": setting,
+            "seed": seed,
+            "group": 0,
+            "grid": {"algorithm.alpha": [0.1, 0.2][setting]},
+            "final_value": {
+                "mean": exact + 0.01,
+                "stderr": 0.02,
+                "rollouts": 100,
+                "exact": exact - 0.001,
+                "exact_infinite": exact,
+            },
+            "in_loop_best": exact + 0.5,
+            "values_per_iteration": [exact, exact],
+            "best_per_iteration": [exact, exact],
+        }
+
+    result = {
+        "experiment": "gdice-dpomdp",
+        "seeds": [0, 1, 2],
+        "groups": [[0, 1]],
+        "wall_s": 1.0,
+        "grid": {"algorithm.alpha": [0.1, 0.2]},
+        "settings": [{"algorithm.alpha": 0.1}, {"algorithm.alpha": 0.2}],
+        "rows": [row(0, 0, 31.0), row(0, 1, 32.0), row(0, 2, 33.5), row(1, 0, 5.0)]
+        + [row(1, 1, 5.0), row(1, 2, 5.0)],
+    }
+    write_outputs(result, tmp_path)
+    table = list(csv.DictReader((tmp_path / "runs.csv").open()))
+    assert float(table[2]["final_exact_infinite"]) == 33.5
+    assert float(table[2]["final_exact"]) == pytest.approx(33.499)
+    summary = (tmp_path / "summary.md").read_text()
+    assert "infinite discounted sum" in summary
+    assert "| 32.166667 [31.000000, 33.500000] |" in summary
+    assert "| 5.000000 [5.000000, 5.000000] |" in summary

@@ -22,6 +22,15 @@ noise: on Recycling (gamma 0.9) the best controller beats the reactive one by 0.
 lucky mean, sits above that gain, so the one rare sample that has both changes never becomes
 an elite.
 
+**[option]** ``shared_controller=True`` (identical agents: the same action and observation
+counts): each sample is one controller used by every agent (``TabularController.shared``), so
+the search runs over symmetric joint controllers. SPEC's G-DICE keeps independent per-agent
+distributions; their product cannot move towards an optimum that needs all agents to change
+the same entry at once, because each change alone loses value (Recycling with gamma 0.9: both
+agents must first take action 2, the joint action that pays 5; experiments/README.md). Tied
+sampling makes such a joint change a single draw. It is a restriction of the policy space: on
+a problem whose optimum is asymmetric it can only find the best symmetric controller.
+
 **[choice]** The value an iteration records for the entropy-injection triggers and the best-value
 curve is its best sample's value (the in-loop, optimistic estimate).
 """
@@ -74,6 +83,8 @@ class GDiceSettings:
     #: many rollouts (``rollout.iteration_best``)
     best_rollouts: int = 0
     evaluator: str = "rollouts"
+    #: one sampled controller for every agent (identical agents only)
+    shared_controller: bool = False
 
 
 @struct.dataclass
@@ -93,6 +104,20 @@ class GDiceMetrics:
     injected: jax.Array  # [] bool
 
 
+def _counts(env, name: str):
+    counts = getattr(env, name, None)
+    return tuple(counts) if counts is not None else None
+
+
+def identical_agents(env) -> bool:
+    """Whether every agent has the same number of actions and observations (the condition of
+    ``shared_controller``); environments without per-agent counts have identical agents."""
+    return all(
+        (c := _counts(env, name)) is None or len(set(c)) <= 1
+        for name in ("action_counts", "obs_counts")
+    )
+
+
 class GDice:
     """G-DICE on an environment with discrete observations; ``init`` / ``step`` are pure."""
 
@@ -103,6 +128,12 @@ class GDice:
             raise ValueError(f"unknown evaluator {settings.evaluator!r}")
         if settings.evaluator == "exact" and not isinstance(env, TabularEnv):
             raise ValueError("evaluator='exact' needs a tabular (.dpomdp) model")
+        if settings.shared_controller and not identical_agents(env):
+            raise ValueError(
+                "shared_controller needs agents with the same action and observation counts, "
+                f"got actions {_counts(env, 'action_counts')}, "
+                f"observations {_counts(env, 'obs_counts')}"
+            )
         self.env = env
         self.env_params = env_params
         self.settings = settings
@@ -113,6 +144,7 @@ class GDice:
             num_actions=env.num_actions,
             num_obs=env.num_obs,
             action_counts=env.action_counts,
+            shared=settings.shared_controller,
         )
 
     def init(self, key: jax.Array) -> GDiceState:

@@ -4,6 +4,11 @@
   and ``transition_probs [agents, nodes, obs, nodes]`` (``phi[q, z, q']``).
 * ``DeterministicTabularPolicy``: one sampled controller -- ``actions [agents, nodes]`` and
   ``transitions [agents, nodes, obs]`` (int32). This is what G-DICE evaluates.
+
+**[option]** ``shared=True`` (identical agents): every sample is one controller drawn from agent
+0's rows and given to every agent, so the joint controllers searched are the symmetric ones.
+The distribution keeps its ``[agents, ...]`` shape; because every elite's table is the same for
+all agents, count MLE, smoothing and entropy injection keep the agents' rows equal.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ class TabularController:
     num_obs: int
     action_counts: tuple[int, ...] | None = None
     obs_counts: tuple[int, ...] | None = None
+    shared: bool = False
 
     def init_distribution(self) -> TabularDistribution:
         a, n = self.num_agents, self.num_nodes
@@ -48,13 +54,23 @@ class TabularController:
         )
 
     def sample(self, key: jax.Array, dist: TabularDistribution) -> DeterministicTabularPolicy:
-        """Draw one deterministic joint controller from the search distribution."""
+        """Draw one deterministic joint controller from the search distribution (with
+        ``shared``: one controller from agent 0's rows, the same for every agent)."""
+        if self.shared:
+            one = self._sample_rows(key, dist.action_probs[:1], dist.transition_probs[:1])
+            return jax.tree.map(
+                lambda x: jnp.broadcast_to(x, (self.num_agents,) + x.shape[1:]), one
+            )
+        return self._sample_rows(key, dist.action_probs, dist.transition_probs)
+
+    @staticmethod
+    def _sample_rows(key, action_probs, transition_probs) -> DeterministicTabularPolicy:
         k_a, k_t = jax.random.split(key)
-        u_a = jax.random.uniform(k_a, dist.action_probs.shape[:-1])
-        u_t = jax.random.uniform(k_t, dist.transition_probs.shape[:-1])
+        u_a = jax.random.uniform(k_a, action_probs.shape[:-1])
+        u_t = jax.random.uniform(k_t, transition_probs.shape[:-1])
         return DeterministicTabularPolicy(
-            actions=sample_categorical(u_a, dist.action_probs),
-            transitions=sample_categorical(u_t, dist.transition_probs),
+            actions=sample_categorical(u_a, action_probs),
+            transitions=sample_categorical(u_t, transition_probs),
         )
 
     def act(self, u, policy: DeterministicTabularPolicy, nodes):
