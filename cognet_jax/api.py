@@ -139,8 +139,6 @@ def build_algorithm(config: Config, env=None, env_params=None):
         )
         if a.evaluator == "exact":
             _check_exact_cost(env, a)
-        if a.shared_controller:
-            _check_identical_agents(env)
         hyper = GDiceHyper(
             alpha=a.alpha,
             entropy=EntropyConfig(
@@ -213,18 +211,6 @@ def _check_exact_cost(env, a) -> None:
             f"'exact' would need {cost:.2e} multiply-adds per iteration (nodes^agents * S^2 * "
             f"joint observations * horizon * samples > {EXACT_EVALUATOR_LIMIT:.0e}); use "
             "'rollouts' or fewer nodes/samples",
-        )
-
-
-def _check_identical_agents(env) -> None:
-    from cognet_jax.algorithms.gdice import identical_agents
-    from cognet_jax.config import ConfigError
-
-    if not identical_agents(env):
-        raise ConfigError(
-            "algorithm.shared_controller",
-            "needs agents with the same numbers of actions and observations; this problem has "
-            f"actions {env.action_counts} and observations {getattr(env, 'obs_counts', None)}",
         )
 
 

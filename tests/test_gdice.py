@@ -364,7 +364,7 @@ def test_shared_controller_samples_one_controller_for_every_agent_and_keeps_rows
 
 def test_shared_controller_rejects_agents_with_different_counts(tmp_path):
     env, params = small_env(action_counts=(3, 2))
-    with pytest.raises(ValueError, match="shared_controller needs agents"):
+    with pytest.raises(ValueError, match="same numbers of actions and observations"):
         GDice(env, params, GDiceSettings(nodes=2, shared_controller=True))
 
     from cognet_jax.api import build_algorithm

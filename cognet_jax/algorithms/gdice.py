@@ -52,6 +52,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
+from cognet_jax.config import ConfigError
 from cognet_jax.controllers.tabular import (
     DeterministicTabularPolicy,
     TabularController,
@@ -129,10 +130,11 @@ class GDice:
         if settings.evaluator == "exact" and not isinstance(env, TabularEnv):
             raise ValueError("evaluator='exact' needs a tabular (.dpomdp) model")
         if settings.shared_controller and not identical_agents(env):
-            raise ValueError(
-                "shared_controller needs agents with the same action and observation counts, "
-                f"got actions {_counts(env, 'action_counts')}, "
-                f"observations {_counts(env, 'obs_counts')}"
+            raise ConfigError(
+                "algorithm.shared_controller",
+                "needs agents with the same numbers of actions and observations; this problem "
+                f"has actions {_counts(env, 'action_counts')} and observations "
+                f"{_counts(env, 'obs_counts')}",
             )
         self.env = env
         self.env_params = env_params
