@@ -9,11 +9,11 @@ then writes ``benchmarks/results.json`` and the generated ``benchmarks/README.md
   generator, and the opt-in ``hash`` generator), torch-vectorised, torch-loop, with ratios;
 * one COGNet-DICE iteration at the thesis settings (3 and 6 nodes): JAX vs both references; one
   iteration of COG-DICE (region controllers) and G-DICE (tabular controllers) in JAX;
-* time-to-value: a full ``tagging-thesis-n3`` run (JAX, measured) against the references'
+* time-to-value: a full ``tagging-thesis-spec-n3`` run (JAX, measured) against the references'
   per-iteration time x 500 (extrapolated);
 * ``--full``: scaling of the COGNet-DICE iteration time with rollouts (1e3..1e6), horizon
   (3..150) and nodes (3..32), XLA buffer memory vs rollouts, and a PNG of the curves; and the
-  wall time of a 32-seed ``cognet-jax sweep tagging-thesis-n3`` against one seed (fresh
+  wall time of a 32-seed ``cognet-jax sweep tagging-thesis-spec-n3`` against one seed (fresh
   processes, median of 3 each).
 
 Every timing is the median of >= 5 runs after a warm-up (min-max beside it), compile time apart.
@@ -40,8 +40,8 @@ RUNS = 5
 
 #: (label, experiment, overrides) of the single-iteration cases
 ITERATION_CASES = [
-    ("COGNet-DICE thesis, 3 nodes", "tagging-thesis-n3", []),
-    ("COGNet-DICE thesis, 6 nodes", "tagging-thesis-n6", []),
+    ("COGNet-DICE thesis, 3 nodes", "tagging-thesis-spec-n3", []),
+    ("COGNet-DICE thesis, 6 nodes", "tagging-thesis-spec-n6", []),
     ("COG-DICE thesis budget, 3 nodes", "tagging-thesis-cogdice-n3", []),
     ("COG-DICE paper setting (h 150)", "tagging-paper-cogdice", []),
     ("G-DICE paper setting, d = 1 (h 150)", "tagging-paper-gdice-d1", []),
@@ -131,7 +131,7 @@ def measure_iterations(with_torch: bool, quick: bool, log) -> list[dict]:
 SCALING_BASES = (
     (
         "COGNet-DICE",
-        "tagging-thesis-n3",
+        "tagging-thesis-spec-n3",
         [(n, [f"algorithm.rollouts={n}"]) for n in (1_000, 10_000, 100_000, 1_000_000)],
     ),
     (
@@ -231,14 +231,14 @@ def main(argv=None) -> int:
     out["iterations"] = measure_iterations(with_torch, args.quick, log)
     wall, results = jax_cases.full_run()
     out["full_run"] = dict(
-        experiment="tagging-thesis-n3",
+        experiment="tagging-thesis-spec-n3",
         wall_s=wall,
         compile_s=results["compile_s"],
         loop_s=results["loop_s"],
         iterations=results["iterations"],
         final_value=results["final_value"],
     )
-    log(f"full tagging-thesis-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
+    log(f"full tagging-thesis-spec-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
     if args.full:
         out["scaling"] = measure_scaling(cases, log)
         out["sweep"] = jax_cases.sweep_ratio()

@@ -36,7 +36,7 @@ def rollout_throughput(
 #: controller kind -> (experiment whose controller and env are used, overrides): tagging with
 #: the thesis horizon 3; the tabular controller reads the observation discretised by 1
 CONTROLLER_KINDS = {
-    "neural (COGNet-DICE)": ("tagging-thesis-n3", []),
+    "neural (COGNet-DICE)": ("tagging-thesis-spec-n3", []),
     "regions (COG-DICE)": ("tagging-thesis-cogdice-n3", []),
     "tabular (G-DICE, d = 1)": ("tagging-paper-gdice-d1", ["env.horizon=3"]),
 }
@@ -98,7 +98,9 @@ def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict
     return timing, memory
 
 
-def sweep_ratio(seeds: int = 32, repeats: int = 3, experiment: str = "tagging-thesis-n3") -> dict:
+def sweep_ratio(
+    seeds: int = 32, repeats: int = 3, experiment: str = "tagging-thesis-spec-n3"
+) -> dict:
     """Process wall seconds of ``cognet-jax sweep EXPERIMENT --seeds 1`` and ``--seeds N``
     (fresh processes, as a user runs them: imports, compile, all iterations, honest evaluation
     and outputs included), ``repeats`` times each, alternating; the medians and their ratio."""
@@ -128,7 +130,7 @@ def sweep_ratio(seeds: int = 32, repeats: int = 3, experiment: str = "tagging-th
     )
 
 
-def full_run(experiment: str = "tagging-thesis-n3") -> tuple[float, dict]:
+def full_run(experiment: str = "tagging-thesis-spec-n3") -> tuple[float, dict]:
     """Wall seconds of ``cognet-jax train EXPERIMENT`` without plots (compile, all iterations
     and the honest 10,000-rollout evaluation included) and its results dict."""
     from cognet_jax.config import load_config

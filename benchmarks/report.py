@@ -80,7 +80,8 @@ def time_to_value(out: dict) -> list[str]:
     n = full["iterations"]
     fv = full["final_value"]
     lines = [
-        f"- JAX, measured: `cognet-jax train tagging-thesis-n3` ({n} iterations, no plots) took "
+        f"- JAX, measured: `cognet-jax train tagging-thesis-spec-n3` ({n} iterations, no plots) "
+        "took "
         f"{full['wall_s']:.1f} s wall, of which {full['compile_s']:.1f} s compile and "
         f"{full['loop_s']:.1f} s for the iterations; honest value {fv['mean']:.3f} +- "
         f"{fv['stderr']:.3f}.",
@@ -318,7 +319,7 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "",
         *iteration_table(out),
         "",
-        "## Time to value (tagging-thesis-n3)",
+        "## Time to value (tagging-thesis-spec-n3)",
         "",
         *time_to_value(out),
         "",

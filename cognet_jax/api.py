@@ -19,6 +19,7 @@ import jax
 from cognet_jax.config import (
     CogDiceAlgorithmSection,
     CognetAlgorithmSection,
+    CognetWeightsAlgorithmSection,
     Config,
     DpomdpEnvSection,
     GDiceAlgorithmSection,
@@ -86,6 +87,30 @@ def build_algorithm(config: Config, env=None, env_params=None):
     if env is None:
         env, env_params = build_env(config)
     a = config.algorithm
+    if isinstance(a, CognetWeightsAlgorithmSection):
+        from cognet_jax.algorithms.cognet_weights import (
+            CognetWeights,
+            WeightsHyper,
+            WeightsSettings,
+        )
+
+        settings = WeightsSettings(
+            nodes=a.nodes,
+            iterations=a.iterations,
+            candidates=a.candidates,
+            eval_rollouts=a.eval_rollouts,
+            elites=a.elites,
+            hidden=config.network.hidden,
+            best_rollouts=a.best_rollouts,
+            common_random_numbers=a.common_random_numbers,
+            init_scale=a.init_scale,
+            vote_mean=a.vote_mean,
+            vote_std=a.vote_std,
+        )
+        hyper = WeightsHyper(
+            alpha=a.alpha, action_floor=a.action_floor, category_floor=a.category_floor
+        )
+        return CognetWeights(env, env_params, settings, hyper, build_pipeline(config, env))
     if isinstance(a, CognetAlgorithmSection):
         from cognet_jax.algorithms.cognet_dice import CognetDice, CognetHyper, CognetSettings
         from cognet_jax.algorithms.cross_entropy import EntropyConfig
@@ -187,7 +212,9 @@ def build_pipeline(config: Config, env):
     net = config.network
     vae = None
     if net.observation == "encoded" or net.augment:
-        vae = resolve_vae(net.vae_path, net.vae_seed, net.vae_epochs)
+        vae = resolve_vae(
+            net.vae_path, net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight
+        )
     return ObservationPipeline(
         kind=net.observation,
         raw_shape=env.obs_shape,

@@ -6,7 +6,7 @@ cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out
                  [--set section.key=value ...] [--checkpoint-every K] [--resume DIR]
                  [--coordinator HOST:PORT --num-processes P --process-id I | --cluster]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
-cognet-jax vae train [--out DIR] [--seed N] [--epochs N]
+cognet-jax vae train [--out DIR] [--seed N] [--epochs N] [--latent N] [--kl-weight W]
 cognet-jax list
 """
 
@@ -136,6 +136,10 @@ def _parser() -> argparse.ArgumentParser:
     vt.add_argument("--out", default="runs/vae", help="output folder (default runs/vae)")
     vt.add_argument("--seed", type=int, default=0)
     vt.add_argument("--epochs", type=int, default=60)
+    vt.add_argument("--latent", type=int, default=1, help="latent dimensions (default 1)")
+    vt.add_argument(
+        "--kl-weight", type=float, default=1.0, help="weight of the KL term (default 1)"
+    )
     vt.add_argument("--no-noise", action="store_true", help="train on the 144 clean patches only")
     vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -295,6 +299,10 @@ def _vae(args) -> int:
 
     if args.epochs < 1:
         raise SystemExit("error: --epochs must be >= 1")
+    if args.latent < 1:
+        raise SystemExit("error: --latent must be >= 1")
+    if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
+        raise SystemExit("error: --kl-weight must be a finite number > 0")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -305,12 +313,19 @@ def _vae(args) -> int:
             bar.update(1)
 
         vae, losses = train_vae(
-            seed=args.seed, epochs=args.epochs, noisy=not args.no_noise, progress=progress
+            seed=args.seed,
+            epochs=args.epochs,
+            noisy=not args.no_noise,
+            progress=progress,
+            latent=args.latent,
+            kl_weight=args.kl_weight,
         )
     info = diagnostics(vae)
     info.update(
         seed=args.seed,
         epochs=args.epochs,
+        latent=args.latent,
+        kl_weight=args.kl_weight,
         noisy=not args.no_noise,
         losses=losses.tolist(),
         wall_s=time.perf_counter() - t0,

@@ -10,6 +10,7 @@ wrong types and out-of-range values raise ``ConfigError`` naming the dotted fiel
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from importlib import resources
@@ -87,7 +88,8 @@ class ProblemSection:
 
 @dataclasses.dataclass
 class CognetAlgorithmSection:
-    """COGNet-DICE (SPEC 5); names follow the thesis: K_roll, K_top, K_keep, K_eval."""
+    """COGNet-DICE as the thesis specifies it (SPEC 5), algorithm ``cognet-dice-thesis``; names
+    follow the thesis: K_roll, K_top, K_keep, K_eval."""
 
     nodes: int = 3
     iterations: int = 500
@@ -110,6 +112,33 @@ class CognetAlgorithmSection:
     entropy_std: float = 0.5
     entropy_window: int = 4
     entropy_patience: int = 5
+
+
+@dataclasses.dataclass
+class CognetWeightsAlgorithmSection:
+    """COGNet-DICE, the default ``cognet-dice``: cross-entropy over the node networks' weights
+    (``algorithms.cognet_weights``). Per iteration ``candidates`` joint controllers, each
+    evaluated with ``eval_rollouts`` rollouts (common random numbers), the best ``elites``
+    refit the distribution with smoothing ``alpha``; ``action_floor`` / ``category_floor`` mix
+    the categoricals with the uniform distribution every iteration; the winner and the
+    distribution's mode are re-evaluated on ``best_rollouts`` fresh rollouts for the anytime
+    best. ``init_scale``: initial std of the hidden layer (``init_scale / sqrt(inputs)`` for the
+    weights); ``vote_mean`` / ``vote_std``: initial Gaussian of the output votes. The hidden
+    width is ``network.hidden``."""
+
+    nodes: int = 3
+    iterations: int = 600
+    candidates: int = 200
+    eval_rollouts: int = 500
+    elites: int = 10
+    alpha: float = 0.3
+    action_floor: float = 0.02
+    category_floor: float = 0.02
+    best_rollouts: int = 1000
+    common_random_numbers: bool = True
+    init_scale: float = 10.0
+    vote_mean: float = 5.0
+    vote_std: float = 5.0
 
 
 @dataclasses.dataclass
@@ -182,6 +211,9 @@ class NetworkSection:
     vae_path: str = ""
     vae_seed: int = 0
     vae_epochs: int = 60
+    #: latent dimensions and KL weight of the on-demand VAE (``cognet_jax.vae``)
+    vae_latent: int = 1
+    vae_kl_weight: float = 1.0
     augment: bool = False
     augment_samples: int = 1
 
@@ -217,7 +249,8 @@ ENV_SECTIONS: dict[str, type] = {
     "dpomdp": DpomdpEnvSection,
 }
 ALGORITHM_SECTIONS: dict[str, type] = {
-    "cognet-dice": CognetAlgorithmSection,
+    "cognet-dice": CognetWeightsAlgorithmSection,
+    "cognet-dice-thesis": CognetAlgorithmSection,
     "gdice": GDiceAlgorithmSection,
     "cogdice": CogDiceAlgorithmSection,
 }
@@ -228,7 +261,7 @@ class Config:
     experiment: ExperimentSection = dataclasses.field(default_factory=ExperimentSection)
     env: Any = dataclasses.field(default_factory=TaggingEnvSection)
     problem: ProblemSection = dataclasses.field(default_factory=ProblemSection)
-    algorithm: Any = dataclasses.field(default_factory=CognetAlgorithmSection)
+    algorithm: Any = dataclasses.field(default_factory=CognetWeightsAlgorithmSection)
     network: NetworkSection = dataclasses.field(default_factory=NetworkSection)
     evaluation: EvaluationSection = dataclasses.field(default_factory=EvaluationSection)
     run: RunSection = dataclasses.field(default_factory=RunSection)
@@ -423,6 +456,40 @@ def _validate_sampler(alg) -> None:
     _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
 
 
+def _validate_network(config: Config, training: bool) -> None:
+    """``[network]`` of both COGNet-DICE variants; ``training``: the optimiser settings too."""
+    net = config.network
+    env = config.env
+    _positive(net, "network", "hidden")
+    if training:
+        _positive(net, "network", "train_steps")
+        _require(
+            net.optimizer in ("adam", "sgd"),
+            "network.optimizer",
+            f"must be 'adam' or 'sgd', got {net.optimizer!r}",
+        )
+        _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
+        _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+    _require(
+        net.observation in ("raw", "encoded"),
+        "network.observation",
+        f"must be 'raw' or 'encoded', got {net.observation!r}",
+    )
+    _positive(net, "network", "vae_epochs", "augment_samples", "vae_latent")
+    _require(
+        math.isfinite(net.vae_kl_weight) and net.vae_kl_weight > 0,
+        "network.vae_kl_weight",
+        f"must be > 0, got {net.vae_kl_weight}",
+    )
+    _require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
+    needs_vae = net.observation == "encoded" or net.augment
+    _require(
+        not needs_vae or isinstance(env, HeatmapEnvSection),
+        "network.observation" if net.observation == "encoded" else "network.augment",
+        "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
+    )
+
+
 def validate(config: Config) -> None:
     """Range and consistency checks; raises ``ConfigError`` naming the field."""
     env = config.env
@@ -511,27 +578,35 @@ def validate(config: Config) -> None:
             "algorithm.train_on",
             f"must be 'kept' or 'top', got {alg.train_on!r}",
         )
-        net = config.network
-        _positive(net, "network", "hidden", "train_steps")
+        _validate_network(config, training=True)
+    if isinstance(alg, CognetWeightsAlgorithmSection):
+        _positive(alg, "algorithm", "nodes", "iterations", "candidates", "eval_rollouts", "elites")
         _require(
-            net.optimizer in ("adam", "sgd"),
-            "network.optimizer",
-            f"must be 'adam' or 'sgd', got {net.optimizer!r}",
+            alg.elites <= alg.candidates,
+            "algorithm.elites",
+            f"elites ({alg.elites}) cannot exceed algorithm.candidates ({alg.candidates})",
         )
-        _require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
-        _require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+        _require(alg.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
+        _probability(alg, "algorithm", "alpha", "action_floor", "category_floor")
+        _require(alg.best_rollouts >= 1, "algorithm.best_rollouts", "must be >= 1")
+        for name in ("init_scale", "vote_mean", "vote_std"):
+            v = getattr(alg, name)
+            _require(math.isfinite(v) and v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
+        _require(alg.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        defaults = NetworkSection()
+        for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
+            _require(
+                getattr(config.network, name) == getattr(defaults, name),
+                f"network.{name}",
+                "trains the node networks of cognet-dice-thesis; the default cognet-dice "
+                "samples network weights and has no optimiser",
+            )
+        _validate_network(config, training=False)
         _require(
-            net.observation in ("raw", "encoded"),
-            "network.observation",
-            f"must be 'raw' or 'encoded', got {net.observation!r}",
-        )
-        _positive(net, "network", "vae_epochs", "augment_samples")
-        _require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
-        needs_vae = net.observation == "encoded" or net.augment
-        _require(
-            not needs_vae or isinstance(env, HeatmapEnvSection),
-            "network.observation" if net.observation == "encoded" else "network.augment",
-            "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
+            not config.network.augment,
+            "network.augment",
+            "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
+            "network (use experiment.algorithm = 'cognet-dice-thesis')",
         )
     if isinstance(alg, GDiceAlgorithmSection):
         _validate_sampler(alg)

@@ -18,7 +18,8 @@ pairs count like real ones in the cross-entropy (each pair has weight one).
 
 The VAE (``resolve_vae``) **[choice]**: ``network.vae_path`` names a file written by
 ``cognet-jax vae train``; left empty, the VAE is trained on demand, deterministically from
-``network.vae_seed`` with ``network.vae_epochs`` epochs (clean + noisy patches, the defaults of
+``network.vae_seed`` with ``network.vae_epochs`` epochs, ``network.vae_latent`` latent
+dimensions and KL weight ``network.vae_kl_weight`` (clean + noisy patches, the defaults of
 ``cognet_jax.vae``; a few seconds on CPU), cached for the process. A training run writes the
 VAE it used to ``RUN_DIR/vae.msgpack`` and ``cognet-jax evaluate RUN_DIR`` reads that file, so a
 policy is always evaluated with its own encoder.
@@ -107,12 +108,14 @@ class ObservationPipeline:
 
 
 @functools.lru_cache(maxsize=4)
-def trained_vae(seed: int, epochs: int) -> TrainedVAE:
-    """The on-demand VAE: ``train_vae(seed, epochs)`` on clean + noisy patches, cached."""
-    return train_vae(seed=seed, epochs=epochs)[0]
+def trained_vae(seed: int, epochs: int, latent: int = 1, kl_weight: float = 1.0) -> TrainedVAE:
+    """The on-demand VAE: ``train_vae`` on clean + noisy patches, cached."""
+    return train_vae(seed=seed, epochs=epochs, latent=latent, kl_weight=kl_weight)[0]
 
 
-def resolve_vae(vae_path: str, seed: int, epochs: int) -> TrainedVAE:
+def resolve_vae(
+    vae_path: str, seed: int, epochs: int, latent: int = 1, kl_weight: float = 1.0
+) -> TrainedVAE:
     """The VAE in ``vae_path`` or, when it is empty, the on-demand one (see module docstring).
     A missing file raises ``ConfigError`` naming ``network.vae_path``."""
     from pathlib import Path
@@ -124,4 +127,4 @@ def resolve_vae(vae_path: str, seed: int, epochs: int) -> TrainedVAE:
         if not path.is_file():
             raise ConfigError("network.vae_path", f"no such file: {vae_path}")
         return load_vae(path)
-    return trained_vae(seed, epochs)
+    return trained_vae(seed, epochs, latent, kl_weight)

@@ -58,6 +58,8 @@ DYNAMIC_FIELDS = frozenset(
         "algorithm.entropy_rate",
         "algorithm.entropy_std",
         "algorithm.entropy_patience",
+        "algorithm.action_floor",
+        "algorithm.category_floor",
         "network.learning_rate",
         "env.motion_noise",
         "env.obs_noise",

@@ -2,6 +2,7 @@
 table and plot into experiments/README.md.
 
     python experiments/heatmap.py                              # every run, seed 0 (hours on CPU)
+    python experiments/heatmap.py heatmap-2d-n4 --seeds 0 1 2 3 4 5 6 7 --no-noise
     python experiments/heatmap.py --set algorithm.iterations=20  # a short smoke run
     python experiments/heatmap.py --table-only                 # rebuild the table from results
 
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import glob
 import json
 import sys
 from pathlib import Path
@@ -38,8 +40,33 @@ RESULTS = HERE / "results" / "heatmap"
 README = HERE / "README.md"
 
 #: What the runs of 2026-11-23 (seed 0, thesis scale) show; the numbers are those of the table.
+DEFAULT_FINDINGS = """\
+**Default `cognet-dice`** (the rows without `-spec`; their 8-seed sweeps are in the section
+"COGNet-DICE (default): 8-seed sweeps and ablations"). The weight-space search reaches most of
+the 46.898 bound with the raw patch and 8 hidden units; 16 hidden units did not help. The
+encoded search does better than the raw one, but only with a latent that keeps the orientation
+of the patch: the thesis's 1-D VAE keeps only the distance to the source, and no policy that
+sees only the distance can beat the distance-only bound above, whatever the search. A 2-D latent
+trained with the thesis's KL weight 1 collapses its second dimension to the prior (the thesis-
+algorithm notes below); with KL weight 0.01 and 200 epochs both dimensions carry information and
+mirror positions get different latents (table "VAE latents" below, read from the VAE files the
+runs saved). With the default start range {2..13} only (2, 2) earns +50 and a return is mostly
+the -1 steps, so values are small; the encoded default search comes close to its bound 4.431
+there.
+
+**Which policies use their observations** (noise study): the default policies lose several
+points when the patch is drowned in noise (std 0.5 and 1.0 per pixel, against pixel values in
+[0, 1]; "drop" column), so they act on what they see. The thesis algorithm's SPEC-settings
+policies lose nothing up to std 0.2 and at most a little at the largest noise (where noise
+moves the encoder's output of the encoded ones): they hardly use the observation. With the
+default start range the raw search stays below the encoded one and below 4.0 on most seeds
+(8-seed sweep heatmap-2d-n4-default). Our guess, not measured: on the raw 16 pixels the one
+distinction that matters there ("x = 2 or not") is a threshold that is harder to sample than on
+the 2-D latent."""
+
 FINDINGS = """\
-Findings (seed 0, 500 iterations).
+Findings on the thesis algorithm `cognet-dice-thesis` (seed 0, 500 iterations; the experiments
+were called heatmap-2d-n4 etc. before the default changed and are now the `-spec` ones).
 
 **The target of 50 is out of reach for every controller here.** Each agent starts in node 0
 and makes its first move before its first observation. No policy that does that can beat
@@ -66,11 +93,11 @@ then reaches honest 41.493, 88% of the bound (5 nodes: 40.162). Its policy does 
 patches: most of its nodes act almost purely (x-1 or y-1 with probability about 0.96) and
 the networks switch between them by position; the noise study shows it, with a loss of 0.7
 at std 0.05 and 2.4 at std 0.2 (same evaluation key at every std). Other runs with the options
-(`cognet-jax train heatmap-2d-n4 --set algorithm.train_on='"top"' --set
+(`cognet-jax train heatmap-2d-spec-n4 --set algorithm.train_on='"top"' --set
 algorithm.best_rollouts=1000` plus `--seed 1`, `--set network.train_steps=50`, `--set
 network.learning_rate=0.03` or `--set algorithm.iterations=1000`) gave 39.517, 40.569, 36.785
 and 41.493 (the same policy as with 500 iterations). Over seeds, and with more rollouts per
-iteration: `cognet-jax sweep heatmap-2d-n4 --seeds 4 --set algorithm.train_on='"top"' --set
+iteration: `cognet-jax sweep heatmap-2d-spec-n4 --seeds 4 --set algorithm.train_on='"top"' --set
 algorithm.best_rollouts=1000 --grid algorithm.rollouts=1000,3000` gave 39.503 +- 0.450 (K_roll
 1000) and **42.698 +- 0.843** (K_roll 3000; seeds 40.2-44.0), mean +- s.e. over 4 seeds
 (experiments/results/heatmap/options-sweep/). With 3000 rollouts the 100 pre-selected ones
@@ -100,16 +127,19 @@ The encoded variant's iterations are 4-10x faster than the raw ones (s / iterati
 The iteration of the in-loop best cannot say whether it converges in half the iterations: it
 is set by the shared evaluation keys. The learning curves of the section "does the encoded
 variant converge in half the iterations?" below answer that (it does not)."""
-NOISE_STDS = (0.0, 0.01, 0.05, 0.1, 0.2)
+NOISE_STDS = (0.0, 0.01, 0.05, 0.1, 0.2, 0.5, 1.0)
 THESIS_ITERATIONS = 500
 
 #: SPEC section 8 (thesis start range): thesis COGNet-DICE values per built-in experiment.
-THESIS = {
-    "heatmap-2d-n4": 44.328,
-    "heatmap-2d-n5": 45.001,
-    "heatmap-encoded-n4": 43.829,
-    "heatmap-encoded-n5": 44.346,
+THESIS_SPEC = {
+    "heatmap-2d-spec-n4": 44.328,
+    "heatmap-2d-spec-n5": 45.001,
+    "heatmap-encoded-spec-n4": 43.829,
+    "heatmap-encoded-spec-n5": 44.346,
 }
+#: the default cognet-dice experiments and the thesis value of the same setting
+DEFAULTS = {name.replace("-spec", ""): v for name, v in THESIS_SPEC.items()}
+THESIS = {**DEFAULTS, **THESIS_SPEC}
 OPTIMUM, RANDOM = 53.14, 19.37  # SPEC section 8, thesis start range
 
 
@@ -136,24 +166,30 @@ OPTIONS = ('algorithm.train_on="top"', "algorithm.best_rollouts=1000")
 AUGMENT = ("network.augment=true",)
 
 RUNS = [
-    *(HeatmapRun(e, e) for e in THESIS),
-    *(HeatmapRun(f"{e}-default", e, ("env.start=default",)) for e in THESIS),
-    HeatmapRun("heatmap-2d-n4-aug", "heatmap-2d-n4", AUGMENT),
-    HeatmapRun("heatmap-encoded-n4-aug", "heatmap-encoded-n4", AUGMENT),
-    *(HeatmapRun(f"{e}+options", e, OPTIONS) for e in THESIS),
-    HeatmapRun("heatmap-2d-n4+options-aug", "heatmap-2d-n4", OPTIONS + AUGMENT),
-    HeatmapRun("heatmap-encoded-n4+options-aug", "heatmap-encoded-n4", OPTIONS + AUGMENT),
+    # the default cognet-dice (weight-space search)
+    *(HeatmapRun(e, e) for e in DEFAULTS),
+    *(HeatmapRun(f"{e}-default", e, ("env.start=default",)) for e in DEFAULTS),
+    # the thesis algorithm (cognet-dice-thesis, SPEC section 5)
+    *(HeatmapRun(e, e) for e in THESIS_SPEC),
+    *(HeatmapRun(f"{e}-default", e, ("env.start=default",)) for e in THESIS_SPEC),
+    HeatmapRun("heatmap-2d-spec-n4-aug", "heatmap-2d-spec-n4", AUGMENT),
+    HeatmapRun("heatmap-encoded-spec-n4-aug", "heatmap-encoded-spec-n4", AUGMENT),
+    *(HeatmapRun(f"{e}+options", e, OPTIONS) for e in THESIS_SPEC),
+    HeatmapRun("heatmap-2d-spec-n4+options-aug", "heatmap-2d-spec-n4", OPTIONS + AUGMENT),
+    HeatmapRun("heatmap-encoded-spec-n4+options-aug", "heatmap-encoded-spec-n4", OPTIONS + AUGMENT),
 ]
 #: the noise study's variants: label -> run name
 NOISE_VARIANTS = {
-    "raw": "heatmap-2d-n4",
-    "raw + aug": "heatmap-2d-n4-aug",
-    "encoded": "heatmap-encoded-n4",
-    "encoded + aug": "heatmap-encoded-n4-aug",
-    "raw +options": "heatmap-2d-n4+options",
-    "raw +options + aug": "heatmap-2d-n4+options-aug",
-    "encoded +options": "heatmap-encoded-n4+options",
-    "encoded +options + aug": "heatmap-encoded-n4+options-aug",
+    "raw, cognet-dice": "heatmap-2d-n4",
+    "encoded (2-D latent), cognet-dice": "heatmap-encoded-n4",
+    "raw, thesis alg.": "heatmap-2d-spec-n4",
+    "raw + aug, thesis alg.": "heatmap-2d-spec-n4-aug",
+    "encoded, thesis alg.": "heatmap-encoded-spec-n4",
+    "encoded + aug, thesis alg.": "heatmap-encoded-spec-n4-aug",
+    "raw +options, thesis alg.": "heatmap-2d-spec-n4+options",
+    "raw +options + aug, thesis alg.": "heatmap-2d-spec-n4+options-aug",
+    "encoded +options, thesis alg.": "heatmap-encoded-spec-n4+options",
+    "encoded +options + aug, thesis alg.": "heatmap-encoded-spec-n4+options-aug",
 }
 BY_NAME = {r.name: r for r in RUNS}
 
@@ -162,7 +198,7 @@ def run_dir(name: str, seed: int) -> Path:
     return RESULTS / f"{name}-seed{seed}"
 
 
-def train(names: list[str], seed: int, extra: list[str]) -> None:
+def train(names: list[str], seeds: list[int], extra: list[str]) -> None:
     from cognet_jax.config import load_config
     from cognet_jax.runner import run_training
 
@@ -175,9 +211,10 @@ def train(names: list[str], seed: int, extra: list[str]) -> None:
             *extra,
         ]
         config = load_config(spec.experiment, overrides)
-        out = run_dir(name, seed)
-        run_training(config, seed, out)
-        (out / "checkpoint.msgpack").unlink(missing_ok=True)  # only needed to resume
+        for seed in seeds:
+            out = run_dir(name, seed)
+            run_training(config, seed, out)
+            (out / "checkpoint.msgpack").unlink(missing_ok=True)  # only needed to resume
 
 
 def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
@@ -221,32 +258,67 @@ def first_best_iteration(best_per_iteration: list[float]) -> int:
     return next(i + 1 for i, v in enumerate(best_per_iteration) if v >= final)
 
 
-def main_rows(seed: int) -> tuple[list[str], list[int]]:
+def _seeds_of(name: str) -> list[int]:
+    found = RESULTS.glob(f"{glob.escape(name)}-seed*/results.json")
+    return sorted(int(p.parent.name.rsplit("-seed", 1)[1]) for p in found)
+
+
+def main_rows() -> tuple[list[str], list[int]]:
+    """One row per run and seed with saved results."""
     rows = [
-        "| run | start | observation | nodes | hidden | augment | iterations | honest value "
+        "| run | algorithm | seed | start | observation | nodes | hidden | augment | iterations "
+        "| honest value "
         "(mean +- s.e.) | in-loop best | thesis | iteration of in-loop best | s / iteration "
         "| wall s (compile s) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     iterations = []
-    for spec in RUNS:
+    for spec, seed in ((run, seed) for run in RUNS for seed in _seeds_of(run.name)):
         r = _load(spec.name, seed)
         if r is None or r.get("status") != "complete":
             continue
         cfg, f = r["config"], r["final_value"]
         net, alg = cfg["network"], cfg["algorithm"]
-        iterations.append(r["iterations"])
+        if r["algorithm"] == "cognet-dice-thesis":  # the thesis's 500 iterations apply to it
+            iterations.append(r["iterations"])
         plain = spec.start == "thesis" and not spec.augmented  # the thesis had no augmentation
         thesis = THESIS.get(spec.experiment) if plain else None
+        observation = net["observation"]
+        if observation == "encoded":
+            observation += f" ({net.get('vae_latent', 1)}-D)"
         rows.append(
-            f"| {spec.name} | {cfg['env']['start']} | {net['observation']} | {alg['nodes']} "
-            f"| {net['hidden']} | {'yes' if net['augment'] else 'no'} | {r['iterations']} "
+            f"| {spec.name} | {r['algorithm']} | {seed} | {cfg['env']['start']} | {observation} "
+            f"| {alg['nodes']} | {net['hidden']} | {'yes' if net['augment'] else 'no'} "
+            f"| {r['iterations']} "
             f"| {f['mean']:.3f} +- {f['stderr']:.3f} ({f['rollouts']}) "
             f"| {r['in_loop_best']:.3f} | {'' if thesis is None else thesis} "
             f"| {first_best_iteration(r['best_per_iteration'])} "
             f"| {r['loop_s'] / r['iterations']:.3f} | {r['wall_s']:.1f} ({r['compile_s']:.1f}) |"
         )
     return rows, iterations
+
+
+def seed_summary_rows() -> list[str]:
+    """Runs with at least two seeds: mean, min and max honest value, mean wall time."""
+    rows = [
+        "| run | algorithm | start | seeds | honest mean | min | max | bound | wall s per run |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    from cognet_jax.envs.heatmap import first_move_blind_value
+
+    for spec in RUNS:
+        found = [_load(spec.name, s) for s in _seeds_of(spec.name)]
+        found = [r for r in found if r is not None and r.get("status") == "complete"]
+        if len(found) < 2:
+            continue
+        v = [r["final_value"]["mean"] for r in found]
+        walls = [r["wall_s"] for r in found]
+        rows.append(
+            f"| {spec.name} | {found[0]['algorithm']} | {spec.start} | {len(found)} | "
+            f"{sum(v) / len(v):.3f} | {min(v):.3f} | {max(v):.3f} | "
+            f"{first_move_blind_value(spec.start):.3f} | {sum(walls) / len(walls):.1f} |"
+        )
+    return rows if len(rows) > 2 else []
 
 
 def noise_rows() -> list[str]:
@@ -276,6 +348,39 @@ def noise_rows() -> list[str]:
     return rows
 
 
+def vae_latent_rows() -> list[str]:
+    """Encoder means of the VAEs the seed-0 encoded runs saved, at the mirror positions (2, 7)
+    and (7, 2) and the spread of each latent dimension over the 144 reachable positions."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from cognet_jax.vae import load_vae, reachable_patches, reachable_positions
+
+    rows = [
+        "| run | latent | KL weight | mu at (2, 7) | mu at (7, 2) | std of mu per dimension "
+        "over positions |",
+        "|---|---|---|---|---|---|",
+    ]
+    pos = reachable_positions()
+    at = {p: int(np.where((pos == p).all(1))[0][0]) for p in ((2, 7), (7, 2))}
+    for name in ("heatmap-encoded-n4", "heatmap-encoded-spec-n4"):
+        path = run_dir(name, 0) / "vae.msgpack"
+        r = _load(name, 0)
+        if not path.is_file() or r is None:
+            continue
+        mu = np.asarray(load_vae(path).encode(jnp.asarray(reachable_patches()))[0])
+        net = r["config"]["network"]
+
+        def fmt(v):
+            return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
+
+        rows.append(
+            f"| {name} | {mu.shape[1]} | {net.get('vae_kl_weight', 1.0):g} | "
+            f"{fmt(mu[at[(2, 7)]])} | {fmt(mu[at[(7, 2)]])} | {fmt(mu.std(0))} |"
+        )
+    return rows if len(rows) > 2 else []
+
+
 def noise_plot() -> Path | None:
     path = RESULTS / "noise.json"
     if not path.is_file():
@@ -284,6 +389,8 @@ def noise_plot() -> Path | None:
 
     data = json.loads(path.read_text())
     variants = {k: (data[k]["means"], data[k]["stderrs"]) for k in NOISE_VARIANTS if k in data}
+    if not variants:
+        return None
     out = RESULTS / "noise.png"
     plot_value_vs_noise(
         data["stds"],
@@ -296,10 +403,15 @@ def noise_plot() -> Path | None:
     return out
 
 
-def write_table(seed: int) -> None:
-    from cognet_jax.envs.heatmap import first_move_blind_value, full_knowledge_value, random_value
+def write_table() -> None:
+    from cognet_jax.envs.heatmap import (
+        distance_only_value,
+        first_move_blind_value,
+        full_knowledge_value,
+        random_value,
+    )
 
-    rows, iterations = main_rows(seed)
+    rows, iterations = main_rows()
     body = [
         "## Heatmap: raw 2D and encoded COGNet-DICE (thesis Table 5.8), noise robustness",
         "",
@@ -312,22 +424,31 @@ def write_table(seed: int) -> None:
             "are not the reproduction and must not be compared with the thesis values.",
             "",
         ]
+    summary = seed_summary_rows()
+    if summary:
+        body += ["Over seeds (the same results files as the table below):", "", *summary, ""]
     body += [
         *rows,
         "",
         f"References (SPEC 8, thesis start range): optimum with full knowledge of the own "
         f"position {OPTIMUM}, uniform random {RANDOM}; best possible for a policy that moves "
         f"before it observes (every controller here): {first_move_blind_value('thesis'):.3f} "
-        f"(default range {first_move_blind_value('default'):.3f}). Default start range {{2..13}} "
+        f"(default range {first_move_blind_value('default'):.3f}); best possible for a policy "
+        f"that observes only the distance to the source (an encoder that keeps only the "
+        f"distance, as the thesis's 1-D VAE does): {distance_only_value('thesis'):.3f} "
+        f"(default range {distance_only_value('default'):.3f}). Default start range {{2..13}} "
         f"(computed here by exact dynamic programming): full knowledge "
         f"{full_knowledge_value('default'):.3f}, uniform random {random_value('default'):.3f} "
         f"(thesis range recomputed: {full_knowledge_value('thesis'):.3f} / "
         f"{random_value('thesis'):.3f}: the exact random value of this simulator is below "
         "SPEC's 19.37, which a 50,000-rollout check cannot tell apart); only (2, 2) earns +50 "
         "in the default range. Honest value: fresh rollouts of the best "
-        "policy (count in brackets); in-loop best: the search's maximum of noisy 100-rollout "
-        "means (biased upwards). Iteration of in-loop best: when the running best reached its "
-        "final value (the thesis saw encoded runs get there in half the iterations). "
+        "policy (count in brackets); in-loop best: the search's maximum of noisy means (thesis "
+        "algorithm: 100-rollout means of the updated policy; cognet-dice: 1000- or "
+        "10,000-rollout fresh means of the iteration's winner and mode), biased upwards. "
+        "Iteration of in-loop "
+        "best: when the running best reached its final value (the thesis saw encoded runs "
+        "get there in half the iterations). "
         "s / iteration: loop wall time / iterations on this machine (compile excluded).",
         "",
     ]
@@ -337,6 +458,10 @@ def write_table(seed: int) -> None:
         body += ["### Noise robustness", "", *nrows, ""]
     if plot is not None:
         body += [f"![value vs noise]({plot.relative_to(HERE).as_posix()})", ""]
+    body += [DEFAULT_FINDINGS, ""]
+    vae_rows = vae_latent_rows()
+    if vae_rows:
+        body += ["### VAE latents", "", *vae_rows, ""]
     body += [FINDINGS, ""]
     body.append(f"Generated by `python experiments/heatmap.py`; machine: {machine()}.")
     replace_block("heatmap", "\n".join(body))
@@ -345,7 +470,8 @@ def write_table(seed: int) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="*", help=f"default: all of {', '.join(BY_NAME)}")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--noise-seed", type=int, default=0, help="seed of the noise-study runs")
     p.add_argument(
         "--set",
         dest="overrides",
@@ -362,10 +488,10 @@ def main(argv=None) -> int:
     if unknown:
         p.error(f"unknown run(s) {', '.join(unknown)}; known: {', '.join(BY_NAME)}")
     if not args.table_only:
-        train(args.runs or list(BY_NAME), args.seed, args.overrides)
+        train(args.runs or list(BY_NAME), args.seeds, args.overrides)
         if not args.no_noise:
-            noise_study(args.seed, args.noise_rollouts)
-    write_table(args.seed)
+            noise_study(args.noise_seed, args.noise_rollouts)
+    write_table()
     return 0
 
 

@@ -5,12 +5,13 @@ experiments/README.md.
     python experiments/heatmap_convergence.py                # run both sweeps, write the block
     python experiments/heatmap_convergence.py --table-only   # rebuild the block from saved runs
 
-Each variant (``heatmap-2d-n4``, ``heatmap-encoded-n4``: thesis start range, 500 iterations) runs
-as one sweep over ``--seeds`` seeds with ``algorithm.best_rollouts=1000``: every iteration's
-policy is then valued by 1,000 fresh rollouts instead of 100, so ``values_per_iteration`` is a
-learning curve with a standard error of about 2.6 instead of 8.3 (a return's standard deviation
-is about 83). The iteration of the in-loop best is no measure of speed here: with 100-rollout
-means it is set by the noise of the evaluation keys (experiments/README.md, heatmap notes).
+Each variant (``heatmap-2d-spec-n4``, ``heatmap-encoded-spec-n4``: the thesis algorithm, thesis
+start range, 500 iterations) runs as one sweep over ``--seeds`` seeds with
+``algorithm.best_rollouts=1000``: every iteration's policy is then valued by 1,000 fresh rollouts
+instead of 100, so ``values_per_iteration`` is a learning curve with a standard error of about 2.6
+instead of 8.3 (a return's standard deviation is about 83). The iteration of the in-loop best is no
+measure of speed here: with 100-rollout means it is set by the noise of the evaluation keys
+(experiments/README.md, heatmap notes).
 
 Speed of convergence, per run: the curve smoothed by a moving average over 25 iterations; its
 final level is the mean of the last 100 iterations' values; the run has converged at the first
@@ -32,7 +33,7 @@ from _readme import machine, replace_block
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "heatmap-convergence"
-VARIANTS = {"raw": "heatmap-2d-n4", "encoded": "heatmap-encoded-n4"}
+VARIANTS = {"raw": "heatmap-2d-spec-n4", "encoded": "heatmap-encoded-spec-n4"}
 SETS = ["algorithm.best_rollouts=1000"]
 WINDOW, TAIL, FRACTION = 25, 100, 0.9
 

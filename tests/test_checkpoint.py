@@ -43,7 +43,8 @@ def _env():
 
 
 def _start(out: Path, extra=()):
-    args = [sys.executable, "-m", "cognet_jax", "train", "--seed", "3", "--out", str(out)]
+    args = [sys.executable, "-m", "cognet_jax", "train", "tagging-thesis-spec-n3"]
+    args += ["--seed", "3", "--out", str(out)]
     for o in TINY:
         args += ["--set", o]
     args += ["--checkpoint-every", "10", *extra]
@@ -70,7 +71,7 @@ def _same_results(a: dict, b: dict, dir_a: Path, dir_b: Path):
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
     out = tmp_path_factory.mktemp("ref")
-    config = load_config("tagging-thesis-n3", TINY)
+    config = load_config("tagging-thesis-spec-n3", TINY)
     return run_training(config, 3, out, log=lambda *_: None), out
 
 

@@ -89,7 +89,7 @@ def test_training_pairs_match_slow_reference(last):
 
 def test_network_training_fits_pairs_and_masks_idle_members():
     config = load_config(
-        "tagging-thesis-n3", SMALL + ["network.train_steps=200", "network.learning_rate=0.05"]
+        "tagging-thesis-spec-n3", SMALL + ["network.train_steps=200", "network.learning_rate=0.05"]
     )
     algorithm, init, _ = make_step(config)
     state = init(jax.random.key(0))
@@ -115,7 +115,7 @@ def test_network_training_fits_pairs_and_masks_idle_members():
 
 
 def test_step_compiles_once_and_keeps_distributions_valid():
-    config = load_config("tagging-thesis-n3", SMALL)
+    config = load_config("tagging-thesis-spec-n3", SMALL)
     algorithm, init, step = make_step(config)
     k_init, k_run, _ = split_seed_key(seed_key(config, 0))
     state = init(k_init)
@@ -140,7 +140,7 @@ def test_separate_training_keeps_one_hot_actions():
 
 
 def test_vmap_over_seeds_equals_separate_runs():
-    config = load_config("tagging-thesis-n3", SMALL)
+    config = load_config("tagging-thesis-spec-n3", SMALL)
     train = jax.jit(make_train(config))
     keys = jnp.stack([seed_key(config, s) for s in range(4)])
     _, batched = jax.jit(jax.vmap(make_train(config)))(keys)
@@ -155,7 +155,7 @@ def test_vmap_over_seeds_equals_separate_runs():
 def test_same_seed_same_results(tmp_path):
     from cognet_jax.runner import run_training
 
-    config = load_config("tagging-thesis-n3", SMALL)
+    config = load_config("tagging-thesis-spec-n3", SMALL)
     a = run_training(config, 3, tmp_path / "a", log=lambda *_: None)
     b = run_training(config, 3, tmp_path / "b", log=lambda *_: None)
     for field in ("final_value", "in_loop_best", "values_per_iteration", "best_per_iteration"):
@@ -182,7 +182,7 @@ def test_same_seed_same_results(tmp_path):
 def test_best_rollouts_sets_the_step8_evaluation():
     """best_rollouts = N: the recorded value is the updated policy's mean over N rollouts with
     the iteration's evaluation key (SPEC step 8 uses K_eval)."""
-    config = load_config("tagging-thesis-n3", SMALL + ["algorithm.best_rollouts=700"])
+    config = load_config("tagging-thesis-spec-n3", SMALL + ["algorithm.best_rollouts=700"])
     algorithm, init, _ = make_step(config)
     key = jax.random.key(5)
     state, metrics = jax.jit(algorithm.step)(key, init(jax.random.key(4)))
@@ -197,7 +197,7 @@ def test_train_on_top_trains_on_more_pairs_than_kept():
     same iteration moves the weights differently than with the K_keep kept ones."""
     out = {}
     for where in ("kept", "top"):
-        config = load_config("tagging-thesis-n3", SMALL + [f"algorithm.train_on={where}"])
+        config = load_config("tagging-thesis-spec-n3", SMALL + [f"algorithm.train_on={where}"])
         algorithm, init, _ = make_step(config)
         state, _ = jax.jit(algorithm.step)(jax.random.key(2), init(jax.random.key(1)))
         out[where] = state
@@ -219,5 +219,5 @@ def test_quality_options_are_validated(field, value):
     from cognet_jax.config import ConfigError
 
     with pytest.raises(ConfigError) as err:
-        load_config("tagging-thesis-n3", [f"algorithm.{field}={value}"])
+        load_config("tagging-thesis-spec-n3", [f"algorithm.{field}={value}"])
     assert err.value.field == f"algorithm.{field}"

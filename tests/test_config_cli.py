@@ -27,14 +27,14 @@ from cognet_jax.config import ConfigError, builtin_experiments, config_from_dict
 )
 def test_bad_values_name_the_field(overrides, field):
     with pytest.raises(ConfigError) as err:
-        load_config("tagging-thesis-n3", overrides)
+        load_config("tagging-thesis-spec-n3", overrides)
     assert err.value.field == field
     assert field in str(err.value)
 
 
 def test_overrides_are_typed_and_applied():
     c = load_config(
-        "tagging-thesis-n3",
+        "tagging-thesis-spec-n3",
         [
             "algorithm.nodes=6",
             "network.learning_rate=0.5",
@@ -44,15 +44,19 @@ def test_overrides_are_typed_and_applied():
     )
     assert c.algorithm.nodes == 6 and c.network.learning_rate == 0.5
     assert c.env.setting == "cogdice-paper" and c.algorithm.separate is True
-    assert isinstance(
-        config_from_dict({"network": {"learning_rate": 1}}).network.learning_rate, float
-    )
+    thesis = {"experiment": {"algorithm": "cognet-dice-thesis"}}
+    typed = config_from_dict({**thesis, "network": {"learning_rate": 1}})
+    assert isinstance(typed.network.learning_rate, float)
+    # the default cognet-dice has no optimiser: its settings are refused, naming the field
+    with pytest.raises(ConfigError) as err:
+        config_from_dict({"network": {"learning_rate": 1}})
+    assert err.value.field == "network.learning_rate"
 
 
 def test_builtin_experiments_load():
     names = builtin_experiments()
     for name in [
-        "tagging-thesis-n3",
+        "tagging-thesis-spec-n3",
         "tagging-thesis-n6",
         "tagging-separate-n3",
         "tagging-separate-n6",
@@ -76,7 +80,9 @@ def test_toml_file_experiment(tmp_path):
 
 
 def test_cli_reports_config_errors(capsys):
-    assert main(["train", "--set", "algorithm.keep=0"]) == 2
+    assert main(["train", "--set", "algorithm.elites=0"]) == 2
+    assert "algorithm.elites" in capsys.readouterr().err
+    assert main(["train", "tagging-thesis-spec-n3", "--set", "algorithm.keep=0"]) == 2
     assert "algorithm.keep" in capsys.readouterr().err
     assert main(["train", "no-such-experiment"]) == 2
     assert "unknown experiment" in capsys.readouterr().err
@@ -88,16 +94,17 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
         "--set",
         "algorithm.iterations=3",
         "--set",
-        "algorithm.rollouts=100",
+        "algorithm.candidates=10",
         "--set",
-        "algorithm.top=10",
-        "--set",
-        "algorithm.keep=3",
+        "algorithm.elites=3",
         "--set",
         "algorithm.eval_rollouts=10",
         "--set",
+        "algorithm.best_rollouts=20",
+        "--set",
         "evaluation.rollouts=200",
     ]
+    # the default experiment: the default cognet-dice
     assert main(["train", "--out", str(out), "--no-progress", *small]) == 0
     for name in [
         "results.json",

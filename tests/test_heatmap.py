@@ -12,9 +12,11 @@ from cognet_jax.envs.heatmap import (
     START_RANGES,
     HeatmapState,
     all_patches,
+    distance_only_value,
     first_move_blind_value,
     full_knowledge_value,
     make_heatmap,
+    random_value,
 )
 from cognet_jax.rollout import mean_and_stderr, rollouts
 
@@ -115,6 +117,19 @@ def test_first_move_blind_bound_and_the_reactive_controller_that_attains_it():
             np.testing.assert_array_equal(x_seen, state.pos[..., 0])  # the patch tells x
             actions = jnp.where(x_seen > 2, x_minus, y_minus)
         assert float(total.mean()) == pytest.approx(first_move_blind_value(start), abs=1e-4)
+
+
+def test_distance_only_bound_lies_between_blind_and_full_position_knowledge():
+    """An agent that observes only its distance to the source does worse than one that knows
+    its position after the first move, and better than a random walk; with horizon 2 no
+    observation is ever used, so the two bounds coincide."""
+    for start in ("thesis", "default"):
+        distance = distance_only_value(start)
+        assert random_value(start) < distance < first_move_blind_value(start) - 1.0
+        assert distance_only_value(start, horizon=2) == pytest.approx(
+            first_move_blind_value(start, horizon=2)
+        )
+    assert distance_only_value("thesis") == pytest.approx(42.7347, abs=1e-3)
 
 
 def test_random_policy_value_19_37():

@@ -14,7 +14,7 @@ from cognet_jax.observations import ObservationPipeline, trained_vae
 
 def heatmap_config(env=None, network=None, algorithm=None, **sections):
     data = {
-        "experiment": {"name": "heat-test", "algorithm": "cognet-dice"},
+        "experiment": {"name": "heat-test", "algorithm": "cognet-dice-thesis"},
         "env": {"name": "heatmap", "start": "thesis", **(env or {})},
         "algorithm": {
             "nodes": 4,
@@ -237,10 +237,10 @@ def test_augmentation_changes_training_not_rollouts():
 @pytest.mark.parametrize(
     "name,nodes,observation,hidden",
     [
-        ("heatmap-2d-n4", 4, "raw", 160),
-        ("heatmap-2d-n5", 5, "raw", 160),
-        ("heatmap-encoded-n4", 4, "encoded", 10),
-        ("heatmap-encoded-n5", 5, "encoded", 10),
+        ("heatmap-2d-spec-n4", 4, "raw", 160),
+        ("heatmap-2d-spec-n5", 5, "raw", 160),
+        ("heatmap-encoded-spec-n4", 4, "encoded", 10),
+        ("heatmap-encoded-spec-n5", 5, "encoded", 10),
     ],
 )
 def test_builtin_heatmap_experiments(name, nodes, observation, hidden):
@@ -283,7 +283,7 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
         "network.vae_epochs=8",
         "run.plots=false",
     ]
-    args = ["train", "heatmap-encoded-n4", "--no-progress", "--out", str(out)]
+    args = ["train", "heatmap-encoded-spec-n4", "--no-progress", "--out", str(out)]
     assert main(args + [x for o in small for x in ("--set", o)]) == 0
     assert (out / "vae.msgpack").is_file()
     values = {}

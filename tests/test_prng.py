@@ -79,10 +79,10 @@ def test_bits_of_other_widths():
 
 
 def test_config_accepts_hash_and_names_the_field_otherwise():
-    config = load_config("tagging-thesis-n3", ['run.prng_impl="hash"'])
+    config = load_config("tagging-thesis-spec-n3", ['run.prng_impl="hash"'])
     assert config.run.prng_impl == "hash"
     with pytest.raises(ConfigError, match="run.prng_impl"):
-        load_config("tagging-thesis-n3", ['run.prng_impl="philox"'])
+        load_config("tagging-thesis-spec-n3", ['run.prng_impl="philox"'])
 
 
 def test_search_with_hash_is_deterministic_and_as_good(tmp_path):

@@ -29,7 +29,7 @@ from cognet_jax.runner import run_training
 assert jax.local_device_count() == 2, jax.local_devices()
 out, sets = sys.argv[1], sys.argv[2:]
 for shard in ("false", "true"):
-    config = load_config("tagging-thesis-n3", sets + [f"run.shard_rollouts={shard}"])
+    config = load_config("tagging-thesis-spec-n3", sets + [f"run.shard_rollouts={shard}"])
     run_training(config, 0, f"{out}/{shard}", log=lambda *_: None)
 # the sharded step really is partitioned over both devices
 from cognet_jax.api import make_step, seed_key, split_seed_key

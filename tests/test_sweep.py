@@ -37,7 +37,7 @@ GRID = ["--grid", "algorithm.alpha=0.1,0.4"]
 
 
 def _sweep_args(out, seeds=3):
-    args = ["sweep", "tagging-thesis-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
+    args = ["sweep", "tagging-thesis-spec-n3", "--seeds", str(seeds), *GRID, "--out", str(out)]
     args += [a for s in SMALL for a in ("--set", s)] + ["--no-progress"]
     return args + ["--cpu-devices", "1"]  # (ignored where XLA_FLAGS sets the count)
 
@@ -79,7 +79,7 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
     for row in rows:
         alpha = result["settings"][row["setting"]]["algorithm.alpha"]
         config = load_config(
-            "tagging-thesis-n3",
+            "tagging-thesis-spec-n3",
             SMALL + [f"algorithm.alpha={alpha}", "run.plots=false", "run.progress=false"],
         )
         single_dir = tmp_path / f"{alpha}-{row['seed']}"
@@ -124,7 +124,7 @@ def test_sweep_outputs(one_process):
 
 def test_plan_groups_shape_changing_settings():
     grid = parse_grid(["algorithm.nodes=2,3", "algorithm.alpha=0.1,0.2", "env.obs_noise=0,0.5"])
-    groups = plan("tagging-thesis-n3", grid, ["algorithm.iterations=2"])
+    groups = plan("tagging-thesis-spec-n3", grid, ["algorithm.iterations=2"])
     assert len(groups) == 2  # nodes changes shapes; alpha and noise are data
     assert [len(g.settings) for g in groups] == [4, 4]
     assert {g.settings[0].config.algorithm.nodes for g in groups} == {2, 3}
@@ -137,9 +137,9 @@ def test_grid_errors_name_the_field():
     with pytest.raises(ConfigError, match="algorithm.alpha"):
         parse_grid(["algorithm.alpha=0.1", "algorithm.alpha=0.2"])
     with pytest.raises(ConfigError, match="algorithm.alpha"):
-        plan("tagging-thesis-n3", parse_grid(["algorithm.alpha=0.1,7"]), [])
+        plan("tagging-thesis-spec-n3", parse_grid(["algorithm.alpha=0.1,7"]), [])
     with pytest.raises(ConfigError, match="algorithm.nodez"):
-        plan("tagging-thesis-n3", parse_grid(["algorithm.nodez=2"]), [])
+        plan("tagging-thesis-spec-n3", parse_grid(["algorithm.nodez=2"]), [])
     assert main(["sweep", "--seeds", "0"]) == 2
 
 
@@ -216,7 +216,7 @@ TINY = [
 
 
 def _tiny_args(out):
-    args = ["sweep", "tagging-thesis-n3", "--seeds", "2", "--grid", "algorithm.alpha=0.1,0.3"]
+    args = ["sweep", "tagging-thesis-spec-n3", "--seeds", "2", "--grid", "algorithm.alpha=0.1,0.3"]
     args += [a for s in TINY for a in ("--set", s)] + ["--cpu-devices", "1"]
     return args + ["--out", str(out), "--no-progress"]
 
@@ -306,13 +306,13 @@ def test_env_params_grid_equals_single_runs(tmp_path):
     run."""
     sets = SMALL[:-1] + ["algorithm.iterations=3"]
     out = tmp_path / "sweep"
-    args = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--grid", "env.obs_noise=0,0.5"]
+    args = ["sweep", "tagging-thesis-spec-n3", "--seeds", "1", "--grid", "env.obs_noise=0,0.5"]
     args += [a for x in sets for a in ("--set", x)] + ["--out", str(out), "--no-progress"]
     assert main(args + ["--cpu-devices", "1"]) == 0
     rows = json.loads((out / "runs.json").read_text())["rows"]
     for row, noise in zip(rows, (0, 0.5)):
         config = load_config(
-            "tagging-thesis-n3",
+            "tagging-thesis-spec-n3",
             sets + [f"env.obs_noise={noise}", "run.plots=false", "run.progress=false"],
         )
         single = run_training(config, 0, tmp_path / f"n{noise}", log=lambda *_: None)

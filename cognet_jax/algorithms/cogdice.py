@@ -90,7 +90,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
-from cognet_jax.controllers.base import sample_categorical, uniform_distribution
+from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
 from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
 
@@ -375,17 +375,13 @@ class CogDice:
             ),
         )
 
-    def _support(self):
-        counts = jnp.asarray(self.env.action_counts)
-        return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
-
     def inject(self, dist: RegionDistribution, injected, hyper: CogDiceHyper):
         """Entropy injection into the categorical parts where ``injected``; Betas unchanged."""
         rate = hyper.entropy.rate
         return dist.replace(
             action_probs=jnp.where(
                 injected,
-                inject_entropy(dist.action_probs, rate, self._support()),
+                inject_entropy(dist.action_probs, rate, action_support(self.env)),
                 dist.action_probs,
             ),
             transition_probs=jnp.where(

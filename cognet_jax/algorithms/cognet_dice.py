@@ -47,6 +47,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
+from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.observations import ObservationPipeline
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
@@ -216,10 +217,6 @@ class CognetDice:
         )
 
     # -- pieces ------------------------------------------------------------------------------
-    def _support(self) -> jax.Array:
-        counts = jnp.asarray(self.env.action_counts)
-        return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
-
     def train_networks(self, net_params, opt_state, pairs, hyper: CognetHyper):
         """``train_steps`` full-batch steps of softmax cross-entropy on every member at once."""
         obs, src, tgt, valid = pairs
@@ -341,7 +338,7 @@ class CognetDice:
             injected = progress.should_inject(hyper.entropy)
             action_probs = jnp.where(
                 injected,
-                inject_entropy(action_probs, hyper.entropy.rate, self._support()),
+                inject_entropy(action_probs, hyper.entropy.rate, action_support(self.env)),
                 action_probs,
             )
 

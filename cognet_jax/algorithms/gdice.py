@@ -53,6 +53,7 @@ from cognet_jax.algorithms.cross_entropy import (
     smooth,
 )
 from cognet_jax.config import ConfigError
+from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.tabular import (
     DeterministicTabularPolicy,
     TabularController,
@@ -193,10 +194,6 @@ class GDice:
             transition_probs=smooth(dist.transition_probs, trans_counts, hyper.alpha),
         )
 
-    def _support(self):
-        counts = jnp.asarray(self.env.action_counts)
-        return (jnp.arange(self.env.num_actions)[None, :] < counts[:, None])[:, None, :]
-
     @property
     def rollouts_per_iteration(self) -> int:
         """Simulated rollouts in one ``step`` (the exact evaluator simulates none)."""
@@ -218,7 +215,7 @@ class GDice:
         dist = TabularDistribution(
             action_probs=jnp.where(
                 injected,
-                inject_entropy(dist.action_probs, hyper.entropy.rate, self._support()),
+                inject_entropy(dist.action_probs, hyper.entropy.rate, action_support(self.env)),
                 dist.action_probs,
             ),
             transition_probs=jnp.where(

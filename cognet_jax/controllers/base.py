@@ -42,5 +42,13 @@ def uniform_distribution(shape: tuple[int, ...], counts: tuple[int, ...] | None 
     return probs / probs.sum(-1, keepdims=True)
 
 
+def action_support(env) -> jax.Array:
+    """Which actions each agent has, ``[agents, 1, actions]`` bool (broadcasts over nodes):
+    agents with fewer actions than ``env.num_actions`` have ``k >= env.action_counts[agent]``
+    masked out (e.g. for the uniform part of an entropy injection)."""
+    counts = jnp.asarray(env.action_counts)
+    return (jnp.arange(env.num_actions)[None, :] < counts[:, None])[:, None, :]
+
+
 def agent_index(num_agents: int) -> jax.Array:
     return jnp.arange(num_agents)

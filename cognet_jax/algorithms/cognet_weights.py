@@ -1,0 +1,372 @@
+"""COGNet-DICE by cross-entropy over the node networks' weights: the default ``cognet-dice``.
+
+The policy class is the one of SPEC section 5 (``controllers.neural``): per agent and node an
+action distribution and a small MLP ``obs -> hidden (ReLU) -> logits over next nodes``. What
+differs from the thesis algorithm (``cognet-dice-thesis``, ``algorithms.cognet_dice``) is the
+search: instead of imitating elite rollouts by gradient steps, whole joint controllers are
+*sampled* from a distribution over network weights and actions, evaluated with common random
+numbers, and the distribution is refit to the elites -- the DICE idea that COG-DICE applies to
+its Beta region boundaries, applied to the networks.
+
+Search distribution (``WeightDistribution``, all agents and nodes stacked, H hidden units,
+Q nodes, F network inputs):
+
+* ``action_probs [agents, Q, actions]``: one action per node (a deterministic controller);
+* hidden layer, diagonal Gaussians: ``w1_mean / w1_std [agents, Q, F, H]``,
+  ``b1_mean / b1_std [agents, Q, H]``; initial mean 0, std ``init_scale / sqrt(F)`` for the
+  weights and ``init_scale`` for the biases (a unit's threshold ``-b / w`` then falls anywhere in
+  the observation range);
+* output layer, *structured*: each hidden unit j votes for one next node ``k_j`` with strength
+  ``m_j``, and the output bias is a vote ``B`` for one default node ``d``:
+  ``W2[j, :] = m_j * onehot(k_j)``, ``b2 = B * onehot(d)``. ``unit_target_probs [agents, Q, H,
+  Q]`` and ``default_probs [agents, Q, Q]`` are categorical; ``m_mean / m_std [agents, Q, H]`` and
+  ``bias_mean / bias_std [agents, Q]`` Gaussian (initial mean and std ``vote_mean`` /
+  ``vote_std``). A threshold on the observation is one ReLU unit voting for a node, so the
+  reactive controllers of the tagging problem are a few draws away, and a node's role (which
+  next node an observation leads to) is a categorical choice the elites can agree on. A diagonal
+  Gaussian over a dense output layer averages the roles of different elites; in prototypes (not
+  kept) it stalled below the reactive controller on tagging n3.
+
+The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits; with votes of
+about 5 the draw is nearly deterministic), so evaluation, ``controller_step`` and saved policies
+are those of the thesis algorithm.
+
+One iteration (``step``), values are returns to **maximise**:
+
+1. draw ``candidates`` joint controllers (every agent and node independently);
+2. evaluate each with ``eval_rollouts`` rollouts (common random numbers: one key for all);
+3. elites: the best ``elites`` candidates (**[choice]** no rising threshold: with common random
+   numbers and a fixed population the top fraction is the classic CE rule; the threshold
+   ``V_w`` reported is the smallest elite value);
+4. refit with smoothing rate ``alpha``: categoricals by count MLE over the elites, Gaussians by
+   the elites' mean and standard deviation (``new = alpha * fit + (1 - alpha) * old``); then
+   every categorical is mixed with the uniform distribution, ``(1 - floor) * p + floor / K``
+   (``action_floor`` for actions, ``category_floor`` for the output-layer categoricals), so no
+   choice ever becomes impossible (a constant entropy injection instead of SPEC's triggered
+   one);
+5. anytime best (**[choice]**): the iteration's winner and the distribution's mode (Gaussian
+   means, most likely categories) are each evaluated on ``best_rollouts`` fresh rollouts; the
+   best of the two replaces the best policy when it beats the best fresh value so far. The
+   value recorded per iteration is that fresh value, never the winner's in-loop mean.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from cognet_jax.algorithms.cross_entropy import (
+    Progress,
+    count_table,
+    inject_entropy,
+    select_tree,
+    smooth,
+)
+from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
+from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
+from cognet_jax.observations import ObservationPipeline
+from cognet_jax.prng import fast_key
+from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+
+
+@struct.dataclass
+class WeightDistribution:
+    """Search distribution over joint neural controllers (see the module docstring)."""
+
+    action_probs: jax.Array  # [agents, Q, actions]
+    w1_mean: jax.Array  # [agents, Q, F, H]
+    w1_std: jax.Array  # [agents, Q, F, H]
+    b1_mean: jax.Array  # [agents, Q, H]
+    b1_std: jax.Array  # [agents, Q, H]
+    unit_target_probs: jax.Array  # [agents, Q, H, Q]
+    m_mean: jax.Array  # [agents, Q, H]
+    m_std: jax.Array  # [agents, Q, H]
+    default_probs: jax.Array  # [agents, Q, Q]
+    bias_mean: jax.Array  # [agents, Q]
+    bias_std: jax.Array  # [agents, Q]
+
+
+@struct.dataclass
+class WeightSample:
+    """The draws of one candidate (leaves without the candidate axis)."""
+
+    actions: jax.Array  # [agents, Q] int32
+    w1: jax.Array  # [agents, Q, F, H]
+    b1: jax.Array  # [agents, Q, H]
+    unit_targets: jax.Array  # [agents, Q, H] int32
+    m: jax.Array  # [agents, Q, H]
+    default: jax.Array  # [agents, Q] int32
+    bias: jax.Array  # [agents, Q]
+
+
+@struct.dataclass
+class WeightsHyper:
+    """Dynamic (sweepable) hyper-parameters."""
+
+    alpha: jax.Array | float = 0.3
+    action_floor: jax.Array | float = 0.02
+    category_floor: jax.Array | float = 0.02
+
+
+@dataclasses.dataclass(frozen=True)
+class WeightsSettings:
+    """Static settings (they fix array shapes or the program's structure)."""
+
+    nodes: int = 3
+    iterations: int = 600
+    candidates: int = 200
+    eval_rollouts: int = 500
+    elites: int = 10
+    hidden: int = 10
+    best_rollouts: int = 1000
+    common_random_numbers: bool = True
+    init_scale: float = 10.0
+    vote_mean: float = 5.0
+    vote_std: float = 5.0
+
+
+@struct.dataclass
+class WeightsState:
+    distribution: WeightDistribution
+    best_policy: NeuralPolicy
+    progress: Progress
+
+
+@struct.dataclass
+class WeightsMetrics:
+    value: jax.Array  # [] fresh value of the better of (winner, mode) this iteration
+    best_value: jax.Array  # [] best fresh value so far
+    mean_value: jax.Array  # [] mean candidate value (in-loop)
+    winner_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
+    threshold: jax.Array  # [] smallest elite value
+    kept: jax.Array  # [] number of elites
+    injected: jax.Array  # [] always False (the floors act every iteration)
+
+
+def _gaussian_refit(mean, std, elite_draws, alpha):
+    """``alpha * (elite mean, elite std) + (1 - alpha) * (mean, std)``; ``elite_draws [E, ...]``."""
+    return (
+        alpha * elite_draws.mean(0) + (1.0 - alpha) * mean,
+        alpha * elite_draws.std(0) + (1.0 - alpha) * std,
+    )
+
+
+class CognetWeights:
+    """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``step`` are pure.
+
+    ``pipeline`` maps the environment's observations to the networks' input (identity, or the
+    patch VAE's encoder mean; ``cognet_jax.observations``).
+    """
+
+    def __init__(
+        self,
+        env,
+        env_params,
+        settings: WeightsSettings,
+        hyper: WeightsHyper | None = None,
+        pipeline: ObservationPipeline | None = None,
+    ):
+        self.env = env
+        self.env_params = env_params
+        self.settings = settings
+        self.hyper = hyper if hyper is not None else WeightsHyper()
+        if pipeline is None:
+            pipeline = ObservationPipeline("raw", env.obs_shape)
+        self.pipeline = pipeline
+        self.controller = NeuralController(
+            num_agents=env.num_agents,
+            num_nodes=settings.nodes,
+            num_actions=env.num_actions,
+            obs_shape=pipeline.feature_shape,
+            hidden=settings.hidden,
+            action_counts=env.action_counts,
+            features=None if pipeline.is_identity else pipeline.features,
+        )
+
+    # ---------------------------------------------------------------- distribution
+    def init_distribution(self) -> WeightDistribution:
+        s, c = self.settings, self.controller
+        a, q, h, f = c.num_agents, s.nodes, s.hidden, c.in_features
+        full = lambda shape, v: jnp.full(shape, v, jnp.float32)  # noqa: E731
+        return WeightDistribution(
+            action_probs=uniform_distribution((a, q, c.num_actions), self.env.action_counts),
+            w1_mean=full((a, q, f, h), 0.0),
+            w1_std=full((a, q, f, h), s.init_scale / math.sqrt(f)),
+            b1_mean=full((a, q, h), 0.0),
+            b1_std=full((a, q, h), s.init_scale),
+            unit_target_probs=full((a, q, h, q), 1.0 / q),
+            m_mean=full((a, q, h), s.vote_mean),
+            m_std=full((a, q, h), s.vote_std),
+            default_probs=full((a, q, q), 1.0 / q),
+            bias_mean=full((a, q), s.vote_mean),
+            bias_std=full((a, q), s.vote_std),
+        )
+
+    def draw(self, key: jax.Array, dist: WeightDistribution, num: int) -> WeightSample:
+        """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
+        ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
+        about 3 s slower)."""
+        ks = jax.random.split(fast_key(key), 7)
+
+        def normal(k, mean, std):
+            return mean + std * jax.random.normal(k, (num,) + mean.shape, jnp.float32)
+
+        def categorical(k, probs):
+            return sample_categorical(jax.random.uniform(k, (num,) + probs.shape[:-1]), probs)
+
+        return WeightSample(
+            actions=categorical(ks[0], dist.action_probs),
+            w1=normal(ks[1], dist.w1_mean, dist.w1_std),
+            b1=normal(ks[2], dist.b1_mean, dist.b1_std),
+            unit_targets=categorical(ks[3], dist.unit_target_probs),
+            m=normal(ks[4], dist.m_mean, dist.m_std),
+            default=categorical(ks[5], dist.default_probs),
+            bias=normal(ks[6], dist.bias_mean, dist.bias_std),
+        )
+
+    def mode(self, dist: WeightDistribution) -> WeightSample:
+        """The most likely controller: Gaussian means and the most likely categories."""
+        return WeightSample(
+            actions=jnp.argmax(dist.action_probs, -1).astype(jnp.int32),
+            w1=dist.w1_mean,
+            b1=dist.b1_mean,
+            unit_targets=jnp.argmax(dist.unit_target_probs, -1).astype(jnp.int32),
+            m=dist.m_mean,
+            default=jnp.argmax(dist.default_probs, -1).astype(jnp.int32),
+            bias=dist.bias_mean,
+        )
+
+    def to_policy(self, sample: WeightSample) -> NeuralPolicy:
+        """The ``NeuralPolicy`` of one sample (works on a leading candidate axis too): one-hot
+        actions, ``W2 = m * onehot(unit_targets)``, ``b2 = bias * onehot(default)``."""
+        q, na = self.settings.nodes, self.env.num_actions
+        w2 = sample.m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
+        b2 = sample.bias[..., None] * jax.nn.one_hot(sample.default, q, dtype=jnp.float32)
+        params = {
+            "params": {
+                "Dense_0": {"kernel": sample.w1, "bias": sample.b1},
+                "Dense_1": {"kernel": w2, "bias": b2},
+            }
+        }
+        return NeuralPolicy(
+            action_probs=jax.nn.one_hot(sample.actions, na, dtype=jnp.float32),
+            net_params=params,
+        )
+
+    def update_distribution(
+        self, dist: WeightDistribution, elites: WeightSample, hyper: WeightsHyper
+    ) -> WeightDistribution:
+        """Refit to ``elites`` (leading ``[E]`` axis) with smoothing, then the uniform floors."""
+        alpha, q = hyper.alpha, self.settings.nodes
+
+        def categorical(old, draws, k, floor, support=None):
+            counts = count_table(jnp.moveaxis(draws, 0, -1), k)
+            return inject_entropy(smooth(old, counts, alpha), floor, support)
+
+        w1_mean, w1_std = _gaussian_refit(dist.w1_mean, dist.w1_std, elites.w1, alpha)
+        b1_mean, b1_std = _gaussian_refit(dist.b1_mean, dist.b1_std, elites.b1, alpha)
+        m_mean, m_std = _gaussian_refit(dist.m_mean, dist.m_std, elites.m, alpha)
+        bias_mean, bias_std = _gaussian_refit(dist.bias_mean, dist.bias_std, elites.bias, alpha)
+        return WeightDistribution(
+            action_probs=categorical(
+                dist.action_probs,
+                elites.actions,
+                self.env.num_actions,
+                hyper.action_floor,
+                action_support(self.env),
+            ),
+            w1_mean=w1_mean,
+            w1_std=w1_std,
+            b1_mean=b1_mean,
+            b1_std=b1_std,
+            unit_target_probs=categorical(
+                dist.unit_target_probs, elites.unit_targets, q, hyper.category_floor
+            ),
+            m_mean=m_mean,
+            m_std=m_std,
+            default_probs=categorical(dist.default_probs, elites.default, q, hyper.category_floor),
+            bias_mean=bias_mean,
+            bias_std=bias_std,
+        )
+
+    # ---------------------------------------------------------------- evaluation
+    def evaluate_policies(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
+        """Mean return ``[C]`` of candidate policies (leading ``[C]`` axis)."""
+        s = self.settings
+        if s.common_random_numbers:
+            return evaluate_candidates(
+                self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
+            )
+        num = jax.tree.leaves(policies)[0].shape[0]
+        return jax.vmap(
+            lambda k, p: rollouts(
+                self.env, self.controller, k, s.eval_rollouts, self.env_params, p
+            ).mean()
+        )(jax.random.split(key, num), policies)
+
+    def fresh_value(self, key: jax.Array, policy: NeuralPolicy) -> jax.Array:
+        """Mean return of one policy over ``best_rollouts`` fresh rollouts."""
+        n = self.settings.best_rollouts
+        return rollouts(self.env, self.controller, key, n, self.env_params, policy).mean()
+
+    def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
+        """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
+        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
+
+    # ---------------------------------------------------------------- public
+    def init(self, key: jax.Array) -> WeightsState:
+        """Initial state; its ``best_policy`` is one draw of the initial distribution."""
+        dist = self.init_distribution()
+        first = jax.tree.map(lambda x: x[0], self.draw(key, dist, 1))
+        return WeightsState(
+            distribution=dist, best_policy=self.to_policy(first), progress=Progress.create(1)
+        )
+
+    @property
+    def rollouts_per_iteration(self) -> int:
+        """Simulated rollouts in one ``step``: candidates' evaluations plus the fresh
+        evaluations of the winner and of the mode."""
+        s = self.settings
+        return s.candidates * s.eval_rollouts + 2 * s.best_rollouts
+
+    def step(self, key: jax.Array, state: WeightsState, hyper: WeightsHyper | None = None):
+        """One iteration; returns ``(state, WeightsMetrics)``."""
+        hyper = self.hyper if hyper is None else hyper
+        s = self.settings
+        k_draw, k_eval, k_win, k_mode = jax.random.split(key, 4)
+        samples = self.draw(k_draw, state.distribution, s.candidates)
+        values = self.evaluate_policies(k_eval, self.to_policy(samples))
+        elite_values, elite_idx = jax.lax.top_k(values, s.elites)
+        elites = jax.tree.map(lambda x: x[elite_idx], samples)
+        dist = self.update_distribution(state.distribution, elites, hyper)
+
+        winner = self.to_policy(jax.tree.map(lambda x: x[0], elites))
+        mode = self.to_policy(self.mode(dist))
+        # one batched program for both (vmap over keys draws what two calls would draw)
+        v_winner, v_mode = jax.vmap(self.fresh_value)(
+            jnp.stack([k_win, k_mode]), jax.tree.map(lambda a, b: jnp.stack([a, b]), winner, mode)
+        )
+        mode_better = v_mode > v_winner
+        candidate = select_tree(mode_better, mode, winner)
+        value = jnp.maximum(v_mode, v_winner)
+        progress, improved = state.progress.record(value)
+        progress = progress.replace(threshold=elite_values[-1])
+        best_policy = select_tree(improved, candidate, state.best_policy)
+        metrics = WeightsMetrics(
+            value=value,
+            best_value=progress.best_value,
+            mean_value=values.mean(),
+            winner_value=elite_values[0],
+            threshold=elite_values[-1],
+            kept=jnp.int32(s.elites),
+            injected=jnp.bool_(False),
+        )
+        return WeightsState(distribution=dist, best_policy=best_policy, progress=progress), metrics
+
+    @staticmethod
+    def best_policy(state: WeightsState) -> NeuralPolicy:
+        return state.best_policy
