@@ -107,6 +107,25 @@ class ObservationPipeline:
         )
 
 
+def neural_controller(env, nodes: int, hidden: int, pipeline: ObservationPipeline | None = None):
+    """``(pipeline, NeuralController)`` of a COGNet-DICE search on ``env``: the networks read
+    the pipeline's features (``pipeline=None``: the raw observation)."""
+    from cognet_jax.controllers.neural import NeuralController
+
+    if pipeline is None:
+        pipeline = ObservationPipeline("raw", env.obs_shape)
+    controller = NeuralController(
+        num_agents=env.num_agents,
+        num_nodes=nodes,
+        num_actions=env.num_actions,
+        obs_shape=pipeline.feature_shape,
+        hidden=hidden,
+        action_counts=env.action_counts,
+        features=None if pipeline.is_identity else pipeline.features,
+    )
+    return pipeline, controller
+
+
 @functools.lru_cache(maxsize=4)
 def trained_vae(seed: int, epochs: int, latent: int = 1, kl_weight: float = 1.0) -> TrainedVAE:
     """The on-demand VAE: ``train_vae`` on clean + noisy patches, cached."""

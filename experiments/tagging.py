@@ -204,9 +204,11 @@ The default COGNet-DICE (`cognet-dice`, rows tagging-thesis-n3 / -n6 / tagging-p
 samples whole joint controllers from a distribution over the node networks' weights and refits
 it to the elites (cognet_jax/algorithms/cognet_weights.py); its in-loop best is the largest
 1000-rollout fresh value of an iteration's winner or mode, so the gap to the honest value is
-the winner's curse of 1600-2000 such means. It beats the reactive controller on the thesis
-setting because it finds the better joint behaviour: the two agents start by moving in
-opposite directions (the issue measured 23.2 for that reactive variant). The 8-seed sweeps of
+the winner's curse of 1200 (thesis setting) or 2000 (paper setting) such means. On average it
+beats the reactive controller on the thesis setting because it finds the better joint
+behaviour: the two agents start by moving in opposite directions (the start node of every
+tagging-thesis-n3 policy here: one agent "left", the other "right"; the issue measured 23.2
+for that reactive variant). The 8-seed sweeps of
 these experiments are in the section "COGNet-DICE (default): 8-seed sweeps and ablations".
 
 COGNet-DICE as SPEC section 5 specifies it (tagging-thesis-spec-n3 / -n6, algorithm

@@ -49,7 +49,7 @@ from cognet_jax.algorithms.cross_entropy import (
 )
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
-from cognet_jax.observations import ObservationPipeline
+from cognet_jax.observations import ObservationPipeline, neural_controller
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
 
@@ -189,17 +189,8 @@ class CognetDice:
         self.env_params = env_params
         self.settings = settings
         self.hyper = hyper if hyper is not None else CognetHyper()
-        if pipeline is None:
-            pipeline = ObservationPipeline("raw", env.obs_shape)
-        self.pipeline = pipeline
-        self.controller = NeuralController(
-            num_agents=env.num_agents,
-            num_nodes=settings.nodes,
-            num_actions=env.num_actions,
-            obs_shape=pipeline.feature_shape,
-            hidden=settings.hidden,
-            action_counts=env.action_counts,
-            features=None if pipeline.is_identity else pipeline.features,
+        self.pipeline, self.controller = neural_controller(
+            env, settings.nodes, settings.hidden, pipeline
         )
         self.optimizer = make_optimizer(settings)
 
