@@ -58,6 +58,7 @@ def build_env(config: Config):
             obs_noise_amplitude=e.obs_noise_amplitude,
             obs_noise_mean=e.obs_noise_mean,
             obs_noise_std=e.obs_noise_std,
+            obs_signal=e.obs_signal,
             near_reward=e.near_reward,
             mid_reward=e.mid_reward,
             far_reward=e.far_reward,
@@ -106,6 +107,8 @@ def build_algorithm(config: Config, env=None, env_params=None):
             init_scale=a.init_scale,
             vote_mean=a.vote_mean,
             vote_std=a.vote_std,
+            standardize_inputs=a.standardize_inputs,
+            paired_best=a.paired_best,
         )
         hyper = WeightsHyper(
             alpha=a.alpha, action_floor=a.action_floor, category_floor=a.category_floor

@@ -19,8 +19,10 @@ from typing import Any
 
 import tomllib
 
+from cognet_jax.errors import InputError
 
-class ConfigError(ValueError):
+
+class ConfigError(InputError):
     """A configuration problem; ``field`` is the dotted name (e.g. ``algorithm.nodes``)."""
 
     def __init__(self, field: str, message: str):
@@ -55,7 +57,8 @@ class TaggingEnvSection:
 @dataclasses.dataclass
 class HeatmapEnvSection:
     """2D heatmap (SPEC 7.2). ``start``: ``"thesis"`` ({-1..12}) or ``"default"`` ({2..13});
-    observation noise per pixel ``obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)``;
+    observation ``obs_signal * patch + obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)``
+    per pixel (``obs_signal = 0``: the patch replaced by noise or a constant);
     rewards per agent on the pre-move state (``D < 9`` / ``9 <= D < 16`` / else)."""
 
     name: str = "heatmap"
@@ -65,6 +68,7 @@ class HeatmapEnvSection:
     obs_noise_amplitude: float = 1.0
     obs_noise_mean: float = 0.0
     obs_noise_std: float = 0.0
+    obs_signal: float = 1.0
     near_reward: float = 50.0
     mid_reward: float = 1.0
     far_reward: float = -1.0
@@ -123,8 +127,11 @@ class CognetWeightsAlgorithmSection:
     the categoricals with the uniform distribution every iteration; the winner and the
     distribution's mode are re-evaluated on ``best_rollouts`` fresh rollouts for the anytime
     best. ``init_scale``: initial std of the hidden layer (``init_scale / sqrt(inputs)`` for the
-    weights); ``vote_mean`` / ``vote_std``: initial Gaussian of the output votes. The hidden
-    width is ``network.hidden``."""
+    weights); ``vote_mean`` / ``vote_std``: initial Gaussian of the output votes;
+    ``standardize_inputs``: search over a network that reads each input feature standardised by
+    its mean and standard deviation under the random controller; ``paired_best``: the best
+    policy so far is re-evaluated on the challengers' fresh rollouts and replaced only when a
+    challenger beats it there. The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int = 600
@@ -139,6 +146,8 @@ class CognetWeightsAlgorithmSection:
     init_scale: float = 10.0
     vote_mean: float = 5.0
     vote_std: float = 5.0
+    standardize_inputs: bool = False
+    paired_best: bool = False
 
 
 @dataclasses.dataclass
@@ -454,6 +463,11 @@ def _validate_sampler(alg) -> None:
     )
     _probability(alg, "algorithm", "alpha", "entropy_rate")
     _require(alg.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+    _require(
+        alg.entropy_std >= 0,
+        "algorithm.entropy_std",
+        f"must be >= 0 (the flat-window trigger's threshold), got {alg.entropy_std}",
+    )
 
 
 def _validate_network(config: Config, training: bool) -> None:
@@ -490,8 +504,20 @@ def _validate_network(config: Config, training: bool) -> None:
     )
 
 
+def _check_finite(config: Config) -> None:
+    """Every number of every section is finite: ``inf`` and ``nan`` parse as TOML floats but
+    mean nothing as a noise level, rate, reward or size."""
+    for section in dataclasses.fields(config):
+        values = getattr(config, section.name)
+        for f in dataclasses.fields(values):
+            v = getattr(values, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ConfigError(f"{section.name}.{f.name}", f"must be a finite number, got {v}")
+
+
 def validate(config: Config) -> None:
     """Range and consistency checks; raises ``ConfigError`` naming the field."""
+    _check_finite(config)
     env = config.env
     if isinstance(env, TaggingEnvSection):
         from cognet_jax.envs.tagging import SETTINGS
@@ -529,6 +555,11 @@ def validate(config: Config) -> None:
             env.obs_noise_amplitude >= 0,
             "env.obs_noise_amplitude",
             f"must be >= 0, got {env.obs_noise_amplitude}",
+        )
+        _require(
+            0.0 <= env.obs_signal <= 1.0,
+            "env.obs_signal",
+            f"must be in [0, 1], got {env.obs_signal}",
         )
     if isinstance(env, DpomdpEnvSection):
         _require(

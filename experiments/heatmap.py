@@ -217,9 +217,26 @@ def train(names: list[str], seeds: list[int], extra: list[str]) -> None:
             (out / "checkpoint.msgpack").unlink(missing_ok=True)  # only needed to resume
 
 
+def replacements() -> dict[str, list[str]]:
+    """The observation replaced, not perturbed (``env.obs_signal = 0``): label -> overrides.
+    The constant is the mean pixel value over the 144 reachable patches."""
+    from cognet_jax.envs.heatmap import all_patches
+
+    constant = float(all_patches().mean())
+    return {
+        "N(0, 1) noise": ["env.obs_signal=0", "env.obs_noise_std=1"],
+        f"constant {constant:.3f}": [
+            "env.obs_signal=0",
+            "env.obs_noise_std=0",
+            f"env.obs_noise_mean={constant!r}",
+        ],
+    }
+
+
 def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
-    """Honest values of the four noise-study policies under every noise std; written to
-    ``noise.json``: ``{label: {"run", "means", "stderrs"}, "stds": [...], ...}``."""
+    """Honest values of the noise-study policies under every noise std and with the patch
+    replaced (``replacements``); written to ``noise.json``: ``{label: {"run", "means",
+    "stderrs", "replaced": {name: [mean, stderr]}}, "stds": [...], ...}``."""
     import jax
 
     from cognet_jax.runner import honest_evaluation, load_policy
@@ -230,15 +247,24 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
         if not (folder / "results.json").is_file():
             print(f"noise study: skipping {label}: {folder} has no results")
             continue
+
+        def value(overrides, folder=folder):
+            config, algorithm, policy = load_policy(folder, overrides)
+            key = jax.random.key(eval_seed, impl=config.run.prng_impl)
+            return honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
+
         means, stderrs = [], []
         for std in NOISE_STDS:
-            config, algorithm, policy = load_policy(folder, [f"env.obs_noise_std={std}"])
-            key = jax.random.key(eval_seed, impl=config.run.prng_impl)
-            v = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
+            v = value([f"env.obs_noise_std={std}"])
             means.append(v["mean"])
             stderrs.append(v["stderr"])
             print(f"noise study: {label} std {std}: {v['mean']:.3f} +- {v['stderr']:.3f}")
-        out[label] = {"run": name, "means": means, "stderrs": stderrs}
+        replaced = {}
+        for what, overrides in replacements().items():
+            v = value(overrides)
+            replaced[what] = [v["mean"], v["stderr"]]
+            print(f"noise study: {label} replaced by {what}: {v['mean']:.3f} +- {v['stderr']:.3f}")
+        out[label] = {"run": name, "means": means, "stderrs": stderrs, "replaced": replaced}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "noise.json").write_text(json.dumps(out, indent=1))
     return out
@@ -327,23 +353,33 @@ def noise_rows() -> list[str]:
         return []
     data = json.loads(path.read_text())
     stds = data["stds"]
+    labels = [k for k in NOISE_VARIANTS if k in data]
+    replaced = list(data[labels[0]].get("replaced", {})) if labels else []
     rows = [
         "| policy (trained noise-free) | "
         + " | ".join(f"std {s:g}" for s in stds)
-        + " | drop 0 -> max std |",
-        "|---|" + "---|" * (len(stds) + 1),
+        + " | drop 0 -> max std | "
+        + "".join(f"patch replaced by {r} | drop |" for r in replaced),
+        "|---|" + "---|" * (len(stds) + 1 + 2 * len(replaced)),
     ]
-    for label in NOISE_VARIANTS:
-        if label not in data:
-            continue
+    for label in labels:
         m, s = data[label]["means"], data[label]["stderrs"]
         cells = " | ".join(f"{a:.3f} +- {b:.3f}" for a, b in zip(m, s))
-        rows.append(f"| {label} ({data[label]['run']}) | {cells} | {m[0] - m[-1]:.3f} |")
+        rep = data[label].get("replaced", {})
+        extra = "".join(
+            f" {rep[r][0]:.3f} +- {rep[r][1]:.3f} | {m[0] - rep[r][0]:.3f} |"
+            for r in replaced
+            if r in rep
+        )
+        rows.append(f"| {label} ({data[label]['run']}) | {cells} | {m[0] - m[-1]:.3f} |{extra}")
     rows.append("")
     rows.append(
         f"Each cell: {data['rollouts']} rollouts of the saved best policy, evaluation seed "
-        f"{data['eval_seed']} for every noise level (common random numbers); noise per pixel "
-        "`obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)` with amplitude 1, mean 0."
+        f"{data['eval_seed']} for every column (common random numbers); noise per pixel "
+        "`obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)` with amplitude 1, mean 0, "
+        'added to the patch; "patch replaced" columns: `env.obs_signal=0`, so the networks '
+        "see only the noise, or only the constant (the mean pixel value of the reachable "
+        'patches); "drop": the std-0 value minus the column\'s.'
     )
     return rows
 

@@ -135,3 +135,80 @@ def test_thesis_algorithm_keeps_its_own_name():
     assert config.experiment.algorithm == "cognet-dice-thesis"
     assert type(build_algorithm(config)).__name__ == "CognetDice"
     assert type(build_algorithm(load_config("tagging-thesis-n3"))).__name__ == "CognetWeights"
+
+
+def heatmap_algorithm(**kw):
+    from cognet_jax.envs.heatmap import make_heatmap
+
+    env, params = make_heatmap("default")
+    settings = WeightsSettings(**{"nodes": 3, "candidates": 4, "eval_rollouts": 16, **kw})
+    return CognetWeights(env, params, settings)
+
+
+def test_standardized_inputs_fold_into_the_first_layer():
+    """With ``standardize_inputs`` the sampled weights act on ``(x - mean) / scale``: the
+    policy's first layer applied to a raw patch equals the sample's weights applied to the
+    standardised patch, and the statistics are those of real patches (pixels in [0, 1],
+    spread > 0)."""
+    from cognet_jax.envs.heatmap import all_patches
+
+    alg = heatmap_algorithm(standardize_inputs=True, hidden=5)
+    mean, scale = np.asarray(alg.input_mean), np.asarray(alg.input_scale)
+    assert mean.shape == scale.shape == (2, 16)
+    assert ((mean > 0) & (mean < 1)).all() and (scale > 0.01).all()
+    samples = alg.draw(jax.random.key(7), alg.init_distribution(), 3)
+    policy = alg.to_policy(samples)  # a leading candidate axis
+    x = jnp.asarray(all_patches()[:10])  # [10, 16]
+    layer = policy.net_params["params"]["Dense_0"]
+    got = jnp.einsum("pf,cagfh->cagph", x, layer["kernel"]) + layer["bias"][:, :, :, None]
+    z = (x[None, None] - mean[None, :, None]) / scale[None, :, None]  # [1, agents, 10, 16]
+    want = jnp.einsum("capf,cagfh->cagph", z[None, 0], samples.w1) + samples.b1[:, :, :, None]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-3)
+    plain = heatmap_algorithm(hidden=5)
+    assert plain.input_mean is None
+    same = plain.to_policy(samples).net_params["params"]["Dense_0"]["kernel"]
+    np.testing.assert_array_equal(np.asarray(same), np.asarray(samples.w1))
+
+
+def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rollouts():
+    """A step whose candidates are all much worse than the best so far keeps the best policy
+    (and reports its own paired estimate as the best value, no stale maximum); a best that a
+    challenger beats is replaced."""
+    alg = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
+    state = alg.init(jax.random.key(0))
+    assert alg.rollouts_per_iteration == 8 * 16 + 3 * 200
+    # a known good reactive controller as the best so far
+    good = reactive_tagging_policy(alg)
+    kept = state.replace(best_policy=good, progress=state.progress.replace(best_value=1e9))
+    new, metrics = jax.jit(alg.step)(jax.random.key(1), kept)
+    chex_equal = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), new.best_policy, good)
+    assert all(jax.tree.leaves(chex_equal))
+    assert 10.0 < float(metrics.best_value) < 1e9  # the paired estimate, not the stale 1e9
+    # the worst possible best (always tag: -40 per step) is replaced
+    bad = good.replace(action_probs=jax.nn.one_hot(jnp.zeros((2, 3), jnp.int32), 3))
+    new, metrics = jax.jit(alg.step)(jax.random.key(1), state.replace(best_policy=bad))
+    assert not bool(jnp.all(new.best_policy.action_probs == bad.action_probs))
+    assert float(metrics.best_value) > -120.0
+
+
+def reactive_tagging_policy(alg):
+    """SPEC 8's reactive 3-node controller as a node network of ``alg`` (thesis tagging):
+    node 0 moves left, 1 tags, 2 moves right; every node goes to node 0 below -1, node 2
+    above 1 and node 1 in between (two ReLU units voting strongly)."""
+    a, q, h = 2, 3, alg.settings.hidden
+    w1 = np.zeros((a, q, 1, h), np.float32)
+    b1 = np.zeros((a, q, h), np.float32)
+    targets = np.zeros((a, q, h), np.int32)
+    m = np.zeros((a, q, h), np.float32)
+    w1[..., 0, 0], b1[..., 0], targets[..., 0], m[..., 0] = -100.0, -100.0, 0, 1.0  # z < -1
+    w1[..., 0, 1], b1[..., 1], targets[..., 1], m[..., 1] = 100.0, -100.0, 2, 1.0  # z > 1
+    sample = WeightSample(
+        actions=jnp.broadcast_to(jnp.asarray([1, 0, 2], jnp.int32), (a, q)),
+        w1=jnp.asarray(w1),
+        b1=jnp.asarray(b1),
+        unit_targets=jnp.asarray(targets),
+        m=jnp.asarray(m),
+        default=jnp.ones((a, q), jnp.int32),
+        bias=jnp.full((a, q), 20.0),
+    )
+    return alg.to_policy(sample)

@@ -70,6 +70,17 @@ def test_step_matches_numpy_reference():
         assert float(reward) == ref_reward
 
 
+def test_zero_signal_replaces_the_patch_by_noise_or_a_constant():
+    env, params = make_heatmap("default", obs_signal=0.0, obs_noise_mean=0.3)
+    pos = jnp.array([[5, 7], [2, 2]], jnp.int32)
+    u = jax.random.uniform(jax.random.key(0), (env.step_noise,))
+    np.testing.assert_array_equal(np.asarray(env.observe(pos, u, params)), np.float32(0.3))
+    noisy = np.asarray(env.observe(pos, u, params.replace(obs_noise_std=1.0)))
+    other = np.asarray(env.observe(pos[::-1], u, params.replace(obs_noise_std=1.0)))
+    np.testing.assert_array_equal(noisy, other)  # the position no longer shows
+    assert noisy.std() > 0.5
+
+
 def test_noise_free_observation_is_patch_and_agent_cell():
     env, params = make_heatmap("default")
     pos = jnp.array([[5, 7], [13, 2]], jnp.int32)

@@ -27,6 +27,16 @@ Q nodes, F network inputs):
   Gaussian over a dense output layer averages the roles of different elites; in prototypes (not
   kept) it stalled below the reactive controller on tagging n3.
 
+**Input standardisation** (``standardize_inputs``, **[choice]**, off by default): the Gaussians
+are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
+``scale [agents, F]`` are the features' mean and standard deviation over the observations of
+``STATS_ROLLOUTS`` rollouts of the uniformly random controller (fixed key, so every seed of a
+run sees the same constants). ``to_policy`` folds them into the first layer (``W1 / scale``,
+``b1 - (mean / scale) . W1``), so the policy still reads the raw features. Without it a hidden
+unit's threshold ``-b / w`` is spread over the scale of ``init_scale``; on the raw heatmap patch
+(pixels in [0, 1], most positions differing by a few hundredths) almost no sampled unit then
+splits the positions that matter.
+
 The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits; with votes of
 about 5 the draw is nearly deterministic), so evaluation, ``controller_step`` and saved policies
 are those of the thesis algorithm.
@@ -48,6 +58,12 @@ One iteration (``step``), values are returns to **maximise**:
    means, most likely categories) are each evaluated on ``best_rollouts`` fresh rollouts; the
    best of the two replaces the best policy when it beats the best fresh value so far. The
    value recorded per iteration is that fresh value, never the winner's in-loop mean.
+   With ``paired_best`` the current best policy is re-evaluated too, on the *same* fresh
+   rollouts as the two challengers (common random numbers), and a challenger replaces it only
+   when it beats that paired estimate: the comparison's noise is then the noise of a
+   difference between similar policies, and the best fresh value so far, the maximum of
+   hundreds of noisy means, no longer decides (its upward bias is the anytime best's
+   winner's curse). ``best_value`` is then the best policy's estimate of this iteration.
 """
 
 from __future__ import annotations
@@ -127,6 +143,12 @@ class WeightsSettings:
     init_scale: float = 10.0
     vote_mean: float = 5.0
     vote_std: float = 5.0
+    standardize_inputs: bool = False
+    paired_best: bool = False
+
+
+#: Rollouts of the uniformly random controller that give the input statistics.
+STATS_ROLLOUTS = 4096
 
 
 @struct.dataclass
@@ -177,6 +199,32 @@ class CognetWeights:
         self.pipeline, self.controller = neural_controller(
             env, settings.nodes, settings.hidden, pipeline
         )
+        self.input_mean = self.input_scale = None  # to_policy reads them
+        if settings.standardize_inputs:
+            self.input_mean, self.input_scale = self.input_statistics()
+
+    def input_statistics(self) -> tuple[jax.Array, jax.Array]:
+        """``(mean, scale) [agents, F]`` of the networks' input features over the observations
+        of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0); a feature
+        that never varies gets scale 1."""
+        c = self.controller
+        uniform = NeuralPolicy(
+            action_probs=uniform_distribution(
+                (c.num_agents, self.settings.nodes, c.num_actions), self.env.action_counts
+            ),
+            net_params=jax.tree.map(
+                jnp.zeros_like, self.to_policy(self.mode(self.init_distribution())).net_params
+            ),
+        )
+        traj = jax.jit(
+            lambda k: rollouts(
+                self.env, c, k, STATS_ROLLOUTS, self.env_params, uniform, record=True
+            )
+        )(jax.random.key(0))
+        feats = self.pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
+        feats = feats.reshape(feats.shape[:3] + (-1,))
+        mean, std = feats.mean((0, 1)), feats.std((0, 1))
+        return mean, jnp.where(std > 1e-6, std, 1.0)
 
     # ---------------------------------------------------------------- distribution
     def init_distribution(self) -> WeightDistribution:
@@ -235,11 +283,18 @@ class CognetWeights:
         """The ``NeuralPolicy`` of one sample (works on a leading candidate axis too): one-hot
         actions, ``W2 = m * onehot(unit_targets)``, ``b2 = bias * onehot(default)``."""
         q, na = self.settings.nodes, self.env.num_actions
+        w1, b1 = sample.w1, sample.b1
+        if self.input_mean is not None:  # fold (x - mean) / scale into the first layer
+            lead = w1.ndim - 4  # a candidate axis or none; w1 [..., agents, Q, F, H]
+            scale = self.input_scale.reshape((1,) * lead + self.input_scale.shape[:1] + (1, -1, 1))
+            shift = (self.input_mean / self.input_scale).reshape(scale.shape)
+            b1 = b1 - jnp.sum(shift * w1, axis=-2)
+            w1 = w1 / scale
         w2 = sample.m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
         b2 = sample.bias[..., None] * jax.nn.one_hot(sample.default, q, dtype=jnp.float32)
         params = {
             "params": {
-                "Dense_0": {"kernel": sample.w1, "bias": sample.b1},
+                "Dense_0": {"kernel": w1, "bias": b1},
                 "Dense_1": {"kernel": w2, "bias": b2},
             }
         }
@@ -320,9 +375,9 @@ class CognetWeights:
     @property
     def rollouts_per_iteration(self) -> int:
         """Simulated rollouts in one ``step``: candidates' evaluations plus the fresh
-        evaluations of the winner and of the mode."""
+        evaluations of the winner and of the mode (and of the best so far, ``paired_best``)."""
         s = self.settings
-        return s.candidates * s.eval_rollouts + 2 * s.best_rollouts
+        return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
 
     def step(self, key: jax.Array, state: WeightsState, hyper: WeightsHyper | None = None):
         """One iteration; returns ``(state, WeightsMetrics)``."""
@@ -337,15 +392,23 @@ class CognetWeights:
 
         winner = self.to_policy(jax.tree.map(lambda x: x[0], elites))
         mode = self.to_policy(self.mode(dist))
-        # one batched program for both (vmap over keys draws what two calls would draw)
-        v_winner, v_mode = jax.vmap(self.fresh_value)(
-            jnp.stack([k_win, k_mode]), jax.tree.map(lambda a, b: jnp.stack([a, b]), winner, mode)
-        )
+        stack = lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
+        if s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
+            v_winner, v_mode, v_best = jax.vmap(self.fresh_value, (None, 0))(
+                k_win, stack(winner, mode, state.best_policy)
+            )
+        else:  # one batched program for both (vmap over keys draws what two calls would draw)
+            v_winner, v_mode = jax.vmap(self.fresh_value)(
+                jnp.stack([k_win, k_mode]), stack(winner, mode)
+            )
         mode_better = v_mode > v_winner
         candidate = select_tree(mode_better, mode, winner)
         value = jnp.maximum(v_mode, v_winner)
         progress, improved = state.progress.record(value)
         progress = progress.replace(threshold=elite_values[-1])
+        if s.paired_best:
+            improved = value > v_best
+            progress = progress.replace(best_value=jnp.maximum(value, v_best))
         best_policy = select_tree(improved, candidate, state.best_policy)
         metrics = WeightsMetrics(
             value=value,

@@ -12,7 +12,10 @@ after each move every coordinate is clipped to ``[2, 13]``. One step:
    agent sits at patch index ``(2, 2)``), flattened row-major: ``obs [agents, 16]``. Optional
    noise: ``patch + obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)`` per pixel
    **[choice]**: the SPEC's "per-pixel additive amplitude * N(mean, std)" read literally; the
-   noisy value is not clipped.
+   noisy value is not clipped. ``obs_signal`` (default 1) scales the clean patch, so
+   ``obs_signal = 0`` replaces the observation by the noise alone, or by the constant
+   ``obs_noise_amplitude * obs_noise_mean`` with ``obs_noise_std = 0`` (the noise study's
+   "does the policy use what it sees?" rows).
 
 Start: ``x, y`` i.i.d. uniform integers in ``{start_low, ..., start_high}`` (params, so both
 ranges share one compiled program). Thesis range ``{-1..12}`` (positions below 2 are rewarded
@@ -67,6 +70,7 @@ class HeatmapParams:
     obs_noise_std: jax.Array | float = 0.0
     obs_noise_mean: jax.Array | float = 0.0
     obs_noise_amplitude: jax.Array | float = 1.0
+    obs_signal: jax.Array | float = 1.0
     discount: jax.Array | float = 1.0
     near_reward: jax.Array | float = 50.0
     mid_reward: jax.Array | float = 1.0
@@ -134,7 +138,7 @@ class Heatmap:
         clean = jax.vmap(patch)(pos)
         spread = scaled_normal(params.obs_noise_std, u).reshape(clean.shape)  # std * N(0, 1)
         noise = params.obs_noise_amplitude * (params.obs_noise_mean + spread)
-        return clean + noise
+        return params.obs_signal * clean + noise
 
     def step(
         self, u: jax.Array, state: HeatmapState, actions: jax.Array, params: HeatmapParams

@@ -1,0 +1,73 @@
+"""Errors caused by what a user gave the library (a config field, a file), as opposed to bugs.
+
+Every such error derives from ``InputError``; its ``str()`` is one line that names the field or
+the file (and line). The CLI prints exactly that line and exits with status 2
+(``cognet_jax.cli``); ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+class InputError(ValueError):
+    """Base class of the errors a user can fix by changing their input."""
+
+
+class CorruptFileError(InputError):
+    """A file the library wrote earlier (results, policy, checkpoint, VAE) cannot be read back:
+    truncated, edited, or of another kind. ``path`` and ``reason`` are kept."""
+
+    def __init__(self, path: str | Path, reason: str):
+        self.path, self.reason = str(path), reason
+        super().__init__(f"{path}: corrupt or not a cognet-jax file ({reason})")
+
+
+class MismatchError(InputError):
+    """A saved policy does not fit the model or settings it is asked to run with."""
+
+
+#: what the CLI reports as a one-line error
+USER_ERRORS = (InputError,)
+
+
+def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
+    """The JSON object in ``path``; ``CorruptFileError`` if it is not valid JSON, not an object,
+    or lacks one of the ``required`` keys (a missing file raises ``FileNotFoundError``)."""
+    path = Path(path)
+    text = path.read_bytes()
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise CorruptFileError(path, f"not valid JSON: {err}") from None
+    if not isinstance(data, dict):
+        raise CorruptFileError(path, "expected a JSON object")
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise CorruptFileError(path, f"missing {', '.join(missing)}")
+    return data
+
+
+def restore_msgpack(path: str | Path, template):
+    """``flax.serialization.from_bytes(template, bytes of path)`` with every way a damaged file
+    fails (truncated, trailing bytes, wrong structure, wrong shapes) turned into one
+    ``CorruptFileError``; the restored leaves must have the template's shapes."""
+    import jax
+    import numpy as np
+    from flax import serialization
+
+    path = Path(path)
+    data = path.read_bytes()
+    try:
+        restored = serialization.from_bytes(template, data)
+    except Exception as err:  # msgpack and flax raise ValueError, TypeError, AttributeError, ...
+        raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
+    want = [np.shape(x) for x in jax.tree.leaves(template)]
+    got = [np.shape(x) for x in jax.tree.leaves(restored)]
+    if want != got:
+        raise MismatchError(
+            f"{path}: holds arrays of shapes {got[:3]}... where this model needs {want[:3]}...: "
+            "it was saved for other settings (nodes, problem, network size)"
+        )
+    return restored
