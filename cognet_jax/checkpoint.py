@@ -93,16 +93,37 @@ def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
-    raw = serialization.msgpack_restore(path.read_bytes())
-    if raw.get("format") != FORMAT:
-        raise ValueError(f"{path}: unknown checkpoint format {raw.get('format')!r}")
-    raw["meta"] = json.loads(raw["meta"])
+    from cognet_jax.errors import CorruptFileError
+
+    try:
+        raw = serialization.msgpack_restore(path.read_bytes())
+    except Exception as err:  # msgpack's errors for truncated or foreign bytes
+        raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        found = raw.get("format") if isinstance(raw, dict) else type(raw).__name__
+        raise CorruptFileError(path, f"unknown checkpoint format {found!r}")
+    missing = [k for k in ("meta", "iteration", "keys", "state") if k not in raw]
+    if missing:
+        raise CorruptFileError(path, f"missing {', '.join(missing)}")
+    try:
+        raw["meta"] = json.loads(raw["meta"])
+    except (TypeError, ValueError) as err:
+        raise CorruptFileError(path, f"meta is not valid JSON: {err}") from None
+    raw["path"] = str(path)
     return raw
 
 
 def restore_state(template: Any, raw: dict) -> Any:
-    """The algorithm state stored in ``raw`` with the structure (and types) of ``template``."""
-    return serialization.from_state_dict(template, raw["state"])
+    """The algorithm state stored in ``raw`` with the structure (and types) of ``template``;
+    ``CorruptFileError`` when it does not fit."""
+    from cognet_jax.errors import CorruptFileError
+
+    try:
+        return serialization.from_state_dict(template, raw["state"])
+    except (ValueError, KeyError, TypeError, AttributeError) as err:
+        raise CorruptFileError(
+            raw.get("path", "checkpoint"), f"state does not fit: {err}"
+        ) from None
 
 
 def restore_history(template: Any, raw: dict) -> list:

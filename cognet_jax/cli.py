@@ -8,13 +8,21 @@ cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N] [--latent N] [--kl-weight W]
 cognet-jax list
+
+Every user-facing failure (bad config field, unreadable or corrupt file, a policy that does not
+fit the model, ...) prints one line ``error: ...`` naming the file and line or the field, and
+exits with status 2; ``--debug`` (any subcommand) shows the traceback instead. SIGINT and
+SIGTERM stop a search after its current iteration with a checkpoint and the best policy
+written (exit ``128 + signal``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -45,8 +53,16 @@ def _add_overrides(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cognet-jax", description=__doc__.split("\n\n")[0])
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--debug", action="store_true", help="show the Python traceback of an error"
+    )
+    p = argparse.ArgumentParser(
+        prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[common]
+    )
     sub = p.add_subparsers(dest="command", required=True)
+    add_parser = sub.add_parser
+    sub.add_parser = lambda *a, **kw: add_parser(*a, parents=[common], **kw)  # noqa: E731
 
     t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
     _add_experiment(t)
@@ -156,6 +172,20 @@ def _run_overrides(args) -> list[str]:
     return extra
 
 
+@contextlib.contextmanager
+def _removed_on_failure(out: Path):
+    """A folder this command creates is removed again if the command fails before anything
+    worth keeping (results, a checkpoint) is in it; an existing folder is left alone."""
+    existed = out.exists()
+    try:
+        yield
+    except BaseException:
+        keep = ("results.json", "checkpoint.msgpack")
+        if not existed and out.is_dir() and not any((out / k).exists() for k in keep):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
 def _train(args) -> int:
     from cognet_jax.config import load_config
     from cognet_jax.runner import Interrupted, resume_target, run_training
@@ -167,10 +197,11 @@ def _train(args) -> int:
             return 0
         config = load_config(args.experiment, args.overrides + _run_overrides(args))
         out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
-        run_training(config, args.seed, out)
+        with _removed_on_failure(out):
+            run_training(config, args.seed, out)
     except Interrupted as err:
         print(f"error: {err}", file=sys.stderr)
-        return 130
+        return 128 + err.signum
     return 0
 
 
@@ -273,10 +304,10 @@ def _evaluate(args) -> int:
     from cognet_jax.prng import make_key
     from cognet_jax.runner import honest_evaluation, load_policy
 
+    if args.rollouts is not None and args.rollouts < 2:
+        raise UsageError(f"--rollouts must be >= 2, got {args.rollouts}")
     config, algorithm, policy = load_policy(args.run_dir, args.overrides)
     rollouts = args.rollouts or config.evaluation.rollouts
-    if rollouts < 2:
-        raise SystemExit("error: --rollouts must be >= 2")
     t0 = time.perf_counter()
     key = make_key(args.seed, config.run.prng_impl)
     value = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
@@ -298,11 +329,11 @@ def _vae(args) -> int:
     from cognet_jax.vae import diagnostics, plot_mu, save_vae, train_vae
 
     if args.epochs < 1:
-        raise SystemExit("error: --epochs must be >= 1")
+        raise UsageError("--epochs must be >= 1")
     if args.latent < 1:
-        raise SystemExit("error: --latent must be >= 1")
+        raise UsageError("--latent must be >= 1")
     if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
-        raise SystemExit("error: --kl-weight must be a finite number > 0")
+        raise UsageError("--kl-weight must be a finite number > 0")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -351,10 +382,34 @@ def _list(args) -> int:
     return 0
 
 
+class UsageError(ValueError):
+    """A command-line argument out of range (one line, exit 2)."""
+
+
+def _one_line(err: BaseException) -> str:
+    """The message of a user-facing error on one line."""
+    if isinstance(err, OSError) and err.strerror:
+        where = err.filename if err.filename is not None else ""
+        text = f"{where}: {err.strerror}" if where else err.strerror
+    else:
+        text = str(err) or type(err).__name__
+    return " ".join(text.split())
+
+
+def _sigterm_as_interrupt(signum, frame):
+    """Outside a search loop (loading, compiling, the final evaluation) SIGTERM stops the
+    command like Ctrl-C; inside it ``runner.sigint_guard`` stops after the iteration."""
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
     from cognet_jax.config import ConfigError
+    from cognet_jax.errors import USER_ERRORS
 
     args = _parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     try:
         return {
             "train": _train,
@@ -363,15 +418,23 @@ def main(argv: list[str] | None = None) -> int:
             "vae": _vae,
             "list": _list,
         }[args.command](args)
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    except FileNotFoundError as err:
-        print(f"error: {err}", file=sys.stderr)
+    except (ConfigError, UsageError, OSError, *USER_ERRORS) as err:
+        if args.debug:
+            raise
+        print(f"error: {_one_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
+        if args.debug:
+            raise
+        print(
+            f"error: internal error {type(err).__name__}: {_one_line(err)} "
+            "(run again with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from flax import serialization
 
 from cognet_jax.api import build_algorithm, make_step, seed_key, split_seed_key
 from cognet_jax.config import Config, config_from_dict
+from cognet_jax.errors import MismatchError
 
 
 def _progress_bar(total: int, enabled: bool, desc: str):
@@ -86,21 +87,28 @@ def load_policy(run_dir: str | Path, overrides: list[str] | None = None):
     may change the evaluation environment, e.g. ``env.obs_noise=0.1``; shapes must match.
     The run's own ``vae.msgpack`` (if any) is used unless ``network.vae_path`` is overridden."""
     from cognet_jax.config import apply_overrides, parse_override
+    from cognet_jax.errors import read_json, restore_msgpack
     from cognet_jax.observations import VAE_FILE
 
     run_dir = Path(run_dir)
     results_path = run_dir / "results.json"
-    if not results_path.exists():
+    if not results_path.is_file():
         raise FileNotFoundError(f"{results_path} not found: is {run_dir} a training output folder?")
-    results = json.loads(results_path.read_text())
+    results = read_json(results_path, ("config",))
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
+    if ("problem", "path") in named:
+        raise MismatchError(
+            f"--set problem.path: the policy in {run_dir} was trained on "
+            f"{results['config'].get('problem', {}).get('path')!r}; a policy is evaluated on "
+            "its own model (other fields, e.g. problem.horizon or env noise, may change)"
+        )
     if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
         overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
     config = config_from_dict(apply_overrides(results["config"], overrides))
     algorithm = build_algorithm(config)
     template = algorithm.best_policy(algorithm.init(jax.random.key(0)))
-    policy = serialization.from_bytes(template, (run_dir / "policy.msgpack").read_bytes())
+    policy = restore_msgpack(run_dir / "policy.msgpack", template)
     policy = jax.tree.map(jnp.asarray, policy)
     return config, algorithm, policy
 
@@ -123,35 +131,47 @@ def _json_ready(x):
 
 
 class Interrupted(Exception):
-    """A run stopped by SIGINT after writing its best policy and a checkpoint."""
+    """A run stopped by SIGINT or SIGTERM after writing its best policy and a checkpoint;
+    ``signum`` is the signal (the CLI exits with ``128 + signum``)."""
 
-    def __init__(self, out_dir: Path, iteration: int, iterations: int):
-        self.out_dir, self.iteration = Path(out_dir), iteration
+    def __init__(self, out_dir: Path, iteration: int, iterations: int, signum: int = 2):
+        self.out_dir, self.iteration, self.signum = Path(out_dir), iteration, int(signum)
+        name = signal.Signals(self.signum).name
         super().__init__(
-            f"interrupted at iteration {iteration}/{iterations}: best policy and checkpoint "
-            f"written to {out_dir}; continue with --resume {out_dir}"
+            f"interrupted at iteration {iteration}/{iterations} ({name}): best policy and "
+            f"checkpoint written to {out_dir}; continue with --resume {out_dir}"
         )
+
+
+#: the signals that stop a search softly: Ctrl-C, and what ``timeout`` and schedulers send
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextlib.contextmanager
 def sigint_guard():
-    """Inside the block the first SIGINT (Ctrl-C) only sets ``flag["stop"]``, so the loop can
-    finish the current iteration and write a checkpoint; a second SIGINT raises
-    ``KeyboardInterrupt`` at once (abandoning the iteration). No-op outside the main thread."""
-    flag = {"stop": False}
+    """Inside the block the first SIGINT (Ctrl-C) or SIGTERM only sets ``flag["stop"]`` (and
+    ``flag["signum"]``), so the loop can finish the current iteration and write a checkpoint;
+    a second one raises ``KeyboardInterrupt`` at once (abandoning the iteration). No-op outside
+    the main thread."""
+    flag = {"stop": False, "signum": int(signal.SIGINT)}
     if threading.current_thread() is not threading.main_thread():
         yield flag
         return
 
-    def handler(signum, frame):
-        flag["stop"] = True
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    def second(signum, frame):
+        raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGINT, handler)
+    def handler(signum, frame):
+        flag["stop"], flag["signum"] = True, int(signum)
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, second)
+
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield flag
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def _train_meta(config: Config, seed: int) -> dict:
@@ -248,10 +268,10 @@ def run_training(
         raw = read_checkpoint(ckpt_path)
         stored_config = dict(raw["meta"].get("config", {}), run=None)
         if raw["meta"].get("seed") != seed or stored_config != dict(config.to_dict(), run=None):
-            raise ValueError(f"{ckpt_path} was written by another config or seed")
+            raise MismatchError(f"{ckpt_path} was written by another config or seed")
         stored = restore_key(raw, "run", config.run.prng_impl)
         if not np.array_equal(jax.random.key_data(stored), jax.random.key_data(k_run)):
-            raise ValueError(f"{ckpt_path}: stored run key does not match seed {seed}")
+            raise MismatchError(f"{ckpt_path}: stored run key does not match seed {seed}")
         state = jax.tree.map(jnp.asarray, restore_state(state, raw))
         history = restore_history(jax.eval_shape(step, k_run, state)[1], raw)
         start = int(raw["iteration"])
@@ -305,7 +325,7 @@ def run_training(
                     indent=1,
                 ),
             )
-            raise Interrupted(out_dir, i, iterations)
+            raise Interrupted(out_dir, i, iterations, sigint["signum"])
     checkpoint(i)
     history = stack_history(history)  # on the host: jnp.stack of 500 arrays compiles
     loop_s = time.perf_counter() - t_loop

@@ -44,6 +44,7 @@ import numpy as np
 
 from cognet_jax.api import build_algorithm, seed_key, split_seed_key
 from cognet_jax.config import Config, ConfigError, load_config, parse_override
+from cognet_jax.errors import MismatchError
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
 SWEEP_SPEC = "sweep.json"
@@ -276,7 +277,7 @@ def run_group(
     if ckpt and ckpt.resume and path.exists():
         raw = read_checkpoint(path)
         if raw["meta"] != json.loads(json.dumps(meta)):
-            raise ValueError(f"{path} was written by another sweep")
+            raise MismatchError(f"{path} was written by another sweep")
         state = jax.device_put(restore_state(jax.device_get(state), raw), sharding)
         metrics_shape = jax.eval_shape(jax.vmap(step_one), keys, state, hyper, env_params)[1]
         history, start = restore_history(metrics_shape, raw), int(raw["iteration"])
@@ -308,7 +309,8 @@ def run_group(
         if i < iterations:
             save(i)
             write_policies(i, jax.device_get(jax.vmap(algorithm.best_policy)(state)))
-            raise Interrupted(ckpt.work_dir.parent if ckpt else Path("."), i, iterations)
+            out = ckpt.work_dir.parent if ckpt else Path(".")
+            raise Interrupted(out, i, iterations, sigint["signum"])
     # on the host ([runs, iterations]): a jnp.stack of 500 arrays compiles a concatenation
     history = jax.tree.map(lambda x: np.moveaxis(x, 0, 1), stack_history(history))
     loop_s = time.perf_counter() - t_loop
@@ -437,7 +439,7 @@ def run_sweep(
         if done and checkpointing.resume and done.exists():
             stored = json.loads(done.read_text())
             if stored["runs"] != [list(r) for r in g.runs]:
-                raise ValueError(f"{done} was written by another sweep")
+                raise MismatchError(f"{done} was written by another sweep")
             g_rows, timing = stored["rows"], stored["timing"]
         else:
             g_rows, timing = run_group(g, progress, desc, checkpointing, tag)

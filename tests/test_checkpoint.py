@@ -99,6 +99,26 @@ def test_sigint_writes_policy_and_checkpoint_then_resume_is_identical(reference,
     _same_results(ref, resumed, ref_dir, tmp_path)
 
 
+def test_sigterm_stops_like_sigint_then_resume_is_identical(reference, tmp_path):
+    """What ``timeout`` and job schedulers send: the run ends after its iteration with the
+    policy, results and checkpoint written, exit 128 + 15, and resumes to the same numbers."""
+    ref, ref_dir = reference
+    proc = _start(tmp_path)
+    _wait_for_checkpoint(proc, tmp_path / CHECKPOINT_NAME)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted at iteration" in err and "SIGTERM" in err and "--resume" in err
+    assert len(err.strip().splitlines()[-1]) > 0 and "Traceback" not in err
+    assert (tmp_path / "policy.msgpack").exists()
+    raw = read_checkpoint(tmp_path / CHECKPOINT_NAME)
+    partial = json.loads((tmp_path / "results.json").read_text())
+    assert partial["status"] == "interrupted" and partial["iteration"] == raw["iteration"]
+    config, seed = resume_target(tmp_path)
+    resumed = run_training(config, seed, tmp_path, resume=True, log=lambda *_: None)
+    _same_results(ref, resumed, ref_dir, tmp_path)
+
+
 def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, tmp_path):
     ref, ref_dir = reference
     proc = _start(tmp_path)

@@ -79,6 +79,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cognet_jax.errors import InputError
+
 __all__ = [
     "MAX_COUNT",
     "MAX_ENTRIES",
@@ -107,7 +109,7 @@ _INT_RE = re.compile(r"\d+")
 _ID_RE = re.compile(r"[A-Za-z][A-Za-z0-9_\-]*")
 
 
-class DpomdpParseError(ValueError):
+class DpomdpParseError(InputError):
     """A ``.dpomdp`` text is malformed. ``str()`` reads ``"file:line: what is wrong"``.
 
     Attributes: ``path`` (the file name, or ``"<string>"``), ``line`` (1-based, or ``None`` when

@@ -1,0 +1,144 @@
+"""Bad input through the CLI: every case prints one line ``error: ...`` naming the field or the
+file, exits with status 2, and shows no traceback (``--debug`` shows it)."""
+
+import shutil
+
+import pytest
+
+from cognet_jax.cli import main
+
+TINY = [
+    "algorithm.iterations=2",
+    "algorithm.candidates=6",
+    "algorithm.elites=2",
+    "algorithm.eval_rollouts=8",
+    "algorithm.best_rollouts=16",
+    "evaluation.rollouts=50",
+]
+BAD_DPOMDP = """agents: 2
+discount: 1
+values: reward
+states: 2
+start:
+uniform
+actions:
+2
+2
+observations:
+2
+2
+T: * : 0 : 0 : 1.5
+"""
+
+
+def sets(*overrides):
+    return [x for o in overrides for x in ("--set", o)]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "run"
+    assert main(["train", "--out", str(out), "--no-progress", *sets(*TINY)]) == 0
+    return out
+
+
+def damaged_copy(run_dir, tmp_path, name, keep_bytes):
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    data = (copy / name).read_bytes()
+    (copy / name).write_bytes(data[:keep_bytes])
+    return copy
+
+
+def one_line_error(capsys, argv, *expected, status=2):
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == status, (argv, err)
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in err
+    for text in expected:
+        assert text in lines[0], (text, lines[0])
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    "overrides,field",
+    [
+        (["env.obs_noise=inf"], "env.obs_noise"),
+        (["env.motion_noise=inf"], "env.motion_noise"),
+        (["algorithm.alpha=nan"], "algorithm.alpha"),
+        (["algorithm.nodes=0"], "algorithm.nodes"),
+        (["algorithm.no_such_field=1"], "algorithm.no_such_field"),
+        (["algorithm.nodes=x"], "algorithm.nodes"),
+        (["env.obs_signal=2"], "env.obs_signal"),
+    ],
+)
+def test_bad_config_values_name_the_field(capsys, tmp_path, overrides, field):
+    out = tmp_path / "never"
+    one_line_error(capsys, ["train", "--out", str(out), *sets(*overrides)], field)
+    assert not out.exists()
+
+
+def test_heatmap_noise_inf_and_gdice_negative_entropy_std(capsys, tmp_path):
+    one_line_error(
+        capsys, ["train", "heatmap-2d-n4", *sets("env.obs_noise_std=inf")], "env.obs_noise_std"
+    )
+    problem = tmp_path / "p.dpomdp"
+    problem.write_text(BAD_DPOMDP)
+    argv = ["train", "gdice-dpomdp", *sets(f'problem.path="{problem}"')]
+    one_line_error(capsys, [*argv, *sets("algorithm.entropy_std=-5")], "algorithm.entropy_std")
+
+
+def test_parse_error_names_file_and_line_and_leaves_no_folder(capsys, tmp_path):
+    problem = tmp_path / "bad.dpomdp"
+    problem.write_text(BAD_DPOMDP)
+    out = tmp_path / "out"
+    argv = ["train", "gdice-dpomdp", "--out", str(out), *sets(f'problem.path="{problem}"')]
+    line = one_line_error(capsys, argv, f"{problem}:")
+    assert ":13:" in line or ":14:" in line, line  # the T line
+    assert not out.exists()
+    with pytest.raises(ValueError):  # --debug: the exception itself
+        main([*argv, "--debug"])
+
+
+def test_directory_as_experiment_and_file_as_out(capsys, tmp_path):
+    one_line_error(capsys, ["train", str(tmp_path) + "/"], str(tmp_path))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    one_line_error(capsys, ["train", "--out", str(blocker), *sets(*TINY)], str(blocker))
+
+
+def test_evaluate_refuses_bad_rollouts_and_mismatched_settings(capsys, run_dir):
+    one_line_error(capsys, ["evaluate", str(run_dir), "--rollouts", "0"], "--rollouts")
+    one_line_error(capsys, ["evaluate", str(run_dir), "--rollouts", "-3"], "--rollouts")
+    one_line_error(
+        capsys,
+        ["evaluate", str(run_dir), *sets("algorithm.nodes=6")],
+        "policy.msgpack",
+        "other settings",
+    )
+    one_line_error(
+        capsys, ["evaluate", str(run_dir), *sets('problem.path="other.dpomdp"')], "problem.path"
+    )
+    one_line_error(capsys, ["evaluate", str(run_dir.parent / "missing")], "missing")
+
+
+@pytest.mark.parametrize("name,keep", [("policy.msgpack", 40), ("results.json", 30)])
+def test_evaluate_reports_corrupt_files(capsys, run_dir, tmp_path, name, keep):
+    copy = damaged_copy(run_dir, tmp_path, name, keep)
+    one_line_error(capsys, ["evaluate", str(copy)], f"{copy / name}", "corrupt")
+
+
+def test_resume_reports_a_corrupt_checkpoint(capsys, run_dir, tmp_path):
+    copy = damaged_copy(run_dir, tmp_path, "checkpoint.msgpack", 100)
+    one_line_error(capsys, ["train", "--resume", str(copy)], "checkpoint.msgpack", "corrupt")
+    (copy / "checkpoint.msgpack").write_bytes(b"\x93\x01\x02\x03")  # valid msgpack, not ours
+    one_line_error(capsys, ["train", "--resume", str(copy)], "checkpoint format")
+
+
+def test_vae_arguments(capsys, tmp_path):
+    one_line_error(capsys, ["vae", "train", "--epochs", "0", "--out", str(tmp_path)], "--epochs")
+    one_line_error(
+        capsys, ["vae", "train", "--kl-weight", "nan", "--out", str(tmp_path)], "--kl-weight"
+    )
