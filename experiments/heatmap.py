@@ -42,27 +42,31 @@ README = HERE / "README.md"
 #: What the runs of 2026-11-23 (seed 0, thesis scale) show; the numbers are those of the table.
 DEFAULT_FINDINGS = """\
 **Default `cognet-dice`** (the rows without `-spec`; their 8-seed sweeps are in the section
-"COGNet-DICE (default): 8-seed sweeps and ablations"). The weight-space search reaches most of
-the 46.898 bound with the raw patch and 8 hidden units; 16 hidden units did not help. The
-encoded search does better than the raw one, but only with a latent that keeps the orientation
-of the patch: the thesis's 1-D VAE keeps only the distance to the source, and no policy that
-sees only the distance can beat the distance-only bound above, whatever the search. A 2-D latent
-trained with the thesis's KL weight 1 collapses its second dimension to the prior (the thesis-
-algorithm notes below); with KL weight 0.01 and 200 epochs both dimensions carry information and
-mirror positions get different latents (table "VAE latents" below, read from the VAE files the
-runs saved). With the default start range {2..13} only (2, 2) earns +50 and a return is mostly
-the -1 steps, so values are small; the encoded default search comes close to its bound 4.431
-there.
+"COGNet-DICE (default): 8-seed sweeps and ablations"). On the raw patch the search runs over
+networks that read each pixel *standardised* (`algorithm.standardize_inputs`: mean and standard
+deviation of every pixel under the random controller, folded into the first layer of the saved
+policy), and the anytime best is replaced only when a challenger beats it on the same fresh
+rollouts (`algorithm.paired_best`). Without standardisation a hidden unit's threshold is spread
+over the scale of `init_scale` while the positions that matter differ by a few hundredths of a
+pixel value, so few sampled units split them; the sweep table shows the three variants side by
+side (`-plain`, `-std`, default), on the thesis and on the default start range. The encoded
+search works only with a latent that keeps the orientation of the patch: the thesis's 1-D VAE
+keeps only the distance to the source, and no policy that sees only the distance can beat the
+distance-only bound above, whatever the search. A 2-D latent trained with the thesis's KL
+weight 1 collapses its second dimension to the prior (the thesis-algorithm notes below); with
+KL weight 0.01 and 200 epochs both dimensions carry information and mirror positions get
+different latents (table "VAE latents" below, read from the VAE files the runs saved). With the
+default start range {2..13} only (2, 2) earns +50 and a return is mostly the -1 steps, so
+values are small and close to their bound 4.431.
 
-**Which policies use their observations** (noise study): the default policies lose several
-points when the patch is drowned in noise (std 0.5 and 1.0 per pixel, against pixel values in
-[0, 1]; "drop" column), so they act on what they see. The thesis algorithm's SPEC-settings
-policies lose nothing up to std 0.2 and at most a little at the largest noise (where noise
-moves the encoder's output of the encoded ones): they hardly use the observation. With the
-default start range the raw search stays below the encoded one and below 4.0 on most seeds
-(8-seed sweep heatmap-2d-n4-default). Our guess, not measured: on the raw 16 pixels the one
-distinction that matters there ("x = 2 or not") is a threshold that is harder to sample than on
-the 2-D latent."""
+**Which policies use their observations** (noise study): the default policies lose value when
+noise is added to the patch and lose most when the patch is replaced by noise or by a constant
+(the "patch replaced" columns), so they act on what they see. Most thesis-algorithm policies
+lose nothing from noise added to the patch and the raw ones little from a constant in its
+place (raw +options, the one that uses its observation, is the exception); where they lose more
+(the encoded ones, or pure noise), the replaced patch moves their input far outside the range
+of real patches. Augmentation cannot be credited with robustness here: the augmented policies
+hardly use the observation to begin with."""
 
 FINDINGS = """\
 Findings on the thesis algorithm `cognet-dice-thesis` (seed 0, 500 iterations; the experiments
@@ -358,8 +362,8 @@ def noise_rows() -> list[str]:
     rows = [
         "| policy (trained noise-free) | "
         + " | ".join(f"std {s:g}" for s in stds)
-        + " | drop 0 -> max std | "
-        + "".join(f"patch replaced by {r} | drop |" for r in replaced),
+        + " | drop 0 -> max std |"
+        + "".join(f" patch replaced by {r} | drop |" for r in replaced),
         "|---|" + "---|" * (len(stds) + 1 + 2 * len(replaced)),
     ]
     for label in labels:
