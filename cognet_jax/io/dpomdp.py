@@ -584,6 +584,10 @@ class _Parser:
         self.t_used = np.zeros((nS, nJA), dtype=np.int64)  # R line that read row T(.|s,ja)
         self.o_used = np.zeros((nJA, nS), dtype=np.int64)
         self.any_used = False
+        # which rows of T [S, JA] / O [JA, S] are given and sum to 1: computed when a reward
+        # line first needs them after a T / O line, so R lines cost O(their own size)
+        self.t_complete: np.ndarray | None = None
+        self.o_complete: np.ndarray | None = None
         self.ja_cache: dict = {}
         self.jo_cache: dict = {}
         self.s_cache: dict = {}
@@ -609,8 +613,10 @@ class _Parser:
                 fields.pop()
             if kind == "T":
                 self.t_line_(lineno, fields, trailing)
+                self.t_complete = None  # rows may have changed
             elif kind == "O":
                 self.o_line_(lineno, fields, trailing)
+                self.o_complete = None
             else:
                 self.r_line_(lineno, fields, trailing)
 
@@ -763,8 +769,9 @@ class _Parser:
 
     def require_complete(self, s, ja, sp, need_o: bool, line: int) -> None:
         """Rewards naming s' / jo read T (and O): those rows must be complete already."""
-        t_rows = self.T[np.ix_(s, ja)].sum(-1)
-        bad = (self.t_line[np.ix_(s, ja)] == 0) | (np.abs(t_rows - 1.0) > PROB_TOL)
+        if self.t_complete is None:
+            self.t_complete = (self.t_line > 0) & (np.abs(self.T.sum(-1) - 1.0) <= PROB_TOL)
+        bad = ~self.t_complete[np.ix_(s, ja)]
         if bad.any():
             i, j = np.argwhere(bad)[0]
             raise self.error(
@@ -775,8 +782,9 @@ class _Parser:
             )
         self.t_used[np.ix_(s, ja)] = line
         if need_o:
-            o_rows = self.O[np.ix_(ja, sp)].sum(-1)
-            bad = (self.o_line[np.ix_(ja, sp)] == 0) | (np.abs(o_rows - 1.0) > PROB_TOL)
+            if self.o_complete is None:
+                self.o_complete = (self.o_line > 0) & (np.abs(self.O.sum(-1) - 1.0) <= PROB_TOL)
+            bad = ~self.o_complete[np.ix_(ja, sp)]
             if bad.any():
                 i, j = np.argwhere(bad)[0]
                 raise self.error(
