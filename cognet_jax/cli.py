@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from cognet_jax.errors import InputError
+
 DEFAULT_EXPERIMENT = "tagging-thesis-n3"
 
 
@@ -382,7 +384,7 @@ def _list(args) -> int:
     return 0
 
 
-class UsageError(ValueError):
+class UsageError(InputError):
     """A command-line argument out of range (one line, exit 2)."""
 
 
@@ -405,9 +407,6 @@ def _sigterm_as_interrupt(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     import signal
 
-    from cognet_jax.config import ConfigError
-    from cognet_jax.errors import USER_ERRORS
-
     args = _parser().parse_args(argv)
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     try:
@@ -418,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
             "vae": _vae,
             "list": _list,
         }[args.command](args)
-    except (ConfigError, UsageError, OSError, *USER_ERRORS) as err:
+    except (InputError, OSError) as err:  # config, parse, corrupt-file and usage errors
         if args.debug:
             raise
         print(f"error: {_one_line(err)}", file=sys.stderr)

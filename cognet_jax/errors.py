@@ -28,10 +28,6 @@ class MismatchError(InputError):
     """A saved policy does not fit the model or settings it is asked to run with."""
 
 
-#: what the CLI reports as a one-line error
-USER_ERRORS = (InputError,)
-
-
 def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
     """The JSON object in ``path``; ``CorruptFileError`` if it is not valid JSON, not an object,
     or lacks one of the ``required`` keys (a missing file raises ``FileNotFoundError``)."""

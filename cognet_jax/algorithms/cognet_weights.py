@@ -199,7 +199,7 @@ class CognetWeights:
         self.pipeline, self.controller = neural_controller(
             env, settings.nodes, settings.hidden, pipeline
         )
-        self.input_mean = self.input_scale = None  # to_policy reads them
+        self.input_mean = self.input_scale = None
         if settings.standardize_inputs:
             self.input_mean, self.input_scale = self.input_statistics()
 
@@ -208,14 +208,8 @@ class CognetWeights:
         of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0); a feature
         that never varies gets scale 1."""
         c = self.controller
-        uniform = NeuralPolicy(
-            action_probs=uniform_distribution(
-                (c.num_agents, self.settings.nodes, c.num_actions), self.env.action_counts
-            ),
-            net_params=jax.tree.map(
-                jnp.zeros_like, self.to_policy(self.mode(self.init_distribution())).net_params
-            ),
-        )
+        template = c.init(jax.random.key(0))  # uniform actions; zero nets: uniform next nodes
+        uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
         traj = jax.jit(
             lambda k: rollouts(
                 self.env, c, k, STATS_ROLLOUTS, self.env_params, uniform, record=True
