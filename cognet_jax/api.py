@@ -70,8 +70,18 @@ def build_env(config: Config):
     raise NotImplementedError(f"environment {e.name!r} is not available yet")
 
 
+#: the last parsed model, keyed by (resolved path, mtime, size, discount): a run builds the
+#: env, the exact evaluation and the plots' names from one parse
+_PARSED: dict = {}
+#: files larger than this get a "parsing ..." line on stderr
+PARSE_PROGRESS_BYTES = 1_000_000
+
+
 def load_problem(config: Config):
-    """The parsed ``TabularModel`` of ``config.problem.path`` (ConfigError if unreadable)."""
+    """The parsed ``TabularModel`` of ``config.problem.path`` (ConfigError if unreadable);
+    parsed once per file version and discount, then reused."""
+    import sys
+    import time
     from pathlib import Path
 
     from cognet_jax.config import ConfigError
@@ -80,7 +90,18 @@ def load_problem(config: Config):
     path = Path(config.problem.path).expanduser()
     if not path.is_file():
         raise ConfigError("problem.path", f"no such file: {config.problem.path}")
-    return parse_dpomdp(str(path), discount=config.problem.discount)
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size, config.problem.discount)
+    if key not in _PARSED:
+        _PARSED.clear()
+        large = st.st_size > PARSE_PROGRESS_BYTES
+        if large:
+            print(f"parsing {path} ({st.st_size / 1e6:.1f} MB) ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        _PARSED[key] = parse_dpomdp(str(path), discount=config.problem.discount)
+        if large:
+            print(f"parsed {path} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return _PARSED[key]
 
 
 def build_algorithm(config: Config, env=None, env_params=None):
@@ -151,8 +172,12 @@ def build_algorithm(config: Config, env=None, env_params=None):
         return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
     if isinstance(a, GDiceAlgorithmSection):
         from cognet_jax.algorithms.cross_entropy import EntropyConfig
-        from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
+        from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDicePortfolio, GDiceSettings
 
+        evaluator = a.evaluator
+        if evaluator == "auto":
+            cost = exact_iteration_cost(env, a, env_params)
+            evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "rollouts"
         settings = GDiceSettings(
             nodes=a.nodes,
             iterations=a.iterations,
@@ -162,11 +187,13 @@ def build_algorithm(config: Config, env=None, env_params=None):
             common_random_numbers=a.common_random_numbers,
             entropy_window=a.entropy_window,
             best_rollouts=a.best_rollouts,
-            evaluator=a.evaluator,
+            evaluator=evaluator,
             shared_controller=a.shared_controller,
+            layered=a.layered,
+            restarts=a.restarts,
         )
-        if a.evaluator == "exact":
-            _check_exact_cost(env, a)
+        if evaluator == "exact":
+            _check_exact_cost(env, a, env_params)
         hyper = GDiceHyper(
             alpha=a.alpha,
             entropy=EntropyConfig(
@@ -176,6 +203,8 @@ def build_algorithm(config: Config, env=None, env_params=None):
                 patience=a.entropy_patience,
             ),
         )
+        if a.restarts > 1 or a.shared_restarts > 0:
+            return GDicePortfolio(env, env_params, settings, hyper, a.shared_restarts)
         return GDice(env, env_params, settings, hyper)
     if isinstance(a, CogDiceAlgorithmSection):
         from cognet_jax.algorithms.cogdice import CogDice, CogDiceHyper, CogDiceSettings
@@ -228,18 +257,29 @@ def build_pipeline(config: Config, env):
 
 #: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).
 EXACT_EVALUATOR_LIMIT = 2_000_000_000
+#: ``evaluator = "auto"`` ranks samples exactly up to this many multiply-adds per iteration
+#: (about 0.1-0.3 s on two cores), by rollouts above it.
+EXACT_AUTO_LIMIT = 300_000_000
 
 
-def _check_exact_cost(env, a) -> None:
-    from cognet_jax.config import ConfigError
+def exact_iteration_cost(env, a, env_params=None) -> int:
+    """Multiply-adds of exact values for one iteration's samples (all restarts)."""
     from cognet_jax.exact_jax import exact_cost
 
-    cost = exact_cost(env, a.nodes) * a.samples
+    # a layered controller's recursion runs over one layer (``nodes`` per agent) per step
+    return exact_cost(env, a.nodes, env_params) * a.samples * (a.restarts + a.shared_restarts)
+
+
+def _check_exact_cost(env, a, env_params=None) -> None:
+    from cognet_jax.config import ConfigError
+
+    cost = exact_iteration_cost(env, a, env_params)
     if cost > EXACT_EVALUATOR_LIMIT:
         raise ConfigError(
             "algorithm.evaluator",
-            f"'exact' would need {cost:.2e} multiply-adds per iteration (nodes^agents * S^2 * "
-            f"joint observations * horizon * samples > {EXACT_EVALUATOR_LIMIT:.0e}); use "
+            f"'exact' would need {cost:.2e} multiply-adds per iteration (nodes^agents * S * "
+            f"(S + joint observations) * horizon * samples * searches > "
+            f"{EXACT_EVALUATOR_LIMIT:.0e}); use "
             "'rollouts' or fewer nodes/samples",
         )
 

@@ -139,3 +139,55 @@ def restore_key(raw: dict, name: str, impl: str) -> jax.Array:
     from cognet_jax.prng import impl_of
 
     return jax.random.wrap_key_data(np.asarray(raw["keys"][name]), impl=impl_of(impl))
+
+
+#: Policy files: ``{"format": POLICY_FORMAT, "version": 1, "kind": class name, "sha256": hex,
+#: "policy": flax msgpack bytes of the policy pytree}``. Files written before the header
+#: existed (the bare msgpack bytes of the policy) are still read.
+POLICY_FORMAT = "cognet-jax policy"
+POLICY_VERSION = 1
+
+
+def policy_bytes(policy) -> bytes:
+    """The bytes of a policy file for ``policy`` (a policy pytree)."""
+    import hashlib
+
+    body = serialization.to_bytes(jax.device_get(policy))
+    header = {
+        "format": POLICY_FORMAT,
+        "version": POLICY_VERSION,
+        "kind": type(policy).__name__,
+        "sha256": hashlib.sha256(body).hexdigest(),
+        "policy": body,
+    }
+    return serialization.msgpack_serialize(header)
+
+
+def read_policy(path: str | Path, template):
+    """The policy saved in ``path``, restored into the structure of ``template``. A damaged
+    file (truncated, checksum, foreign bytes, newer version) is a ``CorruptFileError``; a
+    policy of another kind or other shapes is a ``MismatchError``."""
+    import hashlib
+
+    from cognet_jax.errors import CorruptFileError, MismatchError, restore_msgpack
+
+    path = Path(path)
+    try:
+        raw = serialization.msgpack_restore(path.read_bytes())
+    except Exception as err:  # truncated or foreign bytes
+        raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
+    if not (isinstance(raw, dict) and raw.get("format") == POLICY_FORMAT):
+        return restore_msgpack(path, template)  # a file without the header
+    if not isinstance(raw.get("version"), int) or raw["version"] > POLICY_VERSION:
+        raise CorruptFileError(
+            path, f"policy file version {raw.get('version')!r}; this cognet-jax reads <= 1"
+        )
+    body = raw.get("policy")
+    if not isinstance(body, bytes) or hashlib.sha256(body).hexdigest() != raw.get("sha256"):
+        raise CorruptFileError(path, "checksum mismatch: the policy bytes are damaged")
+    kind = type(template).__name__
+    if raw.get("kind") != kind:
+        raise MismatchError(
+            f"{path}: holds a {raw.get('kind')} where this configuration needs a {kind}"
+        )
+    return restore_msgpack(path, template, data=body)

@@ -162,6 +162,10 @@ def _parser() -> argparse.ArgumentParser:
     vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
     sub.add_parser("list", help="list the built-in experiments")
+    i = sub.add_parser(
+        "inspect", help="parse a .dpomdp file and print its sizes (or the first error in it)"
+    )
+    i.add_argument("file", help="a MADP .dpomdp file (.gz allowed)")
     return p
 
 
@@ -384,6 +388,23 @@ def _list(args) -> int:
     return 0
 
 
+def _inspect(args) -> int:
+    """Sizes of a model, its warnings (as ``warning:`` lines) and how long it took to parse."""
+    import time
+
+    from cognet_jax.io.dpomdp import parse_dpomdp
+
+    t0 = time.perf_counter()
+    model = parse_dpomdp(args.file)
+    wall = time.perf_counter() - t0
+    print(
+        f"{args.file}: {model.num_agents} agents, {model.num_states} states, actions "
+        f"{model.action_counts}, observations {model.obs_counts}, discount {model.discount:g}; "
+        f"parsed in {wall:.2f} s"
+    )
+    return 0
+
+
 class UsageError(InputError):
     """A command-line argument out of range (one line, exit 2)."""
 
@@ -404,11 +425,29 @@ def _sigterm_as_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def _one_line_warnings() -> None:
+    """Show the parser's warnings (``DpomdpWarning``) as one ``warning: ...`` line each."""
+    import warnings
+
+    from cognet_jax.io.dpomdp import DpomdpWarning
+
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, DpomdpWarning):
+            print(f"warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     import signal
 
     args = _parser().parse_args(argv)
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+    _one_line_warnings()
     try:
         return {
             "train": _train,
@@ -416,6 +455,7 @@ def main(argv: list[str] | None = None) -> int:
             "evaluate": _evaluate,
             "vae": _vae,
             "list": _list,
+            "inspect": _inspect,
         }[args.command](args)
     except (InputError, OSError) as err:  # config, parse, corrupt-file and usage errors
         if args.debug:

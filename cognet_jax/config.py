@@ -169,12 +169,22 @@ class GDiceAlgorithmSection:
     #: 0: best tracking compares the iteration winner's in-loop mean (SPEC); N > 0: a fresh
     #: mean over N rollouts, free of the winner's selection bias
     best_rollouts: int = 0
-    #: "rollouts" (SPEC: mean of eval_rollouts returns) or "exact" (tabular models only: the
-    #: exact expected return over the horizon, computed inside the compiled iteration)
+    #: "rollouts" (SPEC: mean of eval_rollouts returns), "exact" (tabular models only: the
+    #: exact expected return over the horizon, computed inside the compiled iteration) or
+    #: "auto" (exact when one iteration's exact values cost at most ``api.EXACT_AUTO_LIMIT``
+    #: multiply-adds, rollouts otherwise)
     evaluator: str = "rollouts"
     #: identical agents: each sample is one controller used by every agent (a search over
     #: symmetric joint controllers; SPEC's G-DICE samples every agent independently)
     shared_controller: bool = False
+    #: a time-layered controller for a finite horizon: ``problem.horizon`` layers of ``nodes``
+    #: nodes each; node q of layer t acts at step t and moves to layer t + 1 only
+    layered: bool = False
+    #: independent searches run side by side in one compiled step; the best policy of all
+    restarts: int = 1
+    #: extra searches over shared controllers beside them (identical agents only; skipped for
+    #: agents with different action or observation counts, so a default can always ask)
+    shared_restarts: int = 0
 
 
 @dataclasses.dataclass
@@ -648,15 +658,17 @@ def validate(config: Config) -> None:
             "env.obs_division > 0",
         )
         _require(
-            alg.evaluator in ("rollouts", "exact"),
+            alg.evaluator in ("rollouts", "exact", "auto"),
             "algorithm.evaluator",
-            f"must be 'rollouts' or 'exact', got {alg.evaluator!r}",
+            f"must be 'rollouts', 'exact' or 'auto', got {alg.evaluator!r}",
         )
         _require(
             alg.evaluator == "rollouts" or isinstance(env, DpomdpEnvSection),
             "algorithm.evaluator",
-            "'exact' needs a tabular .dpomdp problem (env.name = 'dpomdp')",
+            f"{alg.evaluator!r} needs a tabular .dpomdp problem (env.name = 'dpomdp')",
         )
+        _positive(alg, "algorithm", "restarts")
+        _require(alg.shared_restarts >= 0, "algorithm.shared_restarts", "must be >= 0")
     if isinstance(alg, CogDiceAlgorithmSection):
         _validate_sampler(alg)
         _require(

@@ -45,16 +45,17 @@ def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
     return data
 
 
-def restore_msgpack(path: str | Path, template):
+def restore_msgpack(path: str | Path, template, data: bytes | None = None):
     """``flax.serialization.from_bytes(template, bytes of path)`` with every way a damaged file
     fails (truncated, trailing bytes, wrong structure, wrong shapes) turned into one
-    ``CorruptFileError``; the restored leaves must have the template's shapes."""
+    ``CorruptFileError``; the restored leaves must have the template's shapes. ``data``: the
+    bytes to restore when they are not the whole file (named ``path`` in errors)."""
     import jax
     import numpy as np
     from flax import serialization
 
     path = Path(path)
-    data = path.read_bytes()
+    data = path.read_bytes() if data is None else data
     try:
         restored = serialization.from_bytes(template, data)
     except Exception as err:  # msgpack and flax raise ValueError, TypeError, AttributeError, ...

@@ -28,10 +28,15 @@ from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import TabularEnv, TabularParams, _strides
 
 
-def exact_cost(env: TabularEnv, nodes: int) -> int:
-    """Multiply-adds of one controller's evaluation: ``h * nodes^agents * S^2 * JO``."""
+def exact_cost(env: TabularEnv, nodes: int, params: TabularParams | None = None) -> int:
+    """Multiply-adds of one controller's evaluation: ``h * nodes^agents * S * (K + JO)`` with
+    K = S, or the successors per row of a sparse model (``params.successors``); ``nodes``: the
+    joint nodes of one time step are ``nodes^agents`` (for a layered controller, its width)."""
     q = nodes**env.num_agents
-    return env.horizon * q * env.num_states**2 * env.num_joint_obs
+    k = env.num_states
+    if params is not None and params.successors is not None:
+        k = params.successors.shape[-1]
+    return env.horizon * q * env.num_states * (k + env.num_joint_obs)
 
 
 def _joint_tables(env: TabularEnv, policy: DeterministicTabularPolicy, nodes: int):
@@ -52,6 +57,23 @@ def _joint_tables(env: TabularEnv, policy: DeterministicTabularPolicy, nodes: in
     return ja, nxt
 
 
+def _backup(params: TabularParams, ja, nxt, v_next, gamma):
+    """One step of the recursion for joint nodes with joint actions ``ja [Q]`` and successors
+    ``nxt [Q, JO]`` (indices into ``v_next [Q', S']``); returns ``V [Q, S]``."""
+    reward = params.reward[:, ja].T  # [Q, S]
+    obs = params.observation[ja]  # [Q, S', JO]
+    succ = v_next[nxt]  # [Q, JO, S']
+    if params.successors is None:
+        trans = jnp.moveaxis(params.transition[:, ja, :], 1, 0)  # [Q, S, S']
+        cont = jnp.einsum("qsp,qpo,qop->qs", trans, obs, succ)
+    else:  # sparse rows: E over jo first, then over the K successors of every (s, ja)
+        after = jnp.einsum("qpo,qop->qp", obs, succ)  # [Q, S']
+        nxt_s = jnp.moveaxis(params.successors[:, ja, :], 1, 0)  # [Q, S, K]
+        probs = jnp.moveaxis(params.successor_probs[:, ja, :], 1, 0)  # [Q, S, K]
+        cont = jnp.sum(probs * jax.vmap(lambda w, i: w[i])(after, nxt_s), axis=-1)
+    return reward + gamma * cont
+
+
 def exact_value(
     env: TabularEnv, params: TabularParams, policy: DeterministicTabularPolicy, nodes: int
 ) -> jax.Array:
@@ -59,19 +81,39 @@ def exact_value(
     (``policy.actions [agents, nodes]``, ``policy.transitions [agents, nodes, obs]``) over the
     env's horizon, from node 0 and ``s_0 ~ b0``. vmap it over a batch of controllers."""
     ja, nxt = _joint_tables(env, policy, nodes)
-    reward = params.reward[:, ja].T  # [Q, S]
-    trans = jnp.moveaxis(params.transition[:, ja, :], 1, 0)  # [Q, S, S']
-    obs = params.observation[ja]  # [Q, S', JO]
+    gamma = jnp.asarray(params.discount, jnp.float32)
+    q, s = nxt.shape[0], env.num_states
+    v0, _ = jax.lax.scan(
+        lambda v, _: (_backup(params, ja, nxt, v, gamma), None),
+        jnp.zeros((q, s), jnp.float32),
+        None,
+        length=env.horizon,
+    )
+    return v0[0] @ params.initial_belief
+
+
+def exact_value_layered(
+    env: TabularEnv, params: TabularParams, policy: DeterministicTabularPolicy, width: int
+) -> jax.Array:
+    """:func:`exact_value` of a time-layered controller with ``env.horizon`` layers of
+    ``width`` nodes (``TabularController(layers=horizon)``): the recursion at time t runs over
+    the ``width^agents`` joint nodes of layer t only, so one evaluation costs
+    ``h * width^agents * S * (S' + JO)`` instead of ``h * (h * width)^agents * ...``."""
+    h, n = env.horizon, env.num_agents
+    acts = jnp.moveaxis(policy.actions.reshape(n, h, width), 1, 0)  # [h, agents, W]
+    trans = policy.transitions.reshape(n, h, width, -1)
+    first_of_next = jnp.minimum(jnp.arange(h) + 1, h - 1) * width  # [h]
+    local = jnp.clip(trans - first_of_next[None, :, None, None], 0, width - 1)
+    local = jnp.moveaxis(local, 1, 0)  # [h, agents, W, obs]
     gamma = jnp.asarray(params.discount, jnp.float32)
 
-    def backup(v_next, _):
-        # v_next [Q, S'] -> value of the successor joint node per (q, jo, s')
-        succ = v_next[nxt]  # [Q, JO, S']
-        cont = jnp.einsum("qsp,qpo,qop->qs", trans, obs, succ)
-        return reward + gamma * cont, None
+    def backup(v_next, layer):
+        a_t, t_t = layer
+        ja, nxt = _joint_tables(env, DeterministicTabularPolicy(a_t, t_t), width)
+        return _backup(params, ja, nxt, v_next, gamma), None
 
-    q, s = reward.shape
-    v0, _ = jax.lax.scan(backup, jnp.zeros((q, s), jnp.float32), None, length=env.horizon)
+    v_last = jnp.zeros((width**n, env.num_states), jnp.float32)
+    v0, _ = jax.lax.scan(backup, v_last, (acts, local), reverse=True)
     return v0[0] @ params.initial_belief
 
 

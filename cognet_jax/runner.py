@@ -7,7 +7,8 @@ Files written to ``out_dir``:
   rollouts} (fresh evaluation of the best policy with the seed's reserved evaluation key),
   ``in_loop_best`` (the search's own, optimistically biased, estimate), iterations, wall and
   compile seconds, per-iteration values;
-* ``policy.msgpack`` -- the best policy (Flax serialization), loadable with ``load_policy``;
+* ``policy.msgpack`` -- the best policy (versioned and checksummed,
+  ``checkpoint.policy_bytes``), loadable with ``load_policy``;
 * ``vae.msgpack`` -- the patch VAE the observation pipeline used (encoded or augmented
   COGNet-DICE only); ``load_policy`` reads it back so evaluation uses the same encoder;
 * PNG plots (``run.plots``).
@@ -25,7 +26,6 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import serialization
 
 from cognet_jax.api import build_algorithm, make_step, seed_key, split_seed_key
 from cognet_jax.config import Config, config_from_dict
@@ -76,18 +76,19 @@ def exact_evaluation(config: Config, policy) -> dict | None:
 
 
 def save_policy(path: Path, policy) -> None:
-    """Write ``policy`` (Flax msgpack) atomically."""
-    from cognet_jax.checkpoint import atomic_write_bytes
+    """Write ``policy`` atomically (``checkpoint.policy_bytes``: versioned, checksummed)."""
+    from cognet_jax.checkpoint import atomic_write_bytes, policy_bytes
 
-    atomic_write_bytes(path, serialization.to_bytes(jax.device_get(policy)))
+    atomic_write_bytes(path, policy_bytes(policy))
 
 
 def load_policy(run_dir: str | Path, overrides: list[str] | None = None):
     """``(config, algorithm, policy)`` of a finished run directory. ``overrides`` (``--set``)
     may change the evaluation environment, e.g. ``env.obs_noise=0.1``; shapes must match.
     The run's own ``vae.msgpack`` (if any) is used unless ``network.vae_path`` is overridden."""
+    from cognet_jax.checkpoint import read_policy
     from cognet_jax.config import apply_overrides, parse_override
-    from cognet_jax.errors import read_json, restore_msgpack
+    from cognet_jax.errors import read_json
     from cognet_jax.observations import VAE_FILE
 
     run_dir = Path(run_dir)
@@ -108,7 +109,7 @@ def load_policy(run_dir: str | Path, overrides: list[str] | None = None):
     config = config_from_dict(apply_overrides(results["config"], overrides))
     algorithm = build_algorithm(config)
     template = algorithm.best_policy(algorithm.init(jax.random.key(0)))
-    policy = restore_msgpack(run_dir / "policy.msgpack", template)
+    policy = read_policy(run_dir / "policy.msgpack", template)
     policy = jax.tree.map(jnp.asarray, policy)
     return config, algorithm, policy
 
@@ -123,6 +124,21 @@ def save_vae_of(algorithm, out_dir: Path) -> Path | None:
         return None
     save_vae(out_dir / VAE_FILE, vae)
     return out_dir / VAE_FILE
+
+
+def _settings_dict(algorithm) -> dict:
+    import dataclasses
+
+    settings = getattr(algorithm, "settings", None)
+    if not dataclasses.is_dataclass(settings):
+        return {}
+    out = dataclasses.asdict(settings)
+    if hasattr(algorithm, "restarts"):  # a G-DICE portfolio: searches per member
+        out["searches"] = [
+            {"shared_controller": m.settings.shared_controller, "restarts": r}
+            for m, r in zip(algorithm.members, algorithm.restarts)
+        ]
+    return json.loads(json.dumps(out, default=str))
 
 
 def _json_ready(x):
@@ -345,6 +361,8 @@ def run_training(
         "algorithm": config.experiment.algorithm,
         "seed": seed,
         "config": config.to_dict(),
+        # the algorithm's settings as built (e.g. the evaluator "auto" chose)
+        "resolved": _settings_dict(algorithm),
         "status": "complete",
         "resumed_from_iteration": start if resume else None,
         "final_value": final,

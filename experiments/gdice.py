@@ -6,10 +6,12 @@ experiments/README.md.
     python experiments/gdice.py --table-only            # rebuild the table from saved results
 
 Each run goes through ``cognet_jax.runner.run_training`` (the same path as ``cognet-jax train
-gdice-dpomdp``) and writes ``experiments/results/gdice/<name>-seed<N>/``. The best policy is
-evaluated twice: honestly by Monte Carlo (fresh key, ``evaluation.rollouts`` rollouts) and
-exactly by dynamic programming (``exact`` at the run's horizon; ``exact_infinite`` for a
-discount below 1). The table compares the exact value with the optimum of SPEC section 8; every
+gdice-dpomdp-spec``, SPEC's settings, which were the defaults of ``gdice-dpomdp`` when these
+runs were made; experiments/gdice_defaults.py has the new defaults) and writes
+``experiments/results/gdice/<name>-seed<N>/``. The best policy is evaluated twice: honestly
+by Monte Carlo (fresh key, ``evaluation.rollouts`` rollouts) and exactly by dynamic
+programming (``exact`` at the run's horizon; ``exact_infinite`` for a discount below 1). The
+table compares the exact value with the optimum of SPEC section 8; every
 number in it is read from the results files, never typed.
 
 The problem files are read from ``../shared/dpomdp`` next to the repository (never copied into
@@ -246,7 +248,7 @@ def run(names: list[str], seeds: list[int] | None) -> None:
             print(f"skipping {name}: {path} not found")
             continue
         for seed in seeds if seeds is not None else [spec.seed]:
-            config = load_config("gdice-dpomdp", spec.overrides())
+            config = load_config("gdice-dpomdp-spec", spec.overrides())
             run_training(config, seed, out_dir(spec, seed))
 
 
@@ -395,7 +397,7 @@ on the eighth the anytime best is a reactive controller whose lucky 100-rollout 
 no later winner's mean beat, SPEC section 2's winner's curse. Choosing the anytime best by a
 fresh 1000-rollout mean of each iteration's winner (`algorithm.best_rollouts=1000`, row
 recycling-g0.9-paper-shared-fresh) gives 31.929134 on 4 of 4 seeds in the table and 8 of 8 in
-the sweep (`cognet-jax sweep gdice-dpomdp --seeds 8 --set problem.path=.../recycling.dpomdp
+the sweep (`cognet-jax sweep gdice-dpomdp-spec --seeds 8 --set problem.path=.../recycling.dpomdp
 --set problem.horizon=100 --set problem.discount=0.9 --set algorithm.nodes=3 --set
 algorithm.samples=2000 --set algorithm.elites=25 --set algorithm.shared_controller=true --set
 algorithm.entropy_injection=true --grid algorithm.best_rollouts=0,1000`;

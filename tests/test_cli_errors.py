@@ -142,3 +142,76 @@ def test_vae_arguments(capsys, tmp_path):
     one_line_error(
         capsys, ["vae", "train", "--kl-weight", "nan", "--out", str(tmp_path)], "--kl-weight"
     )
+
+
+# -------------------------------------------------------------------------- models and policies
+def test_cli_fuzz_of_mutated_model_files(capsys, tmp_path):
+    """2,000 mutated copies of the benchmark files through ``cognet-jax inspect``: each either
+    parses (exit 0) or prints exactly one ``error:`` line naming the file, exit 2."""
+    import random
+    from pathlib import Path
+
+    from test_dpomdp_parser import _mutate
+
+    folder = Path(__file__).resolve().parents[2] / "shared" / "dpomdp"
+    names = ["dectiger", "broadcastChannel", "recycling", "GridSmall"]
+    if not all((folder / f"{n}.dpomdp").is_file() for n in names):
+        pytest.skip(f"benchmark files not found in {folder}")
+    texts = {n: (folder / f"{n}.dpomdp").read_text() for n in names}
+    rnd = random.Random(77)
+    path = tmp_path / "m.dpomdp"
+    outcomes = {0: 0, 2: 0}
+    for i in range(2000):
+        path.write_bytes(_mutate(texts[names[i % 4]], rnd).encode())
+        code = main(["inspect", str(path)])
+        out, err = capsys.readouterr()
+        assert code in (0, 2), (code, err)
+        outcomes[code] += 1
+        errors = [line for line in err.splitlines() if not line.startswith("warning: ")]
+        if code == 2:
+            assert len(errors) == 1 and errors[0].startswith(f"error: {path}"), err
+        else:
+            assert errors == [] and out.startswith(str(path)), (out, err)
+    assert outcomes[2] > 500 and outcomes[0] > 100, outcomes
+
+
+@pytest.mark.parametrize("name", ["x.pgmx", "twoCorridors_2.toi-dpomdp.base"])
+def test_other_madp_formats_are_refused(capsys, tmp_path, name):
+    path = tmp_path / name
+    path.write_text("<pgmx/>\n")
+    one_line_error(capsys, ["inspect", str(path)], str(path), "not supported")
+
+
+def test_model_warnings_are_one_line_each(capsys, tmp_path):
+    path = tmp_path / "w.dpomdp"
+    path.write_text(
+        BAD_DPOMDP.replace("T: * : 0 : 0 : 1.5\n", "T: * :\nuniform\nO: * :\nuniform\n")
+    )
+    assert main(["inspect", str(path)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"warning: {path}: no R: lines, so every reward is 0"]
+    text = path.read_text() + "R: 0 0 : 0 : * : * : 3"  # cut short: no final newline
+    path.write_text(text)
+    assert main(["inspect", str(path)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cut short" in err[0] and "7 of 8 rewards" in err[0], err
+
+
+def test_policy_file_checksum_version_and_old_format(capsys, run_dir, tmp_path):
+    import shutil
+
+    from flax import serialization
+
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    policy = copy / "policy.msgpack"
+    raw = serialization.msgpack_restore(policy.read_bytes())
+    assert raw["format"] == "cognet-jax policy" and raw["version"] == 1
+    body = bytearray(raw["policy"])
+    body[len(body) // 2] ^= 0xFF  # a flipped bit inside, same length
+    policy.write_bytes(serialization.msgpack_serialize({**raw, "policy": bytes(body)}))
+    one_line_error(capsys, ["evaluate", str(copy)], "checksum")
+    policy.write_bytes(serialization.msgpack_serialize({**raw, "version": 9}))
+    one_line_error(capsys, ["evaluate", str(copy)], "version 9")
+    policy.write_bytes(raw["policy"])  # written before the header existed: still read
+    assert main(["evaluate", str(copy), "--rollouts", "100"]) == 0

@@ -615,6 +615,7 @@ def _mutate(text: str, rnd: random.Random) -> str:
     return "\n".join(lines) + "\n"
 
 
+@pytest.mark.filterwarnings("ignore::cognet_jax.io.dpomdp.DpomdpWarning")
 def test_fuzz_only_parse_errors(dpomdp_dir):
     rnd = random.Random(1234)
     texts = {n: (dpomdp_dir / f"{n}.dpomdp").read_text() for n in FILES}
@@ -630,3 +631,13 @@ def test_fuzz_only_parse_errors(dpomdp_dir):
             assert "cannot parse this line" not in err.message, (err, mutated)
             assert err.line is None or isinstance(err.line, int)
     assert outcomes["error"] > 1000 and outcomes["ok"] > 100, outcomes
+
+
+def test_values_may_be_quoted(dpomdp_dir):
+    """MADP's own box-pushing file writes ``values: "reward"``."""
+    text = (dpomdp_dir / "dectiger.dpomdp").read_text()
+    plain = parse_dpomdp(text)
+    quoted = parse_dpomdp(re.sub(r"values:\s*reward", 'values: "reward"', text))
+    np.testing.assert_array_equal(plain.reward, quoted.reward)
+    cost = parse_dpomdp(re.sub(r"values:\s*reward", 'values: "cost"', text))
+    np.testing.assert_array_equal(cost.reward, -plain.reward)

@@ -55,7 +55,7 @@ def test_gdice_exact_evaluator_finds_dectiger_h2_optimum_and_in_loop_value_is_ex
     if not path.is_file():
         pytest.skip(f"benchmark file not found at {path}")
     config = load_config(
-        "gdice-dpomdp",
+        "gdice-dpomdp-spec",
         [
             f"problem.path={str(path)!r}",
             "problem.horizon=2",

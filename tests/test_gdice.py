@@ -290,7 +290,7 @@ def test_gdice_reaches_dectiger_h2_optimum(dectiger_path):
     from cognet_jax.exact import exact_value
 
     config = load_config(
-        "gdice-dpomdp",
+        "gdice-dpomdp-spec",
         [
             f"problem.path={str(dectiger_path)!r}",
             "problem.horizon=2",
@@ -398,7 +398,7 @@ def test_shared_controller_gdice_beats_reactive_controller_on_recycling(recyclin
     from cognet_jax.exact import exact_value
 
     config = load_config(
-        "gdice-dpomdp",
+        "gdice-dpomdp-spec",
         [
             f"problem.path={str(recycling_path)!r}",
             "problem.horizon=100",

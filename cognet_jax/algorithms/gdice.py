@@ -31,6 +31,11 @@ agents must first take action 2, the joint action that pays 5; experiments/READM
 sampling makes such a joint change a single draw. It is a restriction of the policy space: on
 a problem whose optimum is asymmetric it can only find the best symmetric controller.
 
+**[option]** ``layered=True`` (finite horizons): a time-layered controller of ``horizon`` layers
+of ``nodes`` nodes each (``TabularController(layers=...)``); node q of layer t acts at step t
+and moves to layer t + 1 only. The exact evaluator then runs over one layer's joint nodes per
+step (:func:`cognet_jax.exact_jax.exact_value_layered`).
+
 **[choice]** The value an iteration records for the entropy-injection triggers and the best-value
 curve is its best sample's value (the in-loop, optimistic estimate).
 """
@@ -60,7 +65,7 @@ from cognet_jax.controllers.tabular import (
     TabularDistribution,
 )
 from cognet_jax.envs.tabular import TabularEnv
-from cognet_jax.exact_jax import exact_value
+from cognet_jax.exact_jax import exact_value, exact_value_layered
 from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
 
 
@@ -82,11 +87,15 @@ class GDiceSettings:
     common_random_numbers: bool = True
     entropy_window: int = 4
     #: 0: best tracking compares the winner's in-loop mean (SPEC); > 0: a fresh mean over this
-    #: many rollouts (``rollout.iteration_best``)
+    #: many rollouts (``rollout.iteration_best``); unused with exact values
     best_rollouts: int = 0
     evaluator: str = "rollouts"
     #: one sampled controller for every agent (identical agents only)
     shared_controller: bool = False
+    #: a time-layered controller: ``horizon`` layers of ``nodes`` nodes
+    layered: bool = False
+    #: independent searches run side by side (``GDicePortfolio``)
+    restarts: int = 1
 
 
 @struct.dataclass
@@ -141,13 +150,15 @@ class GDice:
         self.env_params = env_params
         self.settings = settings
         self.hyper = hyper if hyper is not None else GDiceHyper()
+        layers = env.horizon if settings.layered else 0
         self.controller = TabularController(
             num_agents=env.num_agents,
-            num_nodes=settings.nodes,
+            num_nodes=settings.nodes * max(layers, 1),
             num_actions=env.num_actions,
             num_obs=env.num_obs,
             action_counts=env.action_counts,
             shared=settings.shared_controller,
+            layers=layers,
         )
 
     def init(self, key: jax.Array) -> GDiceState:
@@ -170,7 +181,9 @@ class GDice:
         over the horizon (:mod:`cognet_jax.exact_jax`, tabular models only)."""
         s = self.settings
         if s.evaluator == "exact":
-            return jax.vmap(lambda p: exact_value(self.env, self.env_params, p, s.nodes))(policies)
+            value = exact_value_layered if s.layered else exact_value
+            nodes = s.nodes if s.layered else self.controller.num_nodes
+            return jax.vmap(lambda p: value(self.env, self.env_params, p, nodes))(policies)
         if s.common_random_numbers:
             return evaluate_candidates(
                 self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
@@ -185,7 +198,7 @@ class GDice:
         """Count MLE over the kept elites' tables + smoothing. ``elites``: policies with a
         leading ``[elites]`` axis, ``kept [elites]`` bool."""
         w = kept.astype(jnp.float32)
-        n, a = self.settings.nodes, self.env.num_actions
+        n, a = self.controller.num_nodes, self.env.num_actions
         # [elites, agents, nodes] -> counts [agents, nodes, actions]
         act_counts = count_table(jnp.moveaxis(elites.actions, 0, -1), a, w)
         trans_counts = count_table(jnp.moveaxis(elites.transitions, 0, -1), n, w)
@@ -198,8 +211,9 @@ class GDice:
     def rollouts_per_iteration(self) -> int:
         """Simulated rollouts in one ``step`` (the exact evaluator simulates none)."""
         s = self.settings
-        per_sample = 0 if s.evaluator == "exact" else s.eval_rollouts
-        return s.samples * per_sample + s.best_rollouts
+        if s.evaluator == "exact":  # exact values need neither rollouts nor a fresh best
+            return 0
+        return s.samples * s.eval_rollouts + s.best_rollouts
 
     def step(self, key: jax.Array, state: GDiceState, hyper: GDiceHyper | None = None):
         """One G-DICE iteration; returns ``(state, GDiceMetrics)``."""
@@ -220,7 +234,11 @@ class GDice:
             ),
             transition_probs=jnp.where(
                 injected,
-                inject_entropy(dist.transition_probs, hyper.entropy.rate),
+                inject_entropy(
+                    dist.transition_probs,
+                    hyper.entropy.rate,
+                    self.controller.transition_support(),
+                ),
                 dist.transition_probs,
             ),
         )
@@ -232,7 +250,7 @@ class GDice:
             self.env_params,
             policies,
             values,
-            self.settings.best_rollouts,
+            0 if self.settings.evaluator == "exact" else self.settings.best_rollouts,
         )
         progress, improved = progress.record(winner_value)
         best_policy = select_tree(improved, winner, state.best_policy)
@@ -251,4 +269,89 @@ class GDice:
 
     @staticmethod
     def best_policy(state: GDiceState) -> DeterministicTabularPolicy:
+        return state.best_policy
+
+
+@struct.dataclass
+class PortfolioState:
+    """``members``: one :class:`GDiceState` per member search, leaves with a leading
+    ``[restarts]`` axis; ``best_policy`` and ``progress`` (iteration, best value) of them all."""
+
+    members: tuple
+    best_policy: DeterministicTabularPolicy
+    progress: Progress
+
+
+class GDicePortfolio:
+    """Several independent G-DICE searches run side by side in one compiled ``step``: ``restarts``
+    searches as ``settings`` says (independent per-agent controllers unless
+    ``shared_controller``) and ``shared_restarts`` with one shared controller (identical agents
+    only; skipped otherwise). Each search keeps its own
+    distributions, elite threshold and entropy injection; the portfolio keeps the best policy
+    of all of them by their own best values (exact values with the exact evaluator, fresh means
+    with ``best_rollouts``).
+
+    Why: a shared controller finds optima that need every agent to change the same entry at
+    once (Recycling with gamma 0.9, Dec-Tiger h 5), but can only find symmetric controllers;
+    running both and keeping the better one needs no guess of which problem is which.
+    """
+
+    def __init__(self, env, env_params, settings: GDiceSettings, hyper=None, shared_restarts=0):
+        self.members = [GDice(env, env_params, settings, hyper)]
+        self.restarts = [settings.restarts]
+        if shared_restarts and identical_agents(env) and env.num_agents > 1:
+            shared = dataclasses.replace(settings, shared_controller=True)
+            self.members.append(GDice(env, env_params, shared, hyper))
+            self.restarts.append(shared_restarts)
+        self.env, self.env_params, self.settings = env, env_params, settings
+        self.hyper = self.members[0].hyper
+        self.controller = self.members[0].controller
+
+    def init(self, key: jax.Array) -> PortfolioState:
+        members = tuple(
+            jax.vmap(m.init)(jax.random.split(jax.random.fold_in(key, i), r))
+            for i, (m, r) in enumerate(zip(self.members, self.restarts))
+        )
+        first = jax.tree.map(lambda x: x[0], members[0].best_policy)
+        return PortfolioState(
+            members=members,
+            best_policy=first,
+            progress=Progress.create(self.settings.entropy_window),
+        )
+
+    @property
+    def rollouts_per_iteration(self) -> int:
+        return sum(m.rollouts_per_iteration * r for m, r in zip(self.members, self.restarts))
+
+    def step(self, key: jax.Array, state: PortfolioState, hyper: GDiceHyper | None = None):
+        """One iteration of every member search; returns ``(state, GDiceMetrics)``."""
+        members, metrics = [], []
+        for i, (m, r) in enumerate(zip(self.members, self.restarts)):
+            keys = jax.random.split(jax.random.fold_in(key, i), r)
+            new, met = jax.vmap(lambda k, s, m=m: m.step(k, s, hyper))(keys, state.members[i])
+            members.append(new)
+            metrics.append(met)
+        values = jnp.concatenate([s.progress.best_value for s in members])
+        policies = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[s.best_policy for s in members])
+        winner = jnp.argmax(values)
+        progress, improved = state.progress.record(values[winner])
+        best_policy = select_tree(
+            improved, jax.tree.map(lambda x: x[winner], policies), state.best_policy
+        )
+        met = jax.tree.map(lambda *xs: jnp.concatenate(xs), *metrics)
+        out = GDiceMetrics(
+            value=met.value.max(),
+            best_value=progress.best_value,
+            mean_value=met.mean_value.mean(),
+            threshold=met.threshold.max(),
+            kept=met.kept.sum(),
+            injected=met.injected.any(),
+        )
+        return PortfolioState(tuple(members), best_policy, progress), out
+
+    def policy_returns(self, key, policy, num: int, batch: int = 10_000):
+        return self.members[0].policy_returns(key, policy, num, batch)
+
+    @staticmethod
+    def best_policy(state: PortfolioState) -> DeterministicTabularPolicy:
         return state.best_policy

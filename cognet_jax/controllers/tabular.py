@@ -5,6 +5,14 @@
 * ``DeterministicTabularPolicy``: one sampled controller -- ``actions [agents, nodes]`` and
   ``transitions [agents, nodes, obs]`` (int32). This is what G-DICE evaluates.
 
+**[option]** ``layers=L`` (a *time-layered* controller for a finite horizon of L steps): the
+``num_nodes`` nodes form L layers of ``num_nodes // L`` nodes; node q of layer t acts at time t
+and moves only to nodes of layer t + 1 (the last layer to itself). The transition distribution
+is zero outside the next layer (``transition_support``), so sampling, count MLE and smoothing
+keep every controller layered. Layered controllers are policy graphs of bounded width: node
+reuse across time steps is ruled out, which is what a finite-horizon optimum needs anyway, and
+every node's distribution learns what to do at one depth only.
+
 **[option]** ``shared=True`` (identical agents): every sample is one controller drawn from agent
 0's rows and given to every agent, so the joint controllers searched are the symmetric ones.
 The distribution keeps its ``[agents, ...]`` shape; because every elite's table is the same for
@@ -45,12 +53,38 @@ class TabularController:
     action_counts: tuple[int, ...] | None = None
     obs_counts: tuple[int, ...] | None = None
     shared: bool = False
+    #: 0: a free FSC; L > 0: L time layers of ``num_nodes // L`` nodes (see module docstring)
+    layers: int = 0
+
+    def __post_init__(self):
+        if self.layers and self.num_nodes % self.layers:
+            raise ValueError(f"{self.num_nodes} nodes do not split into {self.layers} layers")
+
+    @property
+    def layer_width(self) -> int:
+        """Nodes per layer (all nodes for a free FSC)."""
+        return self.num_nodes // self.layers if self.layers else self.num_nodes
+
+    def transition_support(self) -> jax.Array | None:
+        """Allowed next nodes ``[nodes, 1, nodes]`` bool of a layered controller (``None`` for
+        a free FSC): node q of layer t may move to layer ``min(t + 1, L - 1)`` only."""
+        if not self.layers:
+            return None
+        w = self.layer_width
+        layer = jnp.arange(self.num_nodes) // w
+        target = jnp.minimum(layer + 1, self.layers - 1)
+        return (layer[None, :] == target[:, None])[:, None, :]
 
     def init_distribution(self) -> TabularDistribution:
         a, n = self.num_agents, self.num_nodes
+        trans = uniform_distribution((a, n, self.num_obs, n))
+        support = self.transition_support()
+        if support is not None:
+            trans = support.astype(jnp.float32) / support.sum(-1, keepdims=True)
+            trans = jnp.broadcast_to(trans, (a, n, self.num_obs, n))
         return TabularDistribution(
             action_probs=uniform_distribution((a, n, self.num_actions), self.action_counts),
-            transition_probs=uniform_distribution((a, n, self.num_obs, n)),
+            transition_probs=trans,
         )
 
     def sample(self, key: jax.Array, dist: TabularDistribution) -> DeterministicTabularPolicy:

@@ -36,13 +36,21 @@ __all__ = ["TabularEnv", "TabularParams", "make_tabular"]
 @struct.dataclass
 class TabularParams:
     """Model arrays (float32): ``transition [S, JA, S']``, ``observation [JA, S', JO]``,
-    ``reward [S, JA]``, ``initial_belief [S]``, and the ``discount`` (a scalar)."""
+    ``reward [S, JA]``, ``initial_belief [S]``, and the ``discount`` (a scalar).
+
+    For a sparse transition model (every row has at most half of S' non-zeros) also the rows
+    as lists: ``successors [S, JA, K]`` int32 (the non-zero columns in increasing order, padded
+    with the last one) and ``successor_probs [S, JA, K]`` (0 in the padding); the exact
+    evaluator then costs ``S * K`` instead of ``S * S'`` per joint node and step. ``None`` for a
+    dense model."""
 
     transition: jax.Array
     observation: jax.Array
     reward: jax.Array
     initial_belief: jax.Array
     discount: jax.Array | float = 1.0
+    successors: jax.Array | None = None
+    successor_probs: jax.Array | None = None
 
 
 def _strides(counts: tuple[int, ...]) -> tuple[int, ...]:
@@ -147,11 +155,33 @@ def make_tabular(
         horizon=int(horizon),
     )
     gamma = model.discount if discount is None else float(discount)
+    successors, successor_probs = sparse_rows(model.transition)
     params = TabularParams(
         transition=jnp.asarray(model.transition, jnp.float32),
         observation=jnp.asarray(model.observation, jnp.float32),
         reward=jnp.asarray(model.reward, jnp.float32),
         initial_belief=jnp.asarray(model.initial_belief, jnp.float32),
         discount=jnp.asarray(gamma, jnp.float32),
+        successors=successors,
+        successor_probs=successor_probs,
     )
     return env, params
+
+
+def sparse_rows(transition: np.ndarray):
+    """``(successors [S, JA, K] int32, probs [S, JA, K] float32)`` of the non-zero entries of
+    every row of ``transition [S, JA, S']`` (K = the most non-zeros of any row), or
+    ``(None, None)`` when K > S' / 2 (dense enough that the full rows are as cheap)."""
+    nonzero = transition > 0
+    k = max(int(nonzero.sum(-1).max()), 1)
+    if 2 * k > transition.shape[-1]:
+        return None, None
+    # column indices of the non-zeros first (stable: increasing s'), then the zeros
+    order = np.argsort(~nonzero, axis=-1, kind="stable")[..., :k]
+    probs = np.take_along_axis(transition, order, -1)
+    # padding entries (probability 0) point at the row's last non-zero column
+    count = nonzero.sum(-1, keepdims=True)
+    last = np.take_along_axis(order, np.maximum(count - 1, 0), -1)
+    pad = np.arange(k) >= count
+    order = np.where(pad, last, order)
+    return jnp.asarray(order, jnp.int32), jnp.asarray(np.where(pad, 0.0, probs), jnp.float32)

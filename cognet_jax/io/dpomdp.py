@@ -59,6 +59,13 @@ Choices made here (where the format or MADP leaves room)
 * Models whose ``T`` or ``O`` array would exceed :data:`MAX_ENTRIES` entries, or with more than
   :data:`MAX_COUNT` agents, states, actions or observations, are rejected (a parse error
   rather than an out-of-memory crash on a corrupted count).
+* **Warnings** (:class:`DpomdpWarning`, also kept in ``TabularModel.warnings``) where MADP's
+  rules make a silent choice: a file with no ``R`` line (every reward 0), and a file whose last
+  line has no newline and leaves some rewards unwritten (a reward section that stops mid-file).
+  Rewards a complete file leaves unwritten are 0, as in MADP, without a warning: many files
+  write only the non-zero ones.
+* ``.pgmx`` (factored) and ``.toi-dpomdp`` (transition-observation independent) models are
+  other formats: they are refused with a message saying so.
 * A missing file raises the usual ``FileNotFoundError``; everything wrong *inside* the text
   raises :class:`DpomdpParseError` (a ``ValueError``) naming the file and line.
 
@@ -73,6 +80,7 @@ import dataclasses
 import gzip
 import os
 import re
+import warnings
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
@@ -82,6 +90,7 @@ import numpy as np
 from cognet_jax.errors import InputError
 
 __all__ = [
+    "DpomdpWarning",
     "MAX_COUNT",
     "MAX_ENTRIES",
     "PROB_TOL",
@@ -124,6 +133,17 @@ class DpomdpParseError(InputError):
         super().__init__(f"{where}: {message}")
 
 
+class DpomdpWarning(UserWarning):
+    """A ``.dpomdp`` text is valid but MADP's rules made a choice its author may not expect."""
+
+
+#: Model formats of the MADP toolbox this parser does not read (suffix -> what it is).
+UNSUPPORTED_FORMATS = {
+    ".pgmx": "a factored model (.pgmx)",
+    ".toi-dpomdp": "a transition-observation independent model (.toi-dpomdp)",
+}
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class TabularModel:
     """A finite Dec-POMDP as dense arrays (compared and hashed by identity).
@@ -143,6 +163,8 @@ class TabularModel:
     reward: np.ndarray
     initial_belief: np.ndarray
     source: str = "<string>"
+    #: what the parser warned about (see :class:`DpomdpWarning`)
+    warnings: tuple[str, ...] = ()
 
     @property
     def num_agents(self) -> int:
@@ -232,6 +254,11 @@ def _read_source(path_or_text, name: str | None) -> tuple[str, str]:
         raise TypeError(f"expected a path, a text or bytes, got {type(path_or_text).__name__}")
     path = Path(path_or_text)
     label = name or str(path_or_text)
+    for suffix, what in UNSUPPORTED_FORMATS.items():
+        if suffix in path.name:
+            raise DpomdpParseError(
+                label, None, f"{what} is not supported: only .dpomdp files (or .dpomdp.gz) are"
+            )
     data = path.read_bytes()
     return _decode(data, label), label
 
@@ -398,9 +425,10 @@ class _Parser:
             raise self.error(lineno, f"discount {self.discount:g} is not in [0, 1]")
 
         lineno, toks = self.expect_header("values")
-        if len(toks) != 3 or toks[2] not in ("reward", "cost"):
+        # MADP's own box-pushing file writes the word in double quotes: values: "reward"
+        if len(toks) != 3 or toks[2].strip('"') not in ("reward", "cost"):
             raise self.error(lineno, "values: expected 'reward' or 'cost'")
-        self.cost = toks[2] == "cost"
+        self.cost = toks[2].strip('"') == "cost"
 
         lineno, toks = self.expect_header("states")
         line, vals = self.rest_or_next(lineno, toks[2:], "the number of states or their names")
@@ -581,6 +609,8 @@ class _Parser:
         self.R = np.zeros((nS, nJA))
         self.t_line = np.zeros((nS, nJA), dtype=np.int64)  # last line writing row T(.|s,ja)
         self.o_line = np.zeros((nJA, nS), dtype=np.int64)  # last line writing row O(.|ja,s')
+        self.r_written = np.zeros((nS, nJA), dtype=bool)  # an R line wrote R(s, ja)
+        self.r_lines = 0
         self.t_used = np.zeros((nS, nJA), dtype=np.int64)  # R line that read row T(.|s,ja)
         self.o_used = np.zeros((nJA, nS), dtype=np.int64)
         self.any_used = False
@@ -619,6 +649,7 @@ class _Parser:
                 self.o_complete = None
             else:
                 self.r_line_(lineno, fields, trailing)
+                self.r_lines += 1
 
     def single_value(self, field: list[str], line: int, what: str) -> float:
         if len(field) != 1:
@@ -807,6 +838,7 @@ class _Parser:
             sp = self.state_set(fields[2], line, "end state")
             jo = None if jo_any else self.joint_set(fields[3], line, "o")
             r = self.single_value(fields[4], line, "reward")
+            self.r_written[np.ix_(s, ja)] = True
             if sp_any and jo_any:
                 if len(s) == 1 and len(ja) == 1:
                     self.R[s[0], ja[0]] = r
@@ -827,6 +859,7 @@ class _Parser:
             ln, toks = self.next_line(line, f"a row of {nJO} rewards")
             row = self.numbers(toks, ln, nJO, "R row (|JO| rewards)")
             self.require_complete(s, ja, sp, True, line)
+            self.r_written[np.ix_(s, ja)] = True
             t_sub = self.T[np.ix_(s, ja, sp)]
             o_r = self.O[np.ix_(ja, sp)] @ row  # [ja, s']
             self.R[np.ix_(s, ja)] += (t_sub * o_r[None]).sum(-1)
@@ -836,6 +869,7 @@ class _Parser:
             first = self.next_line(line, f"a {nS} x {nJO} reward matrix")
             mat, _ = self.matrix(first, nS, nJO, "R", probs=False)
             self.require_complete(s, ja, np.arange(nS), True, line)
+            self.r_written[np.ix_(s, ja)] = True
             o_r = (self.O[ja] * mat[None]).sum(-1)  # [ja, s']
             self.R[np.ix_(s, ja)] += np.einsum("sat,at->sa", self.T[np.ix_(s, ja)], o_r)
         else:
@@ -889,15 +923,32 @@ class _Parser:
                 f"O(.|ja={self.ja_name(ja)}, s'={self.state_names[sp]}) never specified{extra}",
             )
 
+    def warnings(self, text: str) -> tuple[str, ...]:
+        """Where MADP's defaults silently decide (see the module docstring)."""
+        out = []
+        if self.r_lines == 0:
+            out.append(f"{self.label}: no R: lines, so every reward is 0")
+        elif not text.endswith(("\n", "\r")) and not self.r_written.all():
+            missing = int((~self.r_written).sum())
+            out.append(
+                f"{self.label}:{self.lines[-1][0]}: the file ends without a newline and "
+                f"{missing} of {self.r_written.size} rewards R(s, ja) were never written "
+                "(they are 0): was the file cut short?"
+            )
+        return tuple(out)
+
     def current_line(self) -> int | None:
         if 0 < self.pos <= len(self.lines):
             return self.lines[self.pos - 1][0]
         return None
 
-    def run(self, discount: float | None) -> TabularModel:
+    def run(self, discount: float | None, text: str = "") -> TabularModel:
         self.parse_header()
         self.parse_body()
         self.finish()
+        notes = self.warnings(text)
+        for note in notes:
+            warnings.warn(note, DpomdpWarning, stacklevel=3)
         R = -self.R if self.cost else self.R
         arrays = [self.T, self.O, R + 0.0, self.initial_belief]
         for a in arrays:
@@ -913,6 +964,7 @@ class _Parser:
             reward=arrays[2],
             initial_belief=arrays[3],
             source=self.label,
+            warnings=notes,
         )
 
 
@@ -934,7 +986,7 @@ def parse_dpomdp(
     text, label = _read_source(path_or_text, name)
     parser = _Parser(text, label)
     try:
-        return parser.run(discount)
+        return parser.run(discount, text)
     except DpomdpParseError:
         raise
     except (IndexError, KeyError, ValueError, TypeError, OverflowError, MemoryError) as exc:
