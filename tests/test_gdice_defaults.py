@@ -179,3 +179,15 @@ def test_auto_evaluator_falls_back_to_rollouts_for_costly_models(tmp_path):
     algo = build_algorithm(config)
     assert algo.settings.evaluator == "rollouts"
     assert isinstance(algo.members[0], GDice)
+
+
+def test_portfolio_follows_swept_env_params():
+    """``sweep.with_env_params`` (a grid over e.g. ``env.discount``) reaches every member."""
+    from cognet_jax.sweep import with_env_params
+
+    env, params, settings = _portfolio(_file("dectiger"), 2)
+    algo = GDicePortfolio(env, params, settings, shared_restarts=1)
+    other = params.replace(discount=jnp.float32(0.5))
+    copy_ = with_env_params(algo, other)
+    assert all(m.env_params is other for m in copy_.members)
+    assert all(m.env_params is params for m in algo.members)

@@ -42,6 +42,7 @@ curve is its best sample's value (the in-loop, optimistic estimate).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import jax
@@ -306,6 +307,19 @@ class GDicePortfolio:
         self.env, self.env_params, self.settings = env, env_params, settings
         self.hyper = self.members[0].hyper
         self.controller = self.members[0].controller
+
+    @property
+    def env_params(self):
+        return self._env_params
+
+    @env_params.setter
+    def env_params(self, value):
+        """Setting the params (``sweep.with_env_params`` on a shallow copy) gives every member
+        search the same params, on copies, so the original portfolio is left as it was."""
+        self._env_params = value
+        self.members = [copy.copy(m) for m in self.members]
+        for m in self.members:
+            m.env_params = value
 
     def init(self, key: jax.Array) -> PortfolioState:
         members = tuple(
