@@ -88,8 +88,11 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
         # the run's own folder holds the same best policy (network weights to float32
         # rounding: batched training may sum gradients in another order)
         folder = out / "runs" / f"setting{row['setting']}-seed{row['seed']}"
-        swept = msgpack_restore((folder / "policy.msgpack").read_bytes())
-        alone = msgpack_restore((single_dir / "policy.msgpack").read_bytes())
+        # policy files: a header (format, version, checksum) around the policy's own msgpack
+        swept = msgpack_restore(msgpack_restore((folder / "policy.msgpack").read_bytes())["policy"])
+        alone = msgpack_restore(
+            msgpack_restore((single_dir / "policy.msgpack").read_bytes())["policy"]
+        )
         assert jax.tree.structure(swept) == jax.tree.structure(alone)
         for a, b in zip(jax.tree.leaves(swept), jax.tree.leaves(alone)):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
