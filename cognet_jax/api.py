@@ -104,8 +104,17 @@ def load_problem(config: Config):
     return _PARSED[key]
 
 
-def build_algorithm(config: Config, env=None, env_params=None):
-    """The algorithm object (``init``/``step``/``evaluate``) for ``config``."""
+def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
+    """The algorithm object (``init``/``step``/``evaluate``) for ``config``, with the memory
+    budget ``run.memory_gb`` shared by ``lanes`` searches run side by side (a sweep's runs)."""
+    from cognet_jax.memory import budget_bytes
+
+    algorithm = _build_algorithm(config, env, env_params)
+    algorithm.memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
+    return algorithm
+
+
+def _build_algorithm(config: Config, env=None, env_params=None):
     if env is None:
         env, env_params = build_env(config)
     a = config.algorithm

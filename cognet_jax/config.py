@@ -260,6 +260,10 @@ class RunSection:
     #: (``runner.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
     #: devices it is slower than one device (benchmarks/NOTES.md)
     shard_rollouts: bool = False
+    #: GB the rollouts in flight may take (0: half of this machine's memory); candidates are
+    #: evaluated in chunks to stay within it (``cognet_jax.memory``), and a program whose
+    #: single array exceeds it is refused before compiling
+    memory_gb: float = 0.0
 
 
 ENV_SECTIONS: dict[str, type] = {
@@ -698,6 +702,9 @@ def validate(config: Config) -> None:
         config.run.checkpoint_every >= 0,
         "run.checkpoint_every",
         f"must be >= 0, got {config.run.checkpoint_every}",
+    )
+    _require(
+        config.run.memory_gb >= 0, "run.memory_gb", f"must be >= 0, got {config.run.memory_gb}"
     )
     _require(
         config.run.prng_impl in ("threefry2x32", "rbg", "unsafe_rbg", "hash"),

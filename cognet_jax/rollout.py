@@ -109,16 +109,53 @@ def rollouts(
 
 
 def evaluate_candidates(
-    env, controller, key: jax.Array, num: int, env_params: Any, policies: Any, policy_axes: Any = 0
+    env,
+    controller,
+    key: jax.Array,
+    num: int,
+    env_params: Any,
+    policies: Any,
+    policy_axes: Any = 0,
+    memory: int | None = None,
+    common_random_numbers: bool = True,
 ) -> jax.Array:
-    """Mean return ``[C]`` of C candidate policies, each rolled out ``num`` times with the same
-    ``key`` (common random numbers). ``policy_axes`` is the vmap ``in_axes`` prefix of
-    ``policies`` (e.g. batch only the action tables and share the networks)."""
+    """Mean return ``[C]`` of C candidate policies, each rolled out ``num`` times: all with the
+    same ``key`` (common random numbers) or, with ``common_random_numbers=False``, candidate c
+    with ``split(key, C)[c]``. ``policy_axes`` is the vmap ``in_axes`` prefix of ``policies``
+    (e.g. batch only the action tables and share the networks).
 
-    def one(policy):
-        return rollouts(env, controller, key, num, env_params, policy).mean()
+    ``memory``: bytes the ``C x num`` rollouts in flight may take (None: half the machine,
+    ``memory.budget_bytes``). When they do not fit, the candidates are evaluated a chunk at a
+    time (``lax.map`` with ``batch_size``): every rollout's return is bit for bit the same as
+    unchunked, and so is each mean up to its last bit (XLA sums a row in an order that depends
+    on the batch shape). One candidate's ``num`` rollouts over the budget raise
+    ``memory.ResourceError`` while tracing, before anything compiles.
+    """
+    from cognet_jax.memory import candidate_chunk
 
-    return jax.vmap(one, in_axes=(policy_axes,))(policies)
+    def one(k, policy):
+        return rollouts(env, controller, k, num, env_params, policy).mean()
+
+    def mapped(fn):
+        """``fn`` applied to the batched part of a subtree of ``policies``, per its axis."""
+        return lambda ax, sub: sub if ax is None else jax.tree.map(fn, sub)
+
+    def candidate(fn):
+        return jax.tree.map(mapped(fn), policy_axes, policies, is_leaf=lambda x: x is None)
+
+    count = jax.tree.leaves(candidate(lambda x: x))[0].shape[0]
+    keys = key if common_random_numbers else jax.random.split(key, count)
+    key_axis = None if common_random_numbers else 0
+    chunk = candidate_chunk(
+        env, controller, env_params, candidate(lambda x: x[0]), count, num, memory
+    )
+    if chunk >= count:
+        return jax.vmap(one, in_axes=(key_axis, policy_axes))(keys, policies)
+
+    def by_index(i):
+        return one(keys if common_random_numbers else keys[i], candidate(lambda x: x[i]))
+
+    return jax.lax.map(by_index, jnp.arange(count), batch_size=chunk)
 
 
 def many_returns(

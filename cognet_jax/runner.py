@@ -30,6 +30,7 @@ import numpy as np
 from cognet_jax.api import build_algorithm, make_step, seed_key, split_seed_key
 from cognet_jax.config import Config, config_from_dict
 from cognet_jax.errors import MismatchError
+from cognet_jax.memory import budget_bytes, trace_checked
 
 
 def _progress_bar(total: int, enabled: bool, desc: str):
@@ -277,6 +278,7 @@ def run_training(
     algorithm, init, step = make_step(config)
     save_vae_of(algorithm, out_dir)
     k_init, k_run, k_eval = split_seed_key(seed_key(config, seed))
+    trace_checked(jax.jit(init), (k_init,), budget_bytes(config.run.memory_gb), "the initial state")
     state = jax.jit(init)(k_init)
     history = []
     start = 0
@@ -293,7 +295,10 @@ def run_training(
         start = int(raw["iteration"])
         log(f"resuming {config.experiment.name} seed {seed} at iteration {start}/{iterations}")
     t0 = time.perf_counter()
-    compiled = jax.jit(step, donate_argnums=(1,)).lower(k_run, state).compile()
+    traced = trace_checked(
+        jax.jit(step, donate_argnums=(1,)), (k_run, state), budget_bytes(config.run.memory_gb)
+    )
+    compiled = traced.lower().compile()
     compile_s = time.perf_counter() - t0
 
     def checkpoint(i):

@@ -45,6 +45,7 @@ import numpy as np
 from cognet_jax.api import build_algorithm, seed_key, split_seed_key
 from cognet_jax.config import Config, ConfigError, load_config, parse_override
 from cognet_jax.errors import MismatchError
+from cognet_jax.memory import budget_bytes, trace_checked
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
 SWEEP_SPEC = "sweep.json"
@@ -219,11 +220,12 @@ def run_group(
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0}
     by_index = {s.index: s for s in group.settings}
     config = group.settings[0].config
-    algorithm = build_algorithm(config)
-    per_setting = {i: build_algorithm(s.config) for i, s in by_index.items()}
     sharding, n_dev = _mesh_sharding()
     n_real = len(group.runs)
     runs = group.runs + [group.runs[-1]] * (-n_real % n_dev)  # pad to the device count
+    # the runs share the memory budget: each vmapped lane gets its part
+    algorithm = build_algorithm(config, lanes=len(runs))
+    per_setting = {i: build_algorithm(s.config) for i, s in by_index.items()}
     keys = jnp.stack([seed_key(config, seed) for _, seed in runs])
     hyper = _stack([per_setting[i].hyper for i, _ in runs])
     env_params = _stack([per_setting[i].env_params for i, _ in runs])
@@ -255,11 +257,13 @@ def run_group(
     # every leaf (state, metrics, keys, params) has the leading [runs] axis: shard it
     state = per_run(init_one, sharding, 1)(keys)
     t0 = time.perf_counter()
-    step = (
-        per_run(step_one, sharding, 4, donate_argnums=(1,))
-        .lower(keys, state, hyper, env_params)
-        .compile()
+    step = trace_checked(
+        per_run(step_one, sharding, 4, donate_argnums=(1,)),
+        (keys, state, hyper, env_params),
+        budget_bytes(config.run.memory_gb),
+        f"one iteration of {len(runs)} runs",
     )
+    step = step.lower().compile()
     compile_s = time.perf_counter() - t0
     from cognet_jax.checkpoint import (
         read_checkpoint,

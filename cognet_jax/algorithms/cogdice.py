@@ -92,7 +92,7 @@ from cognet_jax.algorithms.cross_entropy import (
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
-from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
+from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns
 
 
 # --------------------------------------------------------------------------------------------
@@ -278,6 +278,10 @@ class CogDice:
     """COG-DICE on an environment with a scalar continuous observation; ``init`` / ``step`` are
     pure (see the module docstring)."""
 
+    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
+    #: the machine); candidates are evaluated in chunks when they do not fit
+    memory: int | None = None
+
     def __init__(
         self, env, env_params, settings: CogDiceSettings, hyper: CogDiceHyper | None = None
     ):
@@ -341,15 +345,16 @@ class CogDice:
     def evaluate_samples(self, key: jax.Array, policies: DeterministicRegionPolicy) -> jax.Array:
         """Mean return ``[samples]`` of each sampled controller."""
         s = self.settings
-        if s.common_random_numbers:
-            return evaluate_candidates(
-                self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
-            )
-        return jax.vmap(
-            lambda k, p: rollouts(
-                self.env, self.controller, k, s.eval_rollouts, self.env_params, p
-            ).mean()
-        )(jax.random.split(key, s.samples), policies)
+        return evaluate_candidates(
+            self.env,
+            self.controller,
+            key,
+            s.eval_rollouts,
+            self.env_params,
+            policies,
+            memory=self.memory,
+            common_random_numbers=s.common_random_numbers,
+        )
 
     # ---------------------------------------------------------------- update
     def update_distribution(

@@ -177,6 +177,10 @@ class CognetDice:
     identity); see ``cognet_jax.observations``.
     """
 
+    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
+    #: the machine); candidates are evaluated in chunks when they do not fit
+    memory: int | None = None
+
     def __init__(
         self,
         env,
@@ -296,27 +300,17 @@ class CognetDice:
             )  # [top, agents, nodes, actions]
             # 3-4: clone candidates and evaluate them
             cand_probs = candidate_action_probs(policy.action_probs, counts)
-            if s.common_random_numbers:
-                cand_values = evaluate_candidates(
-                    env,
-                    ctrl,
-                    k_cand,
-                    s.eval_rollouts,
-                    self.env_params,
-                    policy.replace(action_probs=cand_probs),
-                    policy_axes=NeuralPolicy(action_probs=0, net_params=None),
-                )
-            else:
-                cand_values = jax.vmap(
-                    lambda k, p: rollouts(
-                        env,
-                        ctrl,
-                        k,
-                        s.eval_rollouts,
-                        self.env_params,
-                        policy.replace(action_probs=p),
-                    ).mean()
-                )(jax.random.split(k_cand, s.top), cand_probs)
+            cand_values = evaluate_candidates(
+                env,
+                ctrl,
+                k_cand,
+                s.eval_rollouts,
+                self.env_params,
+                policy.replace(action_probs=cand_probs),
+                policy_axes=NeuralPolicy(action_probs=0, net_params=None),
+                memory=self.memory,
+                common_random_numbers=s.common_random_numbers,
+            )
             best_candidate = cand_values.max()
             # 5: threshold
             bar = progress.best_value if s.threshold_rule == "best" else progress.threshold

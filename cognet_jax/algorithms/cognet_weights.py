@@ -184,6 +184,10 @@ class CognetWeights:
     patch VAE's encoder mean; ``cognet_jax.observations``).
     """
 
+    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
+    #: the machine); candidates are evaluated in chunks when they do not fit
+    memory: int | None = None
+
     def __init__(
         self,
         env,
@@ -337,16 +341,16 @@ class CognetWeights:
     def evaluate_policies(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
         """Mean return ``[C]`` of candidate policies (leading ``[C]`` axis)."""
         s = self.settings
-        if s.common_random_numbers:
-            return evaluate_candidates(
-                self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
-            )
-        num = jax.tree.leaves(policies)[0].shape[0]
-        return jax.vmap(
-            lambda k, p: rollouts(
-                self.env, self.controller, k, s.eval_rollouts, self.env_params, p
-            ).mean()
-        )(jax.random.split(key, num), policies)
+        return evaluate_candidates(
+            self.env,
+            self.controller,
+            key,
+            s.eval_rollouts,
+            self.env_params,
+            policies,
+            memory=self.memory,
+            common_random_numbers=s.common_random_numbers,
+        )
 
     def fresh_value(self, key: jax.Array, policy: NeuralPolicy) -> jax.Array:
         """Mean return of one policy over ``best_rollouts`` fresh rollouts."""

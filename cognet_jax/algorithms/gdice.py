@@ -67,7 +67,7 @@ from cognet_jax.controllers.tabular import (
 )
 from cognet_jax.envs.tabular import TabularEnv
 from cognet_jax.exact_jax import exact_value, exact_value_layered
-from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns, rollouts
+from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns
 
 
 @struct.dataclass
@@ -133,6 +133,10 @@ def identical_agents(env) -> bool:
 class GDice:
     """G-DICE on an environment with discrete observations; ``init`` / ``step`` are pure."""
 
+    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
+    #: the machine); candidates are evaluated in chunks when they do not fit
+    memory: int | None = None
+
     def __init__(self, env, env_params, settings: GDiceSettings, hyper: GDiceHyper | None = None):
         if env.num_obs is None:
             raise ValueError("G-DICE needs discrete observations (env.num_obs is None)")
@@ -185,15 +189,16 @@ class GDice:
             value = exact_value_layered if s.layered else exact_value
             nodes = s.nodes if s.layered else self.controller.num_nodes
             return jax.vmap(lambda p: value(self.env, self.env_params, p, nodes))(policies)
-        if s.common_random_numbers:
-            return evaluate_candidates(
-                self.env, self.controller, key, s.eval_rollouts, self.env_params, policies
-            )
-        return jax.vmap(
-            lambda k, p: rollouts(
-                self.env, self.controller, k, s.eval_rollouts, self.env_params, p
-            ).mean()
-        )(jax.random.split(key, s.samples), policies)
+        return evaluate_candidates(
+            self.env,
+            self.controller,
+            key,
+            s.eval_rollouts,
+            self.env_params,
+            policies,
+            memory=self.memory,
+            common_random_numbers=s.common_random_numbers,
+        )
 
     def update_distribution(self, dist: TabularDistribution, elites, kept, hyper: GDiceHyper):
         """Count MLE over the kept elites' tables + smoothing. ``elites``: policies with a
@@ -305,6 +310,7 @@ class GDicePortfolio:
             self.members.append(GDice(env, env_params, shared, hyper))
             self.restarts.append(shared_restarts)
         self.env, self.env_params, self.settings = env, env_params, settings
+        self.memory = None
         self.hyper = self.members[0].hyper
         self.controller = self.members[0].controller
 
@@ -320,6 +326,22 @@ class GDicePortfolio:
         self.members = [copy.copy(m) for m in self.members]
         for m in self.members:
             m.env_params = value
+
+    @property
+    def memory(self) -> int | None:
+        return self._memory
+
+    @memory.setter
+    def memory(self, value: int | None):
+        """The budget of the whole portfolio; each member search (``vmap``-ed over its
+        restarts) gets ``value / total restarts`` per restart."""
+        from cognet_jax.memory import budget_bytes
+
+        self._memory = value
+        per_lane = (budget_bytes() if value is None else value) // sum(self.restarts)
+        self.members = [copy.copy(m) for m in self.members]
+        for m in self.members:
+            m.memory = per_lane
 
     def init(self, key: jax.Array) -> PortfolioState:
         members = tuple(

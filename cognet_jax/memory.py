@@ -1,0 +1,221 @@
+"""Memory planning: how many rollouts may be in flight at once, and refusing a program that
+cannot fit before XLA compiles it.
+
+A search holds ``candidates x rollouts`` rollouts in flight in one evaluation (every candidate's
+rollouts advance through the same ``lax.scan`` step). ``rollout.evaluate_candidates`` evaluates
+the candidates in chunks (``lax.map`` with ``batch_size``) when all of them at once would not fit
+the budget; each candidate's value is the same as unchunked, because each candidate already
+uses the same key (common random numbers) and its own rollouts are never split.
+
+* :func:`budget_bytes` -- ``run.memory_gb`` in bytes (0: half of this machine's memory).
+* :func:`rollout_bytes` -- bytes one in-flight rollout needs, as XLA counts them: a probe of
+  ``4 x 256`` rollouts is compiled and its temporary buffer size read
+  (``Compiled.memory_analysis``). Measured: 62-105 B for tagging and tabular models, 290-430 B
+  for the heatmap with node networks. The probe costs about 0.5 s, so it runs only when a cheap
+  upper bound (every array of one step of one rollout, summed) says the batch could be too big.
+* :func:`candidate_chunk` -- how many candidates to evaluate at once, or ``ResourceError``
+  when even one candidate's rollouts exceed the budget.
+* :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
+  budget; a program whose single array cannot fit is refused with its shape.
+
+**[choice]** The budget is per search: a portfolio of ``r`` searches or a sweep of ``n`` runs
+(both ``vmap``-ed) gives each lane ``budget / lanes``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cognet_jax.errors import InputError
+
+#: the share of physical memory a run may use when ``run.memory_gb`` is 0
+DEFAULT_MEMORY_SHARE = 0.5
+#: rollouts per candidate and candidates of the probe that measures bytes per rollout
+PROBE_ROLLOUTS, PROBE_CANDIDATES = 256, 4
+
+
+class ResourceError(InputError):
+    """A setting asks for more memory than the budget allows (one line, with the numbers)."""
+
+
+def machine_memory_bytes() -> int:
+    """Physical memory of this machine in bytes."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 8 * 2**30
+
+
+def budget_bytes(memory_gb: float = 0.0) -> int:
+    """The memory budget in bytes: ``memory_gb`` GB, or with 0 ``DEFAULT_MEMORY_SHARE`` of the
+    machine's physical memory."""
+    if memory_gb > 0:
+        return int(memory_gb * 1e9)
+    return int(DEFAULT_MEMORY_SHARE * machine_memory_bytes())
+
+
+def gb(num_bytes: float) -> str:
+    """``num_bytes`` as ``"1.23 GB"``."""
+    return f"{num_bytes / 1e9:.3g} GB"
+
+
+def _aval_bytes(aval) -> int:
+    shape = getattr(aval, "shape", None)
+    dtype = getattr(aval, "dtype", None)
+    if shape is None or dtype is None:
+        return 0
+    try:
+        itemsize = np.dtype(dtype).itemsize
+    except TypeError:  # PRNG key arrays and other extended dtypes
+        itemsize = 8
+    return math.prod(shape) * itemsize
+
+
+def _sub_jaxprs(params: dict):
+    for p in params.values():
+        for s in p if isinstance(p, (list, tuple)) else (p,):
+            if hasattr(s, "eqns"):
+                yield s
+            elif hasattr(getattr(s, "jaxpr", None), "eqns"):
+                yield s.jaxpr
+
+
+def jaxpr_arrays(jaxpr):
+    """Every array a jaxpr creates (``(aval, primitive name)``), sub-programs included."""
+    for eqn in jaxpr.eqns:
+        for v in eqn.outvars:
+            yield v.aval, eqn.primitive.name
+        for sub in _sub_jaxprs(eqn.params):
+            yield from jaxpr_arrays(sub)
+
+
+def _abstract(tree):
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(jnp.shape(x), jnp.result_type(x)), tree)
+
+
+def _is_traced(tree) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
+
+
+def _with_params(env_params):
+    """``(args, read)``: concrete env params stay constants of a probe (as in the real program,
+    where e.g. a zero noise level skips its draws); traced ones (a sweep) become arguments."""
+    if _is_traced(env_params):
+        return (_abstract(env_params),), lambda e: e[0]
+    return (), lambda e: env_params
+
+
+def _step_upper_bound(env, controller, env_params, policy) -> int:
+    """Bytes of every array one time step of one rollout creates, summed (an upper bound on
+    what a rollout keeps alive; 10-100x what XLA needs after fusion)."""
+    from cognet_jax.rollout import rollouts
+
+    extra, read = _with_params(env_params)
+    jaxpr = jax.make_jaxpr(lambda k, p, *e: rollouts(env, controller, k, 1, read(e), p))(
+        jax.random.key(0), _abstract(policy), *extra
+    )
+    return sum(_aval_bytes(a) for a, _ in jaxpr_arrays(jaxpr.jaxpr))
+
+
+_PROBED: dict = {}
+
+
+def rollout_bytes(env, controller, env_params, policy) -> float:
+    """Bytes one in-flight rollout of ``policy`` needs in a batch of candidates, measured from
+    XLA's buffer assignment of a small probe (cached per env, controller and shapes)."""
+    from cognet_jax.rollout import rollouts
+
+    policy = _abstract(policy)
+    extra, read = _with_params(env_params)
+    cache_key = (id(env), id(controller), id(env_params), str(jax.tree.structure(policy)))
+    cache_key += tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((policy, extra)))
+    if cache_key not in _PROBED:
+        stacked = jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct((PROBE_CANDIDATES, *x.shape), x.dtype), policy
+        )
+
+        def probe(k, ps, *e):
+            def one(p):
+                return rollouts(env, controller, k, PROBE_ROLLOUTS, read(e), p).mean()
+
+            return jax.vmap(one)(ps)
+
+        compiled = jax.jit(probe).lower(jax.random.key(0), stacked, *extra).compile()
+        temp = compiled.memory_analysis().temp_size_in_bytes
+        _PROBED[cache_key] = temp / (PROBE_CANDIDATES * PROBE_ROLLOUTS)
+    return _PROBED[cache_key]
+
+
+def candidate_chunk(
+    env,
+    controller,
+    env_params,
+    policy,
+    candidates: int,
+    rollouts: int,
+    memory: int | None,
+    what: str = "algorithm.eval_rollouts",
+) -> int:
+    """How many of ``candidates`` candidates (``rollouts`` rollouts each) to evaluate at once
+    within ``memory`` bytes (None: :func:`budget_bytes`); ``candidates`` when all fit.
+    ``policy`` is one candidate (arrays or shapes). Raises ``ResourceError`` naming ``what``
+    when one candidate's rollouts alone exceed the budget."""
+    memory = budget_bytes() if memory is None else memory
+    if candidates * rollouts * _step_upper_bound(env, controller, env_params, policy) <= memory:
+        return candidates
+    per_rollout = rollout_bytes(env, controller, env_params, policy)
+    per_candidate = rollouts * per_rollout
+    if per_candidate > memory:
+        raise ResourceError(
+            f"{what}: {rollouts} rollouts in flight x {per_rollout:.0f} bytes each needs about "
+            f"{gb(per_candidate)}, over the memory budget of {gb(memory)}; lower {what} or "
+            "raise run.memory_gb"
+        )
+    return max(1, min(candidates, int(memory // per_candidate)))
+
+
+def largest_array(jaxpr) -> tuple[int, Any, str]:
+    """``(bytes, aval, primitive)`` of the largest array a jaxpr creates."""
+    best = (0, None, "")
+    for aval, prim in jaxpr_arrays(jaxpr):
+        b = _aval_bytes(aval)
+        if b > best[0]:
+            best = (b, aval, prim)
+    return best
+
+
+def check_traced(traced, memory: int | None, what: str = "one iteration") -> None:
+    """Refuse a traced program (``jax.jit(f).trace(...)``) whose largest single array exceeds
+    ``memory`` bytes, before XLA compiles it."""
+    memory = budget_bytes() if memory is None else memory
+    size, aval, _ = largest_array(traced.jaxpr.jaxpr)
+    if size > memory:
+        shape = "x".join(str(d) for d in aval.shape)
+        raise ResourceError(
+            f"{what} needs an array of {shape} {aval.dtype}, about {gb(size)}, over "
+            f"the memory budget of {gb(memory)}; lower the sizes in the config (nodes, samples, "
+            "candidates, rollouts, horizon) or raise run.memory_gb"
+        )
+
+
+def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iteration"):
+    """``jitted.trace(*args)`` (``jitted`` from ``jax.jit``) checked by :func:`check_traced`;
+    JAX's own refusal of too-large random draws becomes a ``ResourceError`` too. Lower the
+    result to compile it."""
+    try:
+        traced = jitted.trace(*args)
+    except ValueError as err:
+        if "random draws" in str(err) or "too large" in str(err):
+            raise ResourceError(
+                f"{what}: {err}; lower the sizes in the config (nodes, samples, candidates, "
+                "rollouts)"
+            ) from None
+        raise
+    check_traced(traced, memory, what)
+    return traced

@@ -1,0 +1,125 @@
+"""Memory budget: candidates evaluated in chunks give the unchunked numbers, one candidate
+over the budget and arrays that cannot fit are refused before compiling, with one line."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax import memory
+from cognet_jax.algorithms.cognet_dice import NeuralPolicy
+from cognet_jax.api import build_algorithm
+from cognet_jax.cli import main
+from cognet_jax.config import load_config
+from cognet_jax.rollout import evaluate_candidates, rollouts
+from tests.test_cli_errors import one_line_error, sets
+
+
+def candidates_of(name, overrides=(), count=13):
+    alg = build_algorithm(load_config(name, list(overrides)))
+    state = alg.init(jax.random.key(0))
+    policies = alg.sample_policies(jax.random.key(1), state.distribution)
+    policies = getattr(policies, "policy", policies)  # COG-DICE: the sample's policy
+    return alg, jax.tree.map(lambda x: x[:count], policies)
+
+
+@pytest.mark.parametrize("crn", [True, False])
+def test_chunked_candidates_equal_unchunked(crn):
+    alg, policies = candidates_of("tagging-thesis-cogdice-n3")
+    env, ctrl, params, num = alg.env, alg.controller, alg.env_params, 200
+    one = jax.tree.map(lambda x: x[0], policies)
+    per_rollout = memory.rollout_bytes(env, ctrl, params, one)
+    budget = int(3.5 * num * per_rollout)  # three candidates at once: chunks 3,3,3,3 + 1
+
+    assert memory.candidate_chunk(env, ctrl, params, one, 13, num, budget) == 3
+
+    def values(mem):
+        fn = lambda k, p: evaluate_candidates(  # noqa: E731
+            env, ctrl, k, num, params, p, memory=mem, common_random_numbers=crn
+        )
+        return jax.jit(fn)(jax.random.key(7), policies)
+
+    full, chunked = values(None), values(budget)
+    np.testing.assert_allclose(chunked, full, rtol=1e-6, atol=1e-6)
+    assert not np.array_equal(full, np.full_like(full, full[0]))  # distinct candidates
+
+    # every rollout's return is bit for bit the same: the chunks only change the batch shape
+    keys = jax.random.split(jax.random.key(7), 13)
+
+    def returns(c):
+        k = jax.random.key(7) if crn else keys[c]
+        return rollouts(env, ctrl, k, num, params, jax.tree.map(lambda x: x[c], policies))
+
+    batched = jax.jit(jax.vmap(returns))(jnp.arange(13))
+    mapped = jax.jit(lambda i: jax.lax.map(returns, i, batch_size=3))(jnp.arange(13))
+    assert np.array_equal(batched, mapped)
+
+
+def test_shared_network_candidates_are_chunked_too():
+    """COGNet-DICE's candidates batch only the action tables (``policy_axes``)."""
+    alg = build_algorithm(load_config("tagging-thesis-spec-n3"))
+    policy = alg.init(jax.random.key(0)).policy
+    probs = jax.random.dirichlet(
+        jax.random.key(2),
+        jnp.ones(policy.action_probs.shape[-1]),
+        (5, *policy.action_probs.shape[:-1]),
+    )
+    cands = policy.replace(action_probs=probs)
+    axes = NeuralPolicy(action_probs=0, net_params=None)
+    env, ctrl, params = alg.env, alg.controller, alg.env_params
+    one = policy.replace(action_probs=probs[0])
+    budget = int(2.5 * 100 * memory.rollout_bytes(env, ctrl, params, one))
+
+    def values(mem):
+        return evaluate_candidates(
+            env, ctrl, jax.random.key(3), 100, params, cands, policy_axes=axes, memory=mem
+        )
+
+    np.testing.assert_allclose(values(budget), values(None), rtol=1e-6, atol=1e-6)
+
+
+def test_one_candidate_over_the_budget_is_refused_with_the_numbers():
+    alg, policies = candidates_of("tagging-thesis-cogdice-n3")
+    with pytest.raises(memory.ResourceError) as err:
+        evaluate_candidates(
+            alg.env, alg.controller, jax.random.key(0), 10_000, alg.env_params, policies, memory=1e5
+        )
+    line = str(err.value)
+    assert "algorithm.eval_rollouts: 10000 rollouts" in line and "run.memory_gb" in line
+    assert "\n" not in line
+
+
+def test_a_run_within_a_small_budget_matches_the_unchunked_run(tmp_path):
+    """A run whose candidates are chunked (``run.memory_gb`` small) reproduces the run without
+    a budget: the same values per iteration up to the last bits of the means."""
+    import json
+
+    base = ["--no-progress", *sets("algorithm.iterations=3", "run.plots=false")]
+    small = f"run.memory_gb={50 * 1000 * 100 / 1e9}"  # about 10 of 50 candidates at once
+    for name, extra in (("full", []), ("small", sets(small))):
+        out = tmp_path / name
+        assert main(["train", "tagging-thesis-cogdice-n3", "--out", str(out), *base, *extra]) == 0
+    a, b = (json.loads((tmp_path / n / "results.json").read_text()) for n in ("full", "small"))
+    np.testing.assert_allclose(a["values_per_iteration"], b["values_per_iteration"], rtol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "experiment,override,expected",
+    [
+        ("tagging-thesis-cogdice-n3", "algorithm.nodes=1000000000", "the initial state needs"),
+        ("tagging-thesis-cogdice-n3", "algorithm.samples=1000000000", "one iteration needs"),
+        ("tagging-thesis-n3", "algorithm.candidates=1000000000", "one iteration needs"),
+        ("tagging-thesis-cogdice-n3", "algorithm.eval_rollouts=1000000", "eval_rollouts"),
+    ],
+)
+def test_sizes_over_the_budget_are_refused_before_compiling(
+    capsys, tmp_path, experiment, override, expected
+):
+    out = tmp_path / "never"
+    argv = ["train", experiment, "--out", str(out), *sets(override, "run.memory_gb=0.01")]
+    line = one_line_error(capsys, argv, expected, "GB", "run.memory_gb")
+    assert not out.exists(), line
+
+
+def test_memory_gb_must_not_be_negative(capsys):
+    one_line_error(capsys, ["train", *sets("run.memory_gb=-1")], "run.memory_gb")
