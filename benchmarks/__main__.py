@@ -26,6 +26,7 @@ import json
 import os
 import platform
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -200,7 +201,26 @@ def main(argv=None) -> int:
     p.add_argument("--no-torch", action="store_true", help="JAX only")
     p.add_argument("--no-write", action="store_true", help="print only, write nothing")
     p.add_argument("--report-only", action="store_true", help="rewrite README.md from results.json")
+    p.add_argument(
+        "--parser",
+        action="store_true",
+        help="measure only the MADP parser row and merge it into results.json and README.md",
+    )
     args = p.parse_args(argv)
+    if args.parser:
+        from benchmarks.parser import measure_parser
+
+        row = measure_parser(Path(tempfile.mkdtemp(prefix="cognet-parser-")))
+        row.update(
+            command="python -m benchmarks --parser",
+            date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        )
+        if not args.no_write:
+            out = json.loads((HERE / "results.json").read_text())
+            out["parser"] = row
+            (HERE / "results.json").write_text(json.dumps(out, indent=1))
+            write_readme(out, HERE / "README.md")
+        return 0
     if args.report_only:
         out = json.loads((HERE / "results.json").read_text())
         if out.get("scaling"):
@@ -246,6 +266,10 @@ def main(argv=None) -> int:
         log(
             f"sweep {s['seeds']} seeds vs 1: {s['median_many_s']:.1f} s / {s['median_one_s']:.1f} s"
         )
+    from benchmarks.parser import measure_parser
+
+    out["parser"] = measure_parser(Path(tempfile.mkdtemp(prefix="cognet-parser-")), log=log)
+    out["parser"].update(command=command, date=out["date"])
     out["machine_peak"] = jax_cases.machine_peak()
     out["rollout_cost"] = [jax_cases.rollout_cost(n) for n in (3, 6)]
     log(f"machine peak: {out['machine_peak']}; rollout cost: {out['rollout_cost']}")

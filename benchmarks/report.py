@@ -189,6 +189,25 @@ def roofline(out: dict) -> list[str]:
     return lines
 
 
+def parser_table(row: dict) -> list[str]:
+    """The parser benchmark row (``benchmarks/parser.py``)."""
+    return [
+        "| file | states | joint actions / observations | parse s (median) | MB/s | "
+        "peak RSS MiB (process) | target |",
+        "|---|---|---|---|---|---|---|",
+        f"| {row['file_mb']:.1f} MB generated | {row['states']} | {row['joint_actions']} / "
+        f"{row['joint_observations']} | {row['parse_s']:.2f} | {row['mb_per_s']:.2f} | "
+        f"{row['peak_rss_mib']:.0f} | < 10 s and < 500 MB: "
+        f"{_verdict(row['parse_s'] < 10 and row['peak_rss_mib'] * 2**20 < 500e6)} |",
+        "",
+        f"`{row['command']}`, measured {row['date']}: the model of benchmarks/parser.py (full "
+        "2025-number T rows, 640 overriding rows, full O rows, one R line per state and joint "
+        f"action), each parse in a fresh process (median of {row['repeats']}; peak RSS is the "
+        f"whole process, Python and numpy included, {row['baseline_rss_mib']:.0f} MiB before "
+        "the parse). T of this size is stored in float32 (`FLOAT64_T_ENTRIES`).",
+    ]
+
+
 def _algorithm(row: dict) -> str:
     return row.get("algorithm", "COGNet-DICE")  # results written before COG-DICE / G-DICE rows
 
@@ -334,6 +353,8 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "cache).",
         "",
     ]
+    if out.get("parser"):
+        lines += ["## MADP parser", "", *parser_table(out["parser"]), ""]
     if out.get("scaling"):
         lines += [
             "## Scaling (one size varied from each algorithm's base experiment)",

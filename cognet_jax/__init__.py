@@ -1,18 +1,35 @@
 """cognet_jax: JAX-vectorised graph-based cross-entropy policy search for Dec-POMDPs
-(G-DICE, COG-DICE, COGNet-DICE)."""
+(G-DICE, COG-DICE, COGNet-DICE).
 
-from cognet_jax.api import build_algorithm, build_env, make_step, make_train
-from cognet_jax.config import Config, ConfigError, load_config
-from cognet_jax.controllers.step import controller_step
+The public names below are imported on first use (PEP 562), so ``import cognet_jax.io.dpomdp``
+(the MADP parser, numpy only) does not load JAX.
+"""
 
-__all__ = [
-    "Config",
-    "ConfigError",
-    "build_algorithm",
-    "build_env",
-    "controller_step",
-    "load_config",
-    "make_step",
-    "make_train",
-]
+from __future__ import annotations
+
+import importlib
+
+_PUBLIC = {
+    "Config": "cognet_jax.config",
+    "ConfigError": "cognet_jax.config",
+    "load_config": "cognet_jax.config",
+    "build_algorithm": "cognet_jax.api",
+    "build_env": "cognet_jax.api",
+    "make_step": "cognet_jax.api",
+    "make_train": "cognet_jax.api",
+    "controller_step": "cognet_jax.controllers.step",
+}
+__all__ = sorted(_PUBLIC)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        value = getattr(importlib.import_module(_PUBLIC[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'cognet_jax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_PUBLIC])

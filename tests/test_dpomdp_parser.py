@@ -641,3 +641,41 @@ def test_values_may_be_quoted(dpomdp_dir):
     np.testing.assert_array_equal(plain.reward, quoted.reward)
     cost = parse_dpomdp(re.sub(r"values:\s*reward", 'values: "cost"', text))
     np.testing.assert_array_equal(cost.reward, -plain.reward)
+
+
+def test_large_transition_tables_are_float32_and_still_checked(dpomdp_dir, monkeypatch):
+    """Above ``FLOAT64_T_ENTRIES`` T is stored in float32 (half the memory); rows are still
+    summed in float64, within ``PROB_TOL`` plus float32's rounding."""
+    import cognet_jax.io.dpomdp as parser
+    from cognet_jax.exact import exact_value
+    from cognet_jax.io.dpomdp import PROB_TOL
+
+    path = dpomdp_dir / "dectiger.dpomdp"
+    dense = load_dpomdp(path)
+    monkeypatch.setattr(parser, "FLOAT64_T_ENTRIES", 0)
+    small = load_dpomdp(path)
+    assert dense.transition.dtype == np.float64 and small.transition.dtype == np.float32
+    np.testing.assert_array_equal(small.transition, dense.transition.astype(np.float32))
+    policy = np.zeros((2, 1), int), np.zeros((2, 1, 2), int)  # listen forever
+    v64, v32 = (exact_value(m, *policy, 4, 1.0) for m in (dense, small))
+    assert abs(v64 - v32) < 1e-6
+    # a row off by 1e-6 is refused in float32 as in float64
+    off = "T: * : s0 :\n0.5 0.499999 0\nT: * : s1 :\nuniform\nT: * : s2 :\nuniform\n"
+    for limit in (0, 2**25):
+        monkeypatch.setattr(parser, "FLOAT64_T_ENTRIES", limit)
+        with pytest.raises(DpomdpParseError, match=r"s=s0, ja=a,0\) sums to 0\.99999"):
+            parse(off + FULL_O)
+        # within the tolerance: accepted in both
+        ok = off.replace("0.499999", f"{0.5 - PROB_TOL / 2:.12f}")
+        assert parse(ok + FULL_O).transition.shape == (3, 4, 3)
+
+
+def test_the_parser_loads_without_jax():
+    """``import cognet_jax`` is lazy, so the parser (and ``benchmarks/parser.py``'s memory
+    figure) carries numpy only."""
+    import subprocess
+    import sys
+
+    code = "import sys, cognet_jax.io.dpomdp; print('jax' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -106,6 +106,11 @@ PROB_TOL = 1e-9
 START_TOL = 1e-6
 #: Largest accepted number of entries of T (|S| |JA| |S|) or O (|JA| |S| |JO|).
 MAX_ENTRIES = 2**27
+#: A ``T`` with more entries than this is stored in float32 (half the memory: a 2025-state,
+#: 16-joint-action model takes 262 MB instead of 525 MB). Its rows are still summed in float64;
+#: the tolerance grows by float32's rounding, at most ``2**-24`` summed over a row of
+#: probabilities that add up to 1.
+FLOAT64_T_ENTRIES = 2**25
 #: Largest accepted count of agents, states, actions or observations.
 MAX_COUNT = 2**16
 
@@ -150,7 +155,8 @@ class TabularModel:
 
     ``transition[s, ja, s']`` = T(s'|s, ja); ``observation[ja, s', jo]`` = O(jo|ja, s');
     ``reward[s, ja]`` = R(s, ja) (already negated for ``values: cost``); ``initial_belief[s]``.
-    Joint indices put the last agent fastest (SPEC 7.3). Arrays are float64 and read-only.
+    Joint indices put the last agent fastest (SPEC 7.3). Arrays are float64 and read-only,
+    except ``transition`` of a model with more than ``FLOAT64_T_ENTRIES`` entries (float32).
     """
 
     agent_names: tuple[str, ...]
@@ -604,7 +610,9 @@ class _Parser:
 
     def parse_body(self) -> None:
         nS, nJA, nJO = self.nS, self.nJA, self.nJO
-        self.T = np.zeros((nS, nJA, nS))
+        large = nS * nJA * nS > FLOAT64_T_ENTRIES
+        self.T = np.zeros((nS, nJA, nS), np.float32 if large else np.float64)
+        self.t_tol = PROB_TOL + (2.0**-24 if large else 0.0)
         self.O = np.zeros((nJA, nS, nJO))
         self.R = np.zeros((nS, nJA))
         self.t_line = np.zeros((nS, nJA), dtype=np.int64)  # last line writing row T(.|s,ja)
@@ -801,7 +809,8 @@ class _Parser:
     def require_complete(self, s, ja, sp, need_o: bool, line: int) -> None:
         """Rewards naming s' / jo read T (and O): those rows must be complete already."""
         if self.t_complete is None:
-            self.t_complete = (self.t_line > 0) & (np.abs(self.T.sum(-1) - 1.0) <= PROB_TOL)
+            sums = self.T.sum(-1, dtype=np.float64)
+            self.t_complete = (self.t_line > 0) & (np.abs(sums - 1.0) <= self.t_tol)
         bad = ~self.t_complete[np.ix_(s, ja)]
         if bad.any():
             i, j = np.argwhere(bad)[0]
@@ -886,14 +895,14 @@ class _Parser:
     # -- final checks -----------------------------------------------------------------------
 
     def finish(self) -> None:
-        sums = self.T.sum(-1)
-        bad = (self.t_line > 0) & (np.abs(sums - 1.0) > PROB_TOL)
+        sums = self.T.sum(-1, dtype=np.float64)
+        bad = (self.t_line > 0) & (np.abs(sums - 1.0) > self.t_tol)
         if bad.any():
             s, ja = min(np.argwhere(bad), key=lambda ij: self.t_line[ij[0], ij[1]])
             raise self.error(
                 int(self.t_line[s, ja]),
                 f"T(.|s={self.state_names[s]}, ja={self.ja_name(ja)}) sums to "
-                f"{sums[s, ja]:.12g}, not 1 (tolerance {PROB_TOL:g}); last written here",
+                f"{sums[s, ja]:.12g}, not 1 (tolerance {self.t_tol:g}); last written here",
             )
         missing = self.t_line == 0
         if missing.any():
