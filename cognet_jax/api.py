@@ -186,7 +186,14 @@ def _build_algorithm(config: Config, env=None, env_params=None):
         evaluator = a.evaluator
         if evaluator == "auto":
             cost = exact_iteration_cost(env, a, env_params)
-            evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "rollouts"
+            hybrid_cost = cost * min(a.exact_top, a.samples) // a.samples
+            evaluator = (
+                "exact"
+                if cost <= EXACT_AUTO_LIMIT
+                else "hybrid"
+                if hybrid_cost <= EXACT_AUTO_LIMIT
+                else "rollouts"
+            )
         settings = GDiceSettings(
             nodes=a.nodes,
             iterations=a.iterations,
@@ -197,12 +204,13 @@ def _build_algorithm(config: Config, env=None, env_params=None):
             entropy_window=a.entropy_window,
             best_rollouts=a.best_rollouts,
             evaluator=evaluator,
+            exact_top=a.exact_top,
             shared_controller=a.shared_controller,
             layered=a.layered,
             restarts=a.restarts,
         )
-        if evaluator == "exact":
-            _check_exact_cost(env, a, env_params)
+        if evaluator in ("exact", "hybrid"):
+            _check_exact_cost(env, a, env_params, evaluator)
         hyper = GDiceHyper(
             alpha=a.alpha,
             entropy=EntropyConfig(
@@ -212,8 +220,16 @@ def _build_algorithm(config: Config, env=None, env_params=None):
                 patience=a.entropy_patience,
             ),
         )
-        if a.restarts > 1 or a.shared_restarts > 0:
-            return GDicePortfolio(env, env_params, settings, hyper, a.shared_restarts)
+        if a.restarts > 1 or a.shared_restarts > 0 or a.explore_restarts > 0:
+            return GDicePortfolio(
+                env,
+                env_params,
+                settings,
+                hyper,
+                a.shared_restarts,
+                a.explore_restarts,
+                a.explore_entropy_rate,
+            )
         return GDice(env, env_params, settings, hyper)
     if isinstance(a, CogDiceAlgorithmSection):
         from cognet_jax.algorithms.cogdice import CogDice, CogDiceHyper, CogDiceSettings
@@ -276,20 +292,24 @@ def exact_iteration_cost(env, a, env_params=None) -> int:
     from cognet_jax.exact_jax import exact_cost
 
     # a layered controller's recursion runs over one layer (``nodes`` per agent) per step
-    return exact_cost(env, a.nodes, env_params) * a.samples * (a.restarts + a.shared_restarts)
+    searches = a.restarts + a.shared_restarts + a.explore_restarts
+    return exact_cost(env, a.nodes, env_params) * a.samples * searches
 
 
-def _check_exact_cost(env, a, env_params=None) -> None:
+def _check_exact_cost(env, a, env_params=None, evaluator: str = "exact") -> None:
     from cognet_jax.config import ConfigError
 
     cost = exact_iteration_cost(env, a, env_params)
+    if evaluator == "hybrid":
+        cost = cost * min(a.exact_top, a.samples) // a.samples
     if cost > EXACT_EVALUATOR_LIMIT:
         raise ConfigError(
             "algorithm.evaluator",
-            f"'exact' would need {cost:.2e} multiply-adds per iteration (nodes^agents * S * "
-            f"(S + joint observations) * horizon * samples * searches > "
+            f"{evaluator!r} would need {cost:.2e} multiply-adds per iteration (nodes^agents * S "
+            f"* (S + joint observations) * horizon * samples * searches > "
             f"{EXACT_EVALUATOR_LIMIT:.0e}); use "
-            "'rollouts' or fewer nodes/samples",
+            "'rollouts' or fewer nodes/samples"
+            + (" or exact_top" if evaluator == "hybrid" else ""),
         )
 
 

@@ -170,10 +170,13 @@ class GDiceAlgorithmSection:
     #: mean over N rollouts, free of the winner's selection bias
     best_rollouts: int = 0
     #: "rollouts" (SPEC: mean of eval_rollouts returns), "exact" (tabular models only: the
-    #: exact expected return over the horizon, computed inside the compiled iteration) or
+    #: exact expected return over the horizon, computed inside the compiled iteration),
+    #: "hybrid" (rollouts pick the ``exact_top`` best samples, which get exact values) or
     #: "auto" (exact when one iteration's exact values cost at most ``api.EXACT_AUTO_LIMIT``
-    #: multiply-adds, rollouts otherwise)
+    #: multiply-adds, else hybrid when its exact part does, else rollouts)
     evaluator: str = "rollouts"
+    #: evaluator "hybrid": the samples (best by rollouts) that get exact values
+    exact_top: int = 50
     #: identical agents: each sample is one controller used by every agent (a search over
     #: symmetric joint controllers; SPEC's G-DICE samples every agent independently)
     shared_controller: bool = False
@@ -185,6 +188,10 @@ class GDiceAlgorithmSection:
     #: extra searches over shared controllers beside them (identical agents only; skipped for
     #: agents with different action or observation counts, so a default can always ask)
     shared_restarts: int = 0
+    #: extra independent searches whose entropy injection mixes in ``explore_entropy_rate``
+    #: of uniform (a strong rate escapes local optima that the usual rate settles in)
+    explore_restarts: int = 0
+    explore_entropy_rate: float = 0.2
 
 
 @dataclasses.dataclass
@@ -662,17 +669,19 @@ def validate(config: Config) -> None:
             "env.obs_division > 0",
         )
         _require(
-            alg.evaluator in ("rollouts", "exact", "auto"),
+            alg.evaluator in ("rollouts", "exact", "hybrid", "auto"),
             "algorithm.evaluator",
-            f"must be 'rollouts', 'exact' or 'auto', got {alg.evaluator!r}",
+            f"must be 'rollouts', 'exact', 'hybrid' or 'auto', got {alg.evaluator!r}",
         )
         _require(
             alg.evaluator == "rollouts" or isinstance(env, DpomdpEnvSection),
             "algorithm.evaluator",
             f"{alg.evaluator!r} needs a tabular .dpomdp problem (env.name = 'dpomdp')",
         )
-        _positive(alg, "algorithm", "restarts")
+        _positive(alg, "algorithm", "restarts", "exact_top")
         _require(alg.shared_restarts >= 0, "algorithm.shared_restarts", "must be >= 0")
+        _require(alg.explore_restarts >= 0, "algorithm.explore_restarts", "must be >= 0")
+        _probability(alg, "algorithm", "explore_entropy_rate")
     if isinstance(alg, CogDiceAlgorithmSection):
         _validate_sampler(alg)
         _require(

@@ -136,8 +136,8 @@ def _settings_dict(algorithm) -> dict:
     out = dataclasses.asdict(settings)
     if hasattr(algorithm, "restarts"):  # a G-DICE portfolio: searches per member
         out["searches"] = [
-            {"shared_controller": m.settings.shared_controller, "restarts": r}
-            for m, r in zip(algorithm.members, algorithm.restarts)
+            {"shared_controller": m.settings.shared_controller, "restarts": r, "entropy_rate": e}
+            for m, r, e in zip(algorithm.members, algorithm.restarts, algorithm.rates)
         ]
     return json.loads(json.dumps(out, default=str))
 

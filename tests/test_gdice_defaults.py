@@ -3,6 +3,7 @@ sparse transition rows, and the portfolio of independent and shared searches."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -163,22 +164,76 @@ def test_default_gdice_reaches_dectiger_h4_optimum():
     assert value == pytest.approx(4.802755, abs=1e-5)
 
 
-def test_auto_evaluator_falls_back_to_rollouts_for_costly_models(tmp_path):
+def test_auto_evaluator_picks_hybrid_then_rollouts_for_costly_models(tmp_path):
     from cognet_jax.api import build_algorithm
     from cognet_jax.config import load_config
 
-    config = load_config(
-        "gdice-dpomdp",
-        [
-            f"problem.path={str(_file('GridSmall'))!r}",
-            "problem.horizon=5",
-            "algorithm.samples=100000",
-            "algorithm.elites=10",
-        ],
-    )
-    algo = build_algorithm(config)
+    base = [
+        f"problem.path={str(_file('GridSmall'))!r}",
+        "problem.horizon=5",
+        "algorithm.samples=100000",
+        "algorithm.elites=10",
+    ]
+    algo = build_algorithm(load_config("gdice-dpomdp", base))
+    assert algo.settings.evaluator == "hybrid"  # exact for 50 of 100000 samples is cheap
+    algo = build_algorithm(load_config("gdice-dpomdp", [*base, "algorithm.exact_top=100000"]))
     assert algo.settings.evaluator == "rollouts"
     assert isinstance(algo.members[0], GDice)
+
+
+def test_hybrid_ranks_the_best_samples_by_rollouts_with_exact_values():
+    """``evaluator="hybrid"``: the ``exact_top`` best samples by rollouts get their exact
+    values, the others ``-inf``; elites and the anytime best then compare exact values."""
+    from cognet_jax.rollout import evaluate_candidates
+
+    env, params, settings = _portfolio(_file("dectiger"), 3)
+    settings = dataclasses.replace(settings, evaluator="hybrid", exact_top=10)
+    algo = GDice(env, params, settings)
+    state = algo.init(jax.random.key(0))
+    pols = algo.sample_policies(jax.random.key(1), state.distribution)
+    values = np.asarray(algo.evaluate_samples(jax.random.key(2), pols))
+    means = np.asarray(
+        evaluate_candidates(env, algo.controller, jax.random.key(2), 100, params, pols)
+    )
+    top = np.argsort(-means, kind="stable")[:10]
+    assert set(np.flatnonzero(np.isfinite(values))) == set(top.tolist())
+    exact = np.asarray(algo.exact_values(pols))
+    np.testing.assert_array_equal(values[top], exact[top])
+    # a step keeps an exact best value, with no fresh rollouts
+    state, metrics = jax.jit(algo.step)(jax.random.key(3), state)
+    best = jax.device_get(state.best_policy)
+    value = float(exact_value_layered(env, params, best, settings.nodes))
+    assert float(state.progress.best_value) == pytest.approx(value, abs=1e-5)
+    assert np.isfinite(float(metrics.mean_value))
+    assert algo.rollouts_per_iteration == settings.samples * settings.eval_rollouts
+
+
+def test_explore_search_leaves_the_others_unchanged_and_uses_its_rate():
+    """The portfolio's explore member is a plain independent search with entropy rate
+    ``explore_rate``; adding it changes no number of the other members."""
+    from cognet_jax.algorithms.cross_entropy import EntropyConfig
+    from cognet_jax.algorithms.gdice import GDiceHyper
+
+    env, params, settings = _portfolio(_file("dectiger"), 3)
+    hyper = GDiceHyper(alpha=0.3, entropy=EntropyConfig(enabled=True, rate=0.02, patience=1))
+    plain = GDicePortfolio(env, params, settings, hyper, shared_restarts=1)
+    both = GDicePortfolio(env, params, settings, hyper, 1, explore_restarts=1, explore_rate=0.5)
+    assert both.rates == [None, None, 0.5] and len(both.members) == 3
+    key = jax.random.key(4)
+    s_plain, s_both = plain.init(key), both.init(key)
+    alone = GDice(env, params, settings, hyper.replace(entropy=hyper.entropy.replace(rate=0.5)))
+    s_alone = jax.vmap(alone.init)(jax.random.split(jax.random.fold_in(key, 2), 1))
+    for i in range(4):
+        k = jax.random.key(10 + i)
+        s_plain, _ = jax.jit(plain.step)(k, s_plain)
+        s_both, _ = jax.jit(both.step)(k, s_both)
+        keys = jax.random.split(jax.random.fold_in(k, 2), 1)
+        s_alone, _ = jax.jit(jax.vmap(alone.step))(keys, s_alone)
+    for a, b in zip(jax.tree.leaves(s_plain.members), jax.tree.leaves(s_both.members[:2])):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(jax.tree.leaves(s_alone), jax.tree.leaves(s_both.members[2])):
+        np.testing.assert_array_equal(a, b)
+    assert int(s_both.members[2].progress.injections.sum()) > 0  # the rate was used
 
 
 def test_portfolio_follows_swept_env_params():
