@@ -2,7 +2,10 @@
 
 Measures, in one process and one session, cognet_jax against the PyTorch references of
 ``benchmarks/torch_reference`` (when torch is installed) on the same machine and the same work,
-then writes ``benchmarks/results.json`` and the generated ``benchmarks/README.md``:
+then writes ``results.json`` and the generated ``README.md``: into ``benchmarks/`` (the published
+table) for ``--full``, ``--parser`` and ``--report-only``; into a scratch folder
+(``$TMPDIR/cognet-benchmarks``) for the default and ``--quick`` runs, so a smaller run never
+overwrites the published figures; ``--out DIR`` chooses another folder.
 
 * rollout throughput (agent-steps/s) on tagging (thesis setting, h 3) with 3- and 6-node neural
   controllers at 1e3, 1e4, 1e5 rollouts (``--quick``: 1e3, 1e4): JAX (default threefry2x32
@@ -193,6 +196,16 @@ def measure_scaling(cases, log) -> list[dict]:
     return rows
 
 
+def output_dir(args: argparse.Namespace) -> Path:
+    """Where results.json and README.md go: the published ``benchmarks/`` only for ``--full``
+    (and ``--parser`` / ``--report-only``, which update it), a scratch folder otherwise."""
+    if args.out is not None:
+        return args.out
+    if args.full or args.parser or args.report_only:
+        return HERE
+    return Path(tempfile.gettempdir()) / "cognet-benchmarks"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description="cognet_jax benchmarks against PyTorch references")
     mode = p.add_mutually_exclusive_group()
@@ -202,11 +215,21 @@ def main(argv=None) -> int:
     p.add_argument("--no-write", action="store_true", help="print only, write nothing")
     p.add_argument("--report-only", action="store_true", help="rewrite README.md from results.json")
     p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="folder for results.json, README.md and plots (default: benchmarks/ for --full, "
+        "--parser and --report-only; a scratch folder under the system temp dir otherwise, so "
+        "a smaller run never overwrites the published table)",
+    )
+    p.add_argument(
         "--parser",
         action="store_true",
         help="measure only the MADP parser row and merge it into results.json and README.md",
     )
     args = p.parse_args(argv)
+    out_dir = output_dir(args)
+    out_dir.mkdir(parents=True, exist_ok=True)
     if args.parser:
         from benchmarks.parser import measure_parser
 
@@ -216,16 +239,16 @@ def main(argv=None) -> int:
             date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         )
         if not args.no_write:
-            out = json.loads((HERE / "results.json").read_text())
+            out = json.loads((out_dir / "results.json").read_text())
             out["parser"] = row
-            (HERE / "results.json").write_text(json.dumps(out, indent=1))
-            write_readme(out, HERE / "README.md")
+            (out_dir / "results.json").write_text(json.dumps(out, indent=1))
+            write_readme(out, out_dir / "README.md")
         return 0
     if args.report_only:
-        out = json.loads((HERE / "results.json").read_text())
+        out = json.loads((out_dir / "results.json").read_text())
         if out.get("scaling"):
-            write_plots(out, HERE)
-        write_readme(out, HERE / "README.md")
+            write_plots(out, out_dir)
+        write_readme(out, out_dir / "README.md")
         return 0
     with_torch = not args.no_torch and torch_cases.available()
 
@@ -277,11 +300,11 @@ def main(argv=None) -> int:
     out["load_average_after"] = os.getloadavg()
     out["benchmark_s"] = time.perf_counter() - t0
     if not args.no_write:
-        (HERE / "results.json").write_text(json.dumps(out, indent=1))
+        (out_dir / "results.json").write_text(json.dumps(out, indent=1))
         if args.full:
-            write_plots(out, HERE)
-        write_readme(out, HERE / "README.md")
-        log(f"wrote {HERE / 'results.json'} and {HERE / 'README.md'}")
+            write_plots(out, out_dir)
+        write_readme(out, out_dir / "README.md")
+        log(f"wrote {out_dir / 'results.json'} and {out_dir / 'README.md'}")
     return 0
 
 
