@@ -14,6 +14,8 @@ honest final evaluation and never touches the search.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 
 from cognet_jax.config import (
@@ -208,9 +210,17 @@ def _build_algorithm(config: Config, env=None, env_params=None):
             shared_controller=a.shared_controller,
             layered=a.layered,
             restarts=a.restarts,
+            polish_sweeps=a.polish_sweeps,
         )
         if evaluator in ("exact", "hybrid"):
             _check_exact_cost(env, a, env_params, evaluator)
+        if settings.polish_sweeps and evaluator in ("exact", "hybrid"):
+            from cognet_jax.exact_jax import exact_cost
+
+            moves = len(GDice(env, env_params, settings).polish_moves())
+            if moves * exact_cost(env, a.nodes, env_params) > POLISH_SWEEP_LIMIT:
+                # too costly for this model: no polish (results.json's "resolved" shows it)
+                settings = dataclasses.replace(settings, polish_sweeps=0)
         hyper = GDiceHyper(
             alpha=a.alpha,
             entropy=EntropyConfig(
@@ -285,6 +295,11 @@ EXACT_EVALUATOR_LIMIT = 2_000_000_000
 #: ``evaluator = "auto"`` ranks samples exactly up to this many multiply-adds per iteration
 #: (about 0.1-0.3 s on two cores), by rollouts above it.
 EXACT_AUTO_LIMIT = 300_000_000
+
+
+#: Largest exact cost of one polish sweep (every single-entry change of the best controller,
+#: ``GDice.polish_moves``); above it the polish is skipped.
+POLISH_SWEEP_LIMIT = 3_000_000_000
 
 
 def exact_iteration_cost(env, a, env_params=None) -> int:

@@ -192,6 +192,9 @@ class GDiceAlgorithmSection:
     #: of uniform (a strong rate escapes local optima that the usual rate settles in)
     explore_restarts: int = 0
     explore_entropy_rate: float = 0.2
+    #: after the last iteration, at most this many single-entry changes of the best controller
+    #: by exact steepest ascent (exact or hybrid evaluator only; 0: none, as in SPEC)
+    polish_sweeps: int = 0
 
 
 @dataclasses.dataclass
@@ -681,6 +684,7 @@ def validate(config: Config) -> None:
         _positive(alg, "algorithm", "restarts", "exact_top")
         _require(alg.shared_restarts >= 0, "algorithm.shared_restarts", "must be >= 0")
         _require(alg.explore_restarts >= 0, "algorithm.explore_restarts", "must be >= 0")
+        _require(alg.polish_sweeps >= 0, "algorithm.polish_sweeps", "must be >= 0")
         _probability(alg, "algorithm", "explore_entropy_rate")
     if isinstance(alg, CogDiceAlgorithmSection):
         _validate_sampler(alg)

@@ -318,6 +318,14 @@ def run_group(
     # on the host ([runs, iterations]): a jnp.stack of 500 arrays compiles a concatenation
     history = jax.tree.map(lambda x: np.moveaxis(x, 0, 1), stack_history(history))
     loop_s = time.perf_counter() - t_loop
+    polish = None
+    if getattr(algorithm, "polishes", False):  # G-DICE: exact polish of every run's best
+
+        def finish_one(state, env_params):
+            return run_algorithm(env_params).finish(state)
+
+        state, polish = jax.device_get(per_run(finish_one, sharding, 2)(state, env_params))
+        state = jax.device_put(state, sharding)
     t_eval = time.perf_counter()
     returns = np.asarray(
         jax.device_get(per_run(eval_one, sharding, 3)(keys, state, env_params)), np.float64
@@ -344,6 +352,14 @@ def run_group(
                 "grid": by_index[index].values,
                 "final_value": final,
                 "in_loop_best": float(history.best_value[r, -1]),
+                "polish": None
+                if polish is None
+                else {
+                    "value_before": float(polish.before[r]),
+                    "value_after": float(polish.after[r]),
+                    "moves_applied": int(polish.moves_applied[r]),
+                    "moves_per_sweep": int(polish.moves_per_sweep),
+                },
                 "values_per_iteration": history.value[r].tolist(),
                 "best_per_iteration": history.best_value[r].tolist(),
             }

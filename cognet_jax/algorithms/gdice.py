@@ -44,6 +44,12 @@ of ``nodes`` nodes each (``TabularController(layers=...)``); node q of layer t a
 and moves to layer t + 1 only. The exact evaluator then runs over one layer's joint nodes per
 step (:func:`cognet_jax.exact_jax.exact_value_layered`).
 
+**[option]** ``polish_sweeps > 0`` (exact or hybrid evaluator): after the last iteration,
+``finish`` improves the best controller by exact steepest ascent over single-entry changes
+(:mod:`cognet_jax.algorithms.polish`), at most ``polish_sweeps`` changes. The search ends near
+an optimum, often a few entries away from it; the polish is a local search, so it cannot lift a
+search that ended in another basin.
+
 **[choice]** The value an iteration records for the entropy-injection triggers and the best-value
 curve is its best sample's value (the in-loop, optimistic estimate).
 """
@@ -66,6 +72,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
+from cognet_jax.algorithms.polish import neighbour_moves, polish
 from cognet_jax.config import ConfigError
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.tabular import (
@@ -107,6 +114,10 @@ class GDiceSettings:
     layered: bool = False
     #: independent searches run side by side (``GDicePortfolio``)
     restarts: int = 1
+    #: after the last iteration, at most this many single-entry changes of the best controller
+    #: by exact steepest ascent (``finish``; :mod:`cognet_jax.algorithms.polish`); only with
+    #: exact values ("exact" or "hybrid" evaluator)
+    polish_sweeps: int = 0
 
 
 @struct.dataclass
@@ -114,6 +125,16 @@ class GDiceState:
     distribution: TabularDistribution
     best_policy: DeterministicTabularPolicy
     progress: Progress
+
+
+@struct.dataclass
+class PolishInfo:
+    """What ``finish`` did: exact values before and after, moves applied, moves per sweep."""
+
+    before: jax.Array
+    after: jax.Array
+    moves_applied: jax.Array
+    moves_per_sweep: int = struct.field(pytree_node=False, default=0)
 
 
 @struct.dataclass
@@ -303,6 +324,42 @@ class GDice:
     def best_policy(state: GDiceState) -> DeterministicTabularPolicy:
         return state.best_policy
 
+    @property
+    def polishes(self) -> bool:
+        """Whether ``finish`` does anything: ``polish_sweeps > 0`` and exact values."""
+        return self.settings.polish_sweeps > 0 and self.settings.evaluator in ("exact", "hybrid")
+
+    def polish_moves(self):
+        """The moves one polish sweep tries, ``[moves, 5]`` (``polish.neighbour_moves``)."""
+        env = self.env
+        return neighbour_moves(
+            self.controller,
+            env.action_counts,
+            env.obs_counts,
+            joint_moves=identical_agents(env) and env.num_agents > 1,
+        )
+
+    def polish_best(self, policy: DeterministicTabularPolicy, best_value: jax.Array):
+        """``(policy, value, PolishInfo)``: ``policy`` improved by exact steepest ascent."""
+        moves = self.polish_moves()
+        before = self.exact_values(jax.tree.map(lambda x: x[None], policy))[0]
+        policy, value, applied = polish(
+            self.exact_values, policy, moves, self.settings.polish_sweeps
+        )
+        info = PolishInfo(
+            before=before, after=value, moves_applied=applied, moves_per_sweep=len(moves)
+        )
+        return policy, jnp.maximum(value, best_value), info
+
+    def finish(self, state: GDiceState) -> tuple[GDiceState, PolishInfo | None]:
+        """After the last iteration (pure, jit-able): the best policy polished by exact local
+        search when ``polishes``; ``(state, PolishInfo)``, or ``(state, None)``."""
+        if not self.polishes:
+            return state, None
+        policy, value, info = self.polish_best(state.best_policy, state.progress.best_value)
+        progress = state.progress.replace(best_value=value)
+        return state.replace(best_policy=policy, progress=progress), info
+
 
 @struct.dataclass
 class PortfolioState:
@@ -441,3 +498,17 @@ class GDicePortfolio:
     @staticmethod
     def best_policy(state: PortfolioState) -> DeterministicTabularPolicy:
         return state.best_policy
+
+    @property
+    def polishes(self) -> bool:
+        return self.members[0].polishes
+
+    def finish(self, state: PortfolioState) -> tuple[PortfolioState, PolishInfo | None]:
+        """The portfolio's best policy polished as in :meth:`GDice.finish`."""
+        if not self.polishes:
+            return state, None
+        policy, value, info = self.members[0].polish_best(
+            state.best_policy, state.progress.best_value
+        )
+        progress = state.progress.replace(best_value=value)
+        return state.replace(best_policy=policy, progress=progress), info
