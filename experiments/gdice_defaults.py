@@ -126,7 +126,13 @@ def settings_sentence() -> str:
         "for every sample when an iteration's exact cost is small; otherwise `hybrid`: "
         f"rollouts rank the samples and the {a.exact_top} best get exact values; otherwise "
         f"rollouts), and the searches run side by side in one compiled step: "
-        f"{'; '.join(searches)}. The policy with the best exact (or fresh) value is kept."
+        f"{'; '.join(searches)}. The policy with the best exact (or fresh) value is kept"
+        + (
+            f", then polished: up to {a.polish_sweeps} single-entry changes by exact steepest "
+            "ascent."
+            if a.polish_sweeps
+            else "."
+        )
     )
 
 
