@@ -75,7 +75,14 @@ def timing_row(timing, **fields) -> dict:
     )
 
 
+#: the loop reference is measured up to this batch; larger batches are extrapolated from it
+LOOP_MAX_ROLLOUTS = 10_000
+
+
 def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
+    """Rollout throughput at each batch size: JAX (both generators) and, with torch, the eager
+    and ``torch.compile``d vectorised references and the loop reference (measured up to
+    ``LOOP_MAX_ROLLOUTS``; its rate at larger batches is that of the largest measured one)."""
     rows = []
     for nodes in (3, 6):
         for num in sizes:
@@ -87,17 +94,14 @@ def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
             log(f"rollouts jax-hash  nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
             if not with_torch:
                 continue
-            timing, rate = torch_cases.rollout_throughput("torch-vectorized", nodes, num, RUNS)
-            rows.append(
-                timing_row(timing, impl="torch-vectorized", nodes=nodes, rollouts=num, rate=rate)
-            )
-            log(f"rollouts torch-vec nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.3f} M/s")
-        if with_torch:
-            timing, rate = torch_cases.rollout_throughput("torch-loop", nodes, 1_000, RUNS)
-            rows.append(
-                timing_row(timing, impl="torch-loop", nodes=nodes, rollouts=1_000, rate=rate)
-            )
-            log(f"rollouts torch-loop nodes={nodes} R=1000: {timing.row()}, {rate:.0f} /s")
+            impls = ["torch-vectorized", "torch-compiled"]
+            if num <= LOOP_MAX_ROLLOUTS:
+                impls.append("torch-loop")
+            for impl in impls:
+                runs = 3 if impl == "torch-loop" and num > 1_000 else RUNS
+                timing, rate = torch_cases.rollout_throughput(impl, nodes, num, runs)
+                rows.append(timing_row(timing, impl=impl, nodes=nodes, rollouts=num, rate=rate))
+                log(f"rollouts {impl} nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.4f} M/s")
     return rows
 
 
@@ -121,7 +125,7 @@ def measure_iterations(with_torch: bool, quick: bool, log) -> list[dict]:
     if with_torch:
         for nodes in (3, 6):
             label = f"COGNet-DICE thesis, {nodes} nodes"
-            for impl in ("torch-vectorized", "torch-loop"):
+            for impl in ("torch-vectorized", "torch-compiled", "torch-loop"):
                 runs = 2 if (quick and impl == "torch-loop") else RUNS
                 timing = torch_cases.iteration(impl, nodes, runs)
                 rows.append(timing_row(timing, impl=impl, case=label))
@@ -259,6 +263,7 @@ def main(argv=None) -> int:
     command = "python -m benchmarks" + flag
     out: dict = {
         "machine": machine(),
+        "cores": os.cpu_count(),
         "python": platform.python_version(),
         "jax": jax.__version__,
         "torch": torch_cases.version() if with_torch else None,
@@ -294,7 +299,10 @@ def main(argv=None) -> int:
     out["parser"] = measure_parser(Path(tempfile.mkdtemp(prefix="cognet-parser-")), log=log)
     out["parser"].update(command=command, date=out["date"])
     out["machine_peak"] = jax_cases.machine_peak()
-    out["rollout_cost"] = [jax_cases.rollout_cost(n) for n in (3, 6)]
+    neural = next(iter(jax_cases.CONTROLLER_KINDS))
+    out["rollout_cost"] = [jax_cases.rollout_cost(neural, 3)] + [
+        jax_cases.rollout_cost(kind, 6) for kind in jax_cases.CONTROLLER_KINDS
+    ]
     log(f"machine peak: {out['machine_peak']}; rollout cost: {out['rollout_cost']}")
     out["peak_rss_mib"] = peak_rss_mib()
     out["load_average_after"] = os.getloadavg()

@@ -17,7 +17,8 @@ def rollout_throughput(
     nodes: int, num: int, runs: int, prng: str = "threefry2x32"
 ) -> tuple[Timing, float]:
     """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
-    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``).
+    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``);
+    the policy is passed to the compiled program as an argument.
     ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
@@ -27,8 +28,13 @@ def rollout_throughput(
     env, params = make_tagging("thesis")
     ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     policy = ctrl.init(jax.random.key(0))
+    # the policy is an argument of the compiled program, as in the search (a constant would let
+    # XLA fold it into the program)
     timing = time_jax(
-        lambda k: rollouts(env, ctrl, k, num, params, policy), make_key(1, prng), runs=runs
+        lambda k, pol: rollouts(env, ctrl, k, num, params, pol),
+        make_key(1, prng),
+        policy,
+        runs=runs,
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
@@ -42,12 +48,11 @@ CONTROLLER_KINDS = {
 }
 
 
-def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[Timing, float]:
-    """Like ``rollout_throughput`` for each controller kind of ``CONTROLLER_KINDS``: ``num``
-    rollouts of one controller drawn from the algorithm's initial distribution."""
+def controller_case(kind: str, nodes: int):
+    """``(env, params, controller, policy)`` of one controller kind of ``CONTROLLER_KINDS``:
+    one controller drawn from the algorithm's initial distribution."""
     from cognet_jax.api import build_algorithm
     from cognet_jax.config import load_config
-    from cognet_jax.rollout import rollouts
 
     experiment, sets = CONTROLLER_KINDS[kind]
     algorithm = build_algorithm(load_config(experiment, [*sets, f"algorithm.nodes={nodes}"]))
@@ -59,8 +64,21 @@ def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[T
         policy = jax.tree.map(lambda x: x[0], sample.policy)
     else:
         policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
+    return env, params, ctrl, policy
+
+
+def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[Timing, float]:
+    """Like ``rollout_throughput`` for each controller kind of ``CONTROLLER_KINDS``: ``num``
+    rollouts of one controller drawn from the algorithm's initial distribution (an argument
+    of the compiled program)."""
+    from cognet_jax.rollout import rollouts
+
+    env, params, ctrl, policy = controller_case(kind, nodes)
     timing = time_jax(
-        lambda k: rollouts(env, ctrl, k, num, params, policy), jax.random.key(1), runs=runs
+        lambda k, pol: rollouts(env, ctrl, k, num, params, pol),
+        jax.random.key(1),
+        policy,
+        runs=runs,
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
@@ -158,23 +176,21 @@ def machine_peak(runs: int = 5) -> dict:
     )
 
 
-def rollout_cost(nodes: int, num: int = 1_000) -> dict:
-    """XLA's own cost analysis of the rollout program, per agent-step: flops and bytes moved
-    between the compiled kernels. XLA counts a ``while`` (``lax.scan``) body once, so the
-    program's totals are one time step plus the reset; dividing by ``num * agents`` gives the
-    per agent-step figures (the reset is under 1 %)."""
-    from cognet_jax.controllers.neural import NeuralController
-    from cognet_jax.envs.tagging import make_tagging
+def rollout_cost(kind: str, nodes: int, num: int = 1_000) -> dict:
+    """XLA's own cost analysis of the rollout program of one controller kind, per agent-step:
+    flops and bytes moved between the compiled kernels. XLA counts a ``while`` (``lax.scan``)
+    body once, so the program's totals are one time step plus the reset; dividing by ``num *
+    agents`` gives the per agent-step figures (the reset is under 1 %)."""
     from cognet_jax.rollout import rollouts
 
-    env, params = make_tagging("thesis")
-    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
-    policy = ctrl.init(jax.random.key(0))
+    env, params, ctrl, policy = controller_case(kind, nodes)
     compiled = (
-        jax.jit(lambda k: rollouts(env, ctrl, k, num, params, policy))
-        .lower(jax.random.key(1))
+        jax.jit(lambda k, pol: rollouts(env, ctrl, k, num, params, pol))
+        .lower(jax.random.key(1), policy)
         .compile()
     )
     cost = compiled.cost_analysis()
     per = num * env.num_agents
-    return dict(nodes=nodes, flops=cost["flops"] / per, bytes=cost["bytes accessed"] / per)
+    return dict(
+        kind=kind, nodes=nodes, flops=cost["flops"] / per, bytes=cost["bytes accessed"] / per
+    )

@@ -1,9 +1,10 @@
 """What the benchmark runner measures on the PyTorch side: the two references of
 ``benchmarks/torch_reference`` (loop and vectorised) on the same work as the JAX cases.
 
-``torch.set_num_threads`` is left at torch's default (all cores). The loop version is timed at
-1,000 rollouts only: its cost is a Python loop per rollout and per step, so its per-rollout time
-does not depend on the batch size, and larger sizes are extrapolated from it (marked so).
+``torch.set_num_threads`` is left at torch's default (all cores). Three references: eager
+vectorised, the same with each time step compiled by ``torch.compile`` (inductor), and the loop
+version, timed up to 1e4 rollouts (its cost is a Python loop per rollout and per step, so larger
+batches are extrapolated from 1e4, marked so in the report).
 """
 
 from __future__ import annotations
@@ -29,20 +30,35 @@ def version() -> str:
 
 
 def _time(fn, runs: int, warmup: int = 1) -> Timing:
+    """Median of ``runs`` calls after ``warmup`` calls; ``compile_s`` is the first warm-up
+    call's time minus the median (``torch.compile``'s compilation happens there)."""
+    t0 = time.perf_counter()
     for _ in range(warmup):
         fn()
+    first = time.perf_counter() - t0
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return Timing(statistics.median(times), min(times), max(times), runs)
+    median = statistics.median(times)
+    compile_s = max(first / warmup - median, 0.0) if warmup else None
+    return Timing(median, min(times), max(times), runs, compile_s)
 
 
 def _reference(impl: str, nodes: int):
-    from benchmarks.torch_reference import CognetSettings, TorchCognetLoop, TorchCognetVectorized
+    from benchmarks.torch_reference import (
+        CognetSettings,
+        TorchCognetCompiled,
+        TorchCognetLoop,
+        TorchCognetVectorized,
+    )
 
-    cls = TorchCognetLoop if impl == "torch-loop" else TorchCognetVectorized
+    cls = {
+        "torch-loop": TorchCognetLoop,
+        "torch-vectorized": TorchCognetVectorized,
+        "torch-compiled": TorchCognetCompiled,
+    }[impl]
     settings = CognetSettings(
         nodes=nodes, rollouts=1000, top=100, keep=10, eval_rollouts=100, hidden=10
     )

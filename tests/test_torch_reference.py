@@ -14,6 +14,7 @@ torch = pytest.importorskip("torch")
 # pytest configuration (``pythonpath = ["."]``) puts the repository root on the import path.
 from benchmarks.torch_reference import (  # noqa: E402
     CognetSettings,
+    TorchCognetCompiled,
     TorchCognetLoop,
     TorchCognetVectorized,
     make_tagging,
@@ -103,6 +104,36 @@ def test_one_step_runs(cls):
     assert torch.isfinite(probs).all()
     torch.testing.assert_close(probs.sum(-1), torch.ones(probs.shape[:-1]))
     assert algo.rollout_returns(7).shape == (7,)
+
+
+def test_compiled_reference_draws_the_same_numbers_as_the_eager_one():
+    """``torch.compile`` of the time step changes speed, not results: same seed, same returns
+    (up to float rounding of the fused kernels), for one policy and for a batch of candidates
+    with common random numbers (the two shapes an iteration compiles)."""
+    eager, compiled = TorchCognetVectorized(SMALL, seed=3), TorchCognetCompiled(SMALL, seed=3)
+    torch.testing.assert_close(compiled.rollout_returns(64), eager.rollout_returns(64))
+    cands = torch.stack([eager.action_probs, eager.action_probs.flip(-1)])
+    torch.testing.assert_close(
+        compiled.rollouts(cands, 16, crn=True), eager.rollouts(cands, 16, crn=True)
+    )
+
+
+def test_noise_free_rollouts_draw_no_simulator_uniforms():
+    """The vectorised reference draws only the uniforms the setting uses (as XLA keeps only
+    the draws the JAX program reads): 2 per agent and step in the noise-free thesis setting."""
+    assert make_tagging("thesis").step_noise_used == 0
+    assert make_tagging("thesis", obs_noise=0.1).step_noise_used == 7
+    assert make_tagging("cogdice-paper").step_noise_used == 7  # respawn
+    algo = TorchCognetVectorized(SMALL, seed=0)
+    before = algo.gen.get_state()
+    algo.rollout_returns(10)
+    after = algo.gen.get_state()
+    fresh = torch.Generator().set_state(before)
+    env = algo.env
+    torch.rand(10, env.reset_noise, generator=fresh)
+    for _ in range(env.horizon):
+        torch.rand(10, 2 * env.num_agents, generator=fresh)
+    assert torch.equal(fresh.get_state(), after)
 
 
 def test_accepts_cognet_jax_settings():

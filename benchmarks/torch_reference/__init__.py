@@ -11,6 +11,8 @@ Two implementations of the same algorithm and simulator as ``cognet_jax`` (SPEC 
   weights applied with ``einsum`` (every member of an agent, then the current node's logits
   gathered), inverse-CDF sampling from one
   uniform block per step, all candidates evaluated in one batch with common random numbers.
+* ``TorchCognetCompiled`` (``vectorized.py``): the vectorised one with each rollout time step
+  compiled by ``torch.compile`` (inductor); the same draws, so the same numbers.
 
 Common API::
 
@@ -48,7 +50,7 @@ from benchmarks.torch_reference.common import (
 )
 from benchmarks.torch_reference.loop import TorchCognetLoop
 from benchmarks.torch_reference.tagging import TaggingConfig, make_tagging
-from benchmarks.torch_reference.vectorized import TorchCognetVectorized
+from benchmarks.torch_reference.vectorized import TorchCognetCompiled, TorchCognetVectorized
 
 __all__ = [
     "CognetHyper",
@@ -56,6 +58,7 @@ __all__ = [
     "EntropyConfig",
     "Progress",
     "TaggingConfig",
+    "TorchCognetCompiled",
     "TorchCognetLoop",
     "TorchCognetVectorized",
     "as_hyper",

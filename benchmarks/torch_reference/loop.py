@@ -102,6 +102,7 @@ class TorchCognetLoop:
         n = env.num_agents
         taggers, evader = reset_scalar([rng.random() for _ in range(env.reset_noise)], env)
         nodes = [0] * n
+        no_noise = [0.5] * env.step_noise
         ep = Episode([], [], [], [], 0.0)
         discount = 1.0
         for _t in range(env.horizon):
@@ -109,7 +110,8 @@ class TorchCognetLoop:
                 int(torch.multinomial(action_probs[i, nodes[i]], 1, generator=gen))
                 for i in range(n)
             ]
-            u = [rng.random() for _ in range(env.step_noise)]
+            # noise-free: nothing to draw (step_scalar reads no noise column then)
+            u = [rng.random() for _ in range(env.step_noise_used)] or no_noise
             taggers, evader, obs, reward = step_scalar(u, taggers, evader, actions, env)
             next_nodes = [self._next_node(i, nodes[i], obs[i], gen) for i in range(n)]
             ep.nodes.append(nodes)

@@ -67,6 +67,14 @@ class TaggingConfig:
         """Motion noise (n), observation noise (n), respawn positions (n + 1)."""
         return 3 * self.num_agents + 1
 
+    @property
+    def step_noise_used(self) -> int:
+        """Columns of ``step_noise`` a batched rollout needs to draw: all of them when any noise
+        or respawn is on, none in the noise-free setting (where ``step_batched`` reads none, and
+        XLA drops the unused draws of the JAX side the same way)."""
+        noisy = self.motion_noise or self.obs_noise or self.respawn
+        return self.step_noise if noisy else 0
+
 
 def make_tagging(
     setting: str = "thesis", horizon: int | None = None, obs_division: float = 0.0, **overrides

@@ -11,8 +11,9 @@
   1e4). In training every member is applied to its agent's pairs the same way and the per-member
   losses are summed, so one backward pass gives every member its own gradient.
 * Actions and next nodes are drawn by the inverse CDF from one block of uniforms per time step
-  (``torch.rand(B, 2 agents + step_noise)``, laid out as in cognet_jax: action draws, transition
-  draws, simulator noise), which also makes common random numbers across candidates simple: the
+  (``torch.rand(B, 2 agents + step_noise_used)``, laid out as in cognet_jax: action draws,
+  transition draws, simulator noise; in the noise-free thesis setting no simulator columns are
+  drawn, as XLA drops them on the JAX side), which also makes common random numbers simple: the
   block is drawn for ``eval_rollouts`` rows and repeated for every candidate.
 * All ``top`` candidates are evaluated in one batched call (``top * eval_rollouts`` rows).
 * Optimiser: Adam (or SGD with momentum) written out over the stacked tensors with one step count
@@ -177,27 +178,16 @@ class TorchCognetVectorized:
             return torch.rand(rows, k, generator=self.gen)
 
         taggers, evader = reset_batched(draw(env.reset_noise), env)
-        agent = torch.arange(n)[None, :]
         policy = torch.arange(p).repeat_interleave(num)[:, None]
         nodes = torch.zeros(rows, n, dtype=torch.long)
         ret = torch.zeros(rows)
         discount = 1.0
         out = []
         for _t in range(env.horizon):
-            u = draw(2 * n + env.step_noise)
-            if p == 1:
-                probs = action_probs[0][agent, nodes]
-            else:
-                probs = action_probs[policy, agent, nodes]
-            actions = sample_categorical(u[:, :n], probs)
-            taggers, evader, obs, reward = step_batched(
-                u[:, 2 * n :], taggers, evader, actions, env
+            u = draw(2 * n + env.step_noise_used)
+            taggers, evader, obs, reward, actions, next_nodes = self._advance(
+                u, taggers, evader, nodes, action_probs, policy
             )
-            logits = self.nets(obs[..., None], nodes)
-            # unnormalised softmax (the inverse CDF normalises): torch.softmax over a last axis
-            # of 3-6 entries is several times slower on CPU
-            weights = (logits - logits.amax(-1, keepdim=True)).exp()
-            next_nodes = sample_categorical(u[:, n : 2 * n], weights)
             ret += discount * reward
             discount *= env.discount
             if record:
@@ -209,6 +199,24 @@ class TorchCognetVectorized:
         traj = {k: torch.stack(v, 1) for k, v in zip(names, zip(*out))}
         traj["ret"] = ret
         return traj
+
+    def _advance(self, u, taggers, evader, nodes, action_probs, policy):
+        """One time step of every row: draw actions, step the simulator, draw next nodes.
+        Returns ``(taggers, evader, obs, reward, actions, next_nodes)``."""
+        env, n = self.env, self.env.num_agents
+        agent = torch.arange(n)[None, :]
+        if action_probs.shape[0] == 1:
+            probs = action_probs[0][agent, nodes]
+        else:
+            probs = action_probs[policy, agent, nodes]
+        actions = sample_categorical(u[:, :n], probs)
+        taggers, evader, obs, reward = step_batched(u[:, 2 * n :], taggers, evader, actions, env)
+        logits = self.nets(obs[..., None], nodes)
+        # unnormalised softmax (the inverse CDF normalises): torch.softmax over a last axis
+        # of 3-6 entries is several times slower on CPU
+        weights = (logits - logits.amax(-1, keepdim=True)).exp()
+        next_nodes = sample_categorical(u[:, n : 2 * n], weights)
+        return taggers, evader, obs, reward, actions, next_nodes
 
     def rollout_returns(self, num: int) -> torch.Tensor:
         """Returns ``[num]`` of ``num`` rollouts of the current policy."""
@@ -295,3 +303,14 @@ class TorchCognetVectorized:
             rollout_mean=float(traj["ret"].mean()),
             injected=injected,
         )
+
+
+class TorchCognetCompiled(TorchCognetVectorized):
+    """The vectorised reference with each rollout time step compiled by ``torch.compile``
+    (inductor, CPU, static shapes: one compilation per batch size, done in the warm-up call).
+    The step is the same function as the eager version's, so the two draw the same numbers;
+    random draws stay outside the compiled step (``torch.rand`` with an explicit generator)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._advance = torch.compile(self._advance, dynamic=False)
