@@ -119,6 +119,4 @@ def test_train_and_sweep_record_the_polish(tmp_path):
     assert results["final_value"]["exact"] == pytest.approx(polish["value_after"], abs=1e-4)
     out = run_sweep("gdice-dpomdp", [0, 1], overrides=sets, log=lambda *_: None)
     for row in out["rows"]:
-        assert row["final_value"]["exact"] == pytest.approx(
-            row["polish"]["value_after"], abs=1e-4
-        )
+        assert row["final_value"]["exact"] == pytest.approx(row["polish"]["value_after"], abs=1e-4)
