@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from _readme import machine, replace_block
+from gdice_defaults import reached
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "gdice-unseen"
@@ -30,7 +31,6 @@ RESULTS = HERE / "results" / "gdice-unseen"
 OPTIMA = {
     "boxPushing": {2: 17.6, 3: 66.081, 4: 98.593, 5: 107.72},
 }
-SHARE = 0.99
 
 
 def result_path(problem: str, horizon: int, variant: str = "") -> Path:
@@ -52,10 +52,6 @@ def run(models: dict[str, str], horizons: list[int], seeds: int) -> None:
             out = run_sweep("gdice-dpomdp", list(range(seeds)), overrides=overrides)
             out["model_file"] = Path(path).name
             result_path(problem, horizon).write_text(json.dumps(out, indent=1))
-
-
-def reached(value: float, optimum: float) -> bool:
-    return value >= optimum - (1 - SHARE) * abs(optimum) - 1e-6
 
 
 def table() -> list[str]:
