@@ -140,6 +140,59 @@ def test_tabular_distribution_and_bad_policy():
         controller_step({"not": "a policy"}, jnp.zeros(2, jnp.int32), None, jax.random.key(0))
 
 
+def _encoded_case(sharpen: float = 1e4):
+    """Heatmap (noisy sensors), an encoded 3-node controller over a random 2-D VAE encoder."""
+    from types import SimpleNamespace
+
+    from cognet_jax.controllers.encoded import portable_policy
+    from cognet_jax.envs.heatmap import make_heatmap
+    from cognet_jax.observations import ObservationPipeline, neural_controller
+    from cognet_jax.vae import PatchVAE, TrainedVAE
+
+    env, params = make_heatmap("default", horizon=5, obs_noise_std=0.01)
+    model = PatchVAE(latent=2)
+    vae = TrainedVAE(model, model.init(jax.random.key(0), jnp.zeros((1, 16)), jnp.zeros((1, 2))))
+    pipeline = ObservationPipeline("encoded", env.obs_shape, vae)
+    _, ctrl = neural_controller(env, 3, 10, pipeline)
+    policy = ctrl.init(jax.random.key(7))
+    probs = jax.random.dirichlet(jax.random.key(8), jnp.ones(4), (2, 3))
+    policy = policy.replace(action_probs=jax.nn.one_hot(jnp.argmax(probs, -1), 4))
+    dense1 = policy.net_params["params"]["Dense_1"]
+    policy.net_params["params"]["Dense_1"] = jax.tree.map(lambda x: x * sharpen, dense1)
+    portable = portable_policy(SimpleNamespace(pipeline=pipeline), policy)
+    return env, params, ctrl, policy, portable
+
+
+def test_encoded_policy_matches_rollouts_exactly():
+    from cognet_jax.controllers.encoded import EncodedPolicy
+
+    env, params, ctrl, policy, portable = _encoded_case()
+    assert isinstance(portable, EncodedPolicy)
+    key = jax.random.key(6)
+    ours = user_returns(env, params, portable, key, 300)
+    ref = engine_returns(env, params, ctrl, policy, key, 300)
+    np.testing.assert_array_equal(np.asarray(ours), np.asarray(ref))
+    assert np.unique(np.asarray(ref)).size > 3
+
+
+def test_wrong_observation_shapes_are_refused():
+    env, params, ctrl, policy, portable = _encoded_case()
+    nodes = jnp.zeros(2, jnp.int32)
+    patch = jnp.zeros((2, 16))
+    # the bare policy of an encoded search reads 2 latent numbers, not the 16-pixel patch
+    with pytest.raises(ValueError, match=r"reading 2 network inputs.*portable_policy"):
+        controller_step(policy, nodes, patch, jax.random.key(0))
+    with pytest.raises(ValueError, match=r"reading 16 raw observation values"):
+        controller_step(portable, nodes, jnp.zeros((2, 2)), jax.random.key(0))
+    with pytest.raises(ValueError, match=r"node of shape \(3,\).*2 agents"):
+        controller_step(portable, jnp.zeros(3, jnp.int32), patch, jax.random.key(0))
+    _, region = reactive_tagging_policy()
+    with pytest.raises(ValueError, match=r"reading 1 scalar observation"):
+        jax.jit(controller_step)(region, nodes, jnp.zeros((2, 3)), jax.random.key(0))
+    action, node = jax.jit(controller_step)(portable, nodes, patch, jax.random.key(0))
+    assert action.shape == node.shape == (2,)
+
+
 def test_readme_embedding_example_runs():
     text = (Path(__file__).parents[1] / "README.md").read_text()
     section = text.split("## In your own JAX code", 1)[1]

@@ -130,6 +130,11 @@ class NeuralController:
         w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
         w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
         x = obs.reshape(-1).astype(jnp.float32)
+        if x.shape[0] != self.in_features:
+            raise ValueError(
+                f"node network reads {self.in_features} inputs, got an observation of shape "
+                f"{tuple(obs.shape)}"
+            )
         out = b2
         for j in range(self.hidden):
             pre = b1[j]
