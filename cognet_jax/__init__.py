@@ -17,7 +17,17 @@ _PUBLIC = {
     "build_env": "cognet_jax.api",
     "make_step": "cognet_jax.api",
     "make_train": "cognet_jax.api",
+    "make_evaluate": "cognet_jax.api",
+    "seed_key": "cognet_jax.api",
     "controller_step": "cognet_jax.controllers.step",
+    "portable_policy": "cognet_jax.controllers.encoded",
+    "EncodedPolicy": "cognet_jax.controllers.encoded",
+    "make_env": "cognet_jax.registry",
+    "list_envs": "cognet_jax.registry",
+    "register_env": "cognet_jax.registry",
+    "make_algorithm": "cognet_jax.registry",
+    "list_algorithms": "cognet_jax.registry",
+    "register_algorithm": "cognet_jax.registry",
 }
 __all__ = sorted(_PUBLIC)
 __version__ = "0.1.0"

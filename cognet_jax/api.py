@@ -4,9 +4,10 @@ functions to run it.
 * ``make_step(config) -> (algorithm, init, step)`` with ``init(key) -> state`` and
   ``step(run_key, state) -> (state, metrics)``; iteration i uses ``fold_in(run_key, i)`` where i is
   read from the state, so a resumed run continues the same random stream.
-* ``make_train(config) -> train(key)``: the whole search as one pure function (``lax.scan`` over
-  iterations) returning ``(final_state, metrics per iteration)``; ``jax.jit(jax.vmap(train))``
-  runs many seeds at once.
+* ``make_train(config) -> train(key, hyper=None)``: the whole search as one pure function
+  (``lax.scan`` over iterations) returning ``(final_state, metrics per iteration)``;
+  ``jax.jit(jax.vmap(train))`` runs many seeds at once, ``vmap`` over ``hyper`` many settings.
+* ``make_evaluate(config) -> evaluate(key, policy)``: the honest value (mean, standard error).
 
 Key layout for a seed: ``key -> (init_key, run_key, eval_key)``; ``eval_key`` is reserved for the
 honest final evaluation and never touches the search.
@@ -14,62 +15,17 @@ honest final evaluation and never touches the search.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 
-from cognet_jax.config import (
-    CogDiceAlgorithmSection,
-    CognetAlgorithmSection,
-    CognetWeightsAlgorithmSection,
-    Config,
-    DpomdpEnvSection,
-    GDiceAlgorithmSection,
-    HeatmapEnvSection,
-    TaggingEnvSection,
-)
+from cognet_jax.config import Config
 
 
 def build_env(config: Config):
-    """The environment and its params pytree described by ``config.env`` / ``config.problem``."""
-    e = config.env
-    if isinstance(e, TaggingEnvSection):
-        from cognet_jax.envs.tagging import make_tagging
+    """The environment and its params pytree described by ``config.env`` (and, for a tabular
+    problem, ``config.problem``), built by the simulator's registry entry."""
+    from cognet_jax.registry import env_entry
 
-        overrides = dict(motion_noise=e.motion_noise, obs_noise=e.obs_noise)
-        if e.discount is not None:
-            overrides["discount"] = e.discount
-        if e.respawn is not None:
-            overrides["respawn"] = e.respawn
-        # G-DICE's tabular controllers read the discretised observation as an index
-        obs_index = isinstance(config.algorithm, GDiceAlgorithmSection) and e.obs_division > 0
-        return make_tagging(
-            e.setting,
-            horizon=e.horizon,
-            obs_division=e.obs_division,
-            obs_index=obs_index,
-            **overrides,
-        )
-    if isinstance(e, HeatmapEnvSection):
-        from cognet_jax.envs.heatmap import make_heatmap
-
-        return make_heatmap(
-            e.start,
-            horizon=e.horizon,
-            discount=e.discount,
-            obs_noise_amplitude=e.obs_noise_amplitude,
-            obs_noise_mean=e.obs_noise_mean,
-            obs_noise_std=e.obs_noise_std,
-            obs_signal=e.obs_signal,
-            near_reward=e.near_reward,
-            mid_reward=e.mid_reward,
-            far_reward=e.far_reward,
-        )
-    if isinstance(e, DpomdpEnvSection):
-        from cognet_jax.envs.tabular import make_tabular
-
-        return make_tabular(load_problem(config), config.problem.horizon, config.problem.discount)
-    raise NotImplementedError(f"environment {e.name!r} is not available yet")
+    return env_entry(config.env.name).build(config.env, config)
 
 
 #: the last parsed model, keyed by (resolved path, mtime, size, discount): a run builds the
@@ -117,158 +73,12 @@ def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
 
 
 def _build_algorithm(config: Config, env=None, env_params=None):
+    """The algorithm's registry entry builds it (``cognet_jax.registry``)."""
+    from cognet_jax.registry import algorithm_entry
+
     if env is None:
         env, env_params = build_env(config)
-    a = config.algorithm
-    if isinstance(a, CognetWeightsAlgorithmSection):
-        from cognet_jax.algorithms.cognet_weights import (
-            CognetWeights,
-            WeightsHyper,
-            WeightsSettings,
-        )
-
-        settings = WeightsSettings(
-            nodes=a.nodes,
-            iterations=a.iterations,
-            candidates=a.candidates,
-            eval_rollouts=a.eval_rollouts,
-            elites=a.elites,
-            hidden=config.network.hidden,
-            best_rollouts=a.best_rollouts,
-            common_random_numbers=a.common_random_numbers,
-            init_scale=a.init_scale,
-            vote_mean=a.vote_mean,
-            vote_std=a.vote_std,
-            standardize_inputs=a.standardize_inputs,
-            paired_best=a.paired_best,
-        )
-        hyper = WeightsHyper(
-            alpha=a.alpha, action_floor=a.action_floor, category_floor=a.category_floor
-        )
-        return CognetWeights(env, env_params, settings, hyper, build_pipeline(config, env))
-    if isinstance(a, CognetAlgorithmSection):
-        from cognet_jax.algorithms.cognet_dice import CognetDice, CognetHyper, CognetSettings
-        from cognet_jax.algorithms.cross_entropy import EntropyConfig
-
-        net = config.network
-        settings = CognetSettings(
-            nodes=a.nodes,
-            iterations=a.iterations,
-            rollouts=a.rollouts,
-            top=a.top,
-            keep=a.keep,
-            eval_rollouts=a.eval_rollouts,
-            hidden=net.hidden,
-            train_steps=net.train_steps,
-            optimizer=net.optimizer,
-            momentum=net.momentum,
-            threshold_rule=a.threshold_rule,
-            separate=a.separate,
-            common_random_numbers=a.common_random_numbers,
-            train_last_transition=a.train_last_transition,
-            train_on=a.train_on,
-            best_rollouts=a.best_rollouts,
-            entropy_window=a.entropy_window,
-        )
-        hyper = CognetHyper(
-            alpha=a.alpha,
-            learning_rate=net.learning_rate,
-            entropy=EntropyConfig(
-                enabled=a.entropy_injection,
-                rate=a.entropy_rate,
-                std_threshold=a.entropy_std,
-                patience=a.entropy_patience,
-            ),
-        )
-        return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
-    if isinstance(a, GDiceAlgorithmSection):
-        from cognet_jax.algorithms.cross_entropy import EntropyConfig
-        from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDicePortfolio, GDiceSettings
-
-        evaluator = a.evaluator
-        if evaluator == "auto":
-            cost = exact_iteration_cost(env, a, env_params)
-            hybrid_cost = cost * min(a.exact_top, a.samples) // a.samples
-            evaluator = (
-                "exact"
-                if cost <= EXACT_AUTO_LIMIT
-                else "hybrid"
-                if hybrid_cost <= EXACT_AUTO_LIMIT
-                else "rollouts"
-            )
-        settings = GDiceSettings(
-            nodes=a.nodes,
-            iterations=a.iterations,
-            samples=a.samples,
-            elites=a.elites,
-            eval_rollouts=a.eval_rollouts,
-            common_random_numbers=a.common_random_numbers,
-            entropy_window=a.entropy_window,
-            best_rollouts=a.best_rollouts,
-            evaluator=evaluator,
-            exact_top=a.exact_top,
-            shared_controller=a.shared_controller,
-            layered=a.layered,
-            restarts=a.restarts,
-            polish_sweeps=a.polish_sweeps,
-        )
-        if evaluator in ("exact", "hybrid"):
-            _check_exact_cost(env, a, env_params, evaluator)
-        if settings.polish_sweeps and evaluator in ("exact", "hybrid"):
-            from cognet_jax.exact_jax import exact_cost
-
-            moves = len(GDice(env, env_params, settings).polish_moves())
-            if moves * exact_cost(env, a.nodes, env_params) > POLISH_SWEEP_LIMIT:
-                # too costly for this model: no polish (results.json's "resolved" shows it)
-                settings = dataclasses.replace(settings, polish_sweeps=0)
-        hyper = GDiceHyper(
-            alpha=a.alpha,
-            entropy=EntropyConfig(
-                enabled=a.entropy_injection,
-                rate=a.entropy_rate,
-                std_threshold=a.entropy_std,
-                patience=a.entropy_patience,
-            ),
-        )
-        if a.restarts > 1 or a.shared_restarts > 0 or a.explore_restarts > 0:
-            return GDicePortfolio(
-                env,
-                env_params,
-                settings,
-                hyper,
-                a.shared_restarts,
-                a.explore_restarts,
-                a.explore_entropy_rate,
-            )
-        return GDice(env, env_params, settings, hyper)
-    if isinstance(a, CogDiceAlgorithmSection):
-        from cognet_jax.algorithms.cogdice import CogDice, CogDiceHyper, CogDiceSettings
-        from cognet_jax.algorithms.cross_entropy import EntropyConfig
-
-        settings = CogDiceSettings(
-            nodes=a.nodes,
-            regions=a.regions,
-            iterations=a.iterations,
-            samples=a.samples,
-            elites=a.elites,
-            eval_rollouts=a.eval_rollouts,
-            common_random_numbers=a.common_random_numbers,
-            entropy_window=a.entropy_window,
-            best_rollouts=a.best_rollouts,
-            beta_eps=a.beta_eps,
-            min_denominator=a.min_denominator,
-        )
-        hyper = CogDiceHyper(
-            alpha=a.alpha,
-            entropy=EntropyConfig(
-                enabled=a.entropy_injection,
-                rate=a.entropy_rate,
-                std_threshold=a.entropy_std,
-                patience=a.entropy_patience,
-            ),
-        )
-        return CogDice(env, env_params, settings, hyper)
-    raise NotImplementedError(f"algorithm {config.experiment.algorithm!r} is not available yet")
+    return algorithm_entry(config.experiment.algorithm).build(config, env, env_params)
 
 
 def build_pipeline(config: Config, env):
@@ -311,7 +121,9 @@ def exact_iteration_cost(env, a, env_params=None) -> int:
     return exact_cost(env, a.nodes, env_params) * a.samples * searches
 
 
-def _check_exact_cost(env, a, env_params=None, evaluator: str = "exact") -> None:
+def check_exact_cost(env, a, env_params=None, evaluator: str = "exact") -> None:
+    """``ConfigError`` on ``algorithm.evaluator`` when exact values would cost more than
+    ``EXACT_EVALUATOR_LIMIT`` per iteration."""
     from cognet_jax.config import ConfigError
 
     cost = exact_iteration_cost(env, a, env_params)
@@ -341,24 +153,50 @@ def split_seed_key(key: jax.Array):
 
 
 def make_step(config: Config):
-    """``(algorithm, init, step)``: ``init(init_key)``; ``step(run_key, state)``."""
+    """``(algorithm, init, step)``: ``init(init_key)``; ``step(run_key, state, hyper=None)``
+    (``hyper``: the algorithm's dynamic hyper-parameters, default ``algorithm.hyper``)."""
     algorithm = build_algorithm(config)
 
-    def step(run_key, state):
-        return algorithm.step(jax.random.fold_in(run_key, state.progress.iteration), state)
+    def step(run_key, state, hyper=None):
+        key = jax.random.fold_in(run_key, state.progress.iteration)
+        if hyper is None:
+            return algorithm.step(key, state)
+        return algorithm.step(key, state, hyper)
 
     return algorithm, algorithm.init, step
 
 
 def make_train(config: Config):
-    """A pure ``train(key) -> (final_state, metrics)`` running ``algorithm.iterations``
-    iterations; metrics leaves have a leading ``[iterations]`` axis."""
+    """A pure ``train(key, hyper=None) -> (final_state, metrics)`` running
+    ``algorithm.iterations`` iterations; metrics leaves have a leading ``[iterations]`` axis.
+
+    ``key`` is a seed key (``seed_key(config, seed)`` gives the CLI's); ``hyper`` the dynamic
+    hyper-parameters (a pytree like ``build_algorithm(config).hyper``, e.g. with another
+    ``alpha``), so ``jax.vmap(train, in_axes=(None, 0))(key, stacked_hypers)`` searches with
+    many settings in one program. ``make_evaluate(config)`` gives the honest value."""
     algorithm, init, step = make_step(config)
     iterations = config.algorithm.iterations
 
-    def train(key):
+    def train(key, hyper=None):
         k_init, k_run, _ = split_seed_key(key)
         state = init(k_init)
-        return jax.lax.scan(lambda s, _: step(k_run, s), state, None, length=iterations)
+        return jax.lax.scan(lambda s, _: step(k_run, s, hyper), state, None, length=iterations)
 
     return train
+
+
+def make_evaluate(config: Config):
+    """A pure ``evaluate(key, policy) -> (mean, stderr)``: the honest value of ``policy``, the
+    mean return of ``evaluation.rollouts`` fresh rollouts drawn from the seed key's evaluation
+    key, which the search never uses -- what ``cognet-jax train`` reports for the seed (up to
+    float summation order)."""
+    from cognet_jax.rollout import mean_and_stderr
+
+    algorithm = build_algorithm(config)
+    e = config.evaluation
+
+    def evaluate(key, policy):
+        _, _, k_eval = split_seed_key(key)
+        return mean_and_stderr(algorithm.policy_returns(k_eval, policy, e.rollouts, e.batch))
+
+    return evaluate

@@ -59,6 +59,15 @@ def _parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--debug", action="store_true", help="show the Python traceback of an error"
     )
+    common.add_argument(
+        "--import",
+        dest="imports",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import a module or .py file first, e.g. one that registers your own simulator "
+        "(cognet_jax.register_env); repeatable",
+    )
     p = argparse.ArgumentParser(
         prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[common]
     )
@@ -442,6 +451,27 @@ def _one_line_warnings() -> None:
     warnings.showwarning = show
 
 
+def import_plugin(name: str) -> None:
+    """Import a module by name, or a ``.py`` file by path (``--import``)."""
+    import importlib
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(name)
+    if name.endswith(".py"):
+        if not path.is_file():
+            raise UsageError(f"--import {name}: no such file")
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[path.stem] = module
+        spec.loader.exec_module(module)
+        return
+    try:
+        importlib.import_module(name)
+    except ModuleNotFoundError as err:
+        raise UsageError(f"--import {name}: {err}") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     import signal
 
@@ -449,6 +479,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     _one_line_warnings()
     try:
+        for name in args.imports:
+            import_plugin(name)
         return {
             "train": _train,
             "sweep": _sweep,

@@ -41,47 +41,6 @@ class ExperimentSection:
 
 
 @dataclasses.dataclass
-class TaggingEnvSection:
-    """1D tagging (SPEC 7.1). ``horizon``/``discount``/``respawn`` default to the setting's."""
-
-    name: str = "tagging"
-    setting: str = "thesis"
-    horizon: int | None = None
-    discount: float | None = None
-    respawn: bool | None = None
-    motion_noise: float = 0.0
-    obs_noise: float = 0.0
-    obs_division: float = 0.0
-
-
-@dataclasses.dataclass
-class HeatmapEnvSection:
-    """2D heatmap (SPEC 7.2). ``start``: ``"thesis"`` ({-1..12}) or ``"default"`` ({2..13});
-    observation ``obs_signal * patch + obs_noise_amplitude * N(obs_noise_mean, obs_noise_std)``
-    per pixel (``obs_signal = 0``: the patch replaced by noise or a constant);
-    rewards per agent on the pre-move state (``D < 9`` / ``9 <= D < 16`` / else)."""
-
-    name: str = "heatmap"
-    start: str = "default"
-    horizon: int = 4
-    discount: float = 1.0
-    obs_noise_amplitude: float = 1.0
-    obs_noise_mean: float = 0.0
-    obs_noise_std: float = 0.0
-    obs_signal: float = 1.0
-    near_reward: float = 50.0
-    mid_reward: float = 1.0
-    far_reward: float = -1.0
-
-
-@dataclasses.dataclass
-class DpomdpEnvSection:
-    """A tabular problem read from the file in ``[problem]``."""
-
-    name: str = "dpomdp"
-
-
-@dataclasses.dataclass
 class ProblemSection:
     """The MADP ``.dpomdp`` problem (used when ``env.name = "dpomdp"``)."""
 
@@ -276,23 +235,44 @@ class RunSection:
     memory_gb: float = 0.0
 
 
-ENV_SECTIONS: dict[str, type] = {
-    "tagging": TaggingEnvSection,
-    "heatmap": HeatmapEnvSection,
-    "dpomdp": DpomdpEnvSection,
-}
-ALGORITHM_SECTIONS: dict[str, type] = {
-    "cognet-dice": CognetWeightsAlgorithmSection,
-    "cognet-dice-thesis": CognetAlgorithmSection,
-    "gdice": GDiceAlgorithmSection,
-    "cogdice": CogDiceAlgorithmSection,
-}
+def _env_section(name: str) -> type:
+    """The ``[env]`` dataclass of simulator ``name`` (``registry``; ConfigError if unknown)."""
+    from cognet_jax.registry import env_entry
+
+    return env_entry(name).section
+
+
+def _algorithm_section(name: str) -> type:
+    """The ``[algorithm]`` dataclass of algorithm ``name`` (``registry``)."""
+    from cognet_jax.registry import algorithm_entry
+
+    return algorithm_entry(name).section
+
+
+def settings_class(
+    name: str, section: type, exclude: tuple[str, ...] = (), extra: tuple = (), doc: str = ""
+) -> type:
+    """A frozen dataclass ``name`` with the fields (names, types, defaults) of the config
+    dataclass ``section`` minus ``exclude``, then ``extra`` fields taken from other sections,
+    each ``(section_class, field_name)``: an algorithm's static settings, declared once in its
+    config section (the dynamic hyper-parameters are excluded and live in its hyper pytree)."""
+    fields = []
+    sources = [(section, f.name) for f in dataclasses.fields(section) if f.name not in exclude]
+    for cls, field_name in [*sources, *extra]:
+        f = next(f for f in dataclasses.fields(cls) if f.name == field_name)
+        fields.append((f.name, f.type, dataclasses.field(default=f.default)))
+    namespace = {"__doc__": doc or f"Static settings: the fields of ``config.{section.__name__}``."}
+    return dataclasses.make_dataclass(name, fields, frozen=True, namespace=namespace)
+
+
+#: the entropy-injection fields of a config section (dynamic: ``EntropyConfig``)
+ENTROPY_SECTION_FIELDS = ("entropy_injection", "entropy_rate", "entropy_std", "entropy_patience")
 
 
 @dataclasses.dataclass
 class Config:
     experiment: ExperimentSection = dataclasses.field(default_factory=ExperimentSection)
-    env: Any = dataclasses.field(default_factory=TaggingEnvSection)
+    env: Any = dataclasses.field(default_factory=lambda: _env_section("tagging")())
     problem: ProblemSection = dataclasses.field(default_factory=ProblemSection)
     algorithm: Any = dataclasses.field(default_factory=CognetWeightsAlgorithmSection)
     network: NetworkSection = dataclasses.field(default_factory=NetworkSection)
@@ -334,7 +314,8 @@ def _check_type(field: str, value: Any, annotation: Any) -> Any:
     )
 
 
-def _section_from_dict(cls: type, data: Any, prefix: str):
+def section_from_dict(cls: type, data: Any, prefix: str):
+    """The dataclass ``cls`` from a dict of settings (``ConfigError`` naming ``prefix.key``)."""
     if not isinstance(data, dict):
         raise ConfigError(prefix, f"expected a table of settings, got {data!r}")
     hints = typing.get_type_hints(cls)
@@ -353,30 +334,23 @@ def config_from_dict(data: dict) -> Config:
     for key in data:
         if key not in known:
             raise ConfigError(key, f"unknown section (known: {', '.join(sorted(known))})")
-    experiment = _section_from_dict(ExperimentSection, data.get("experiment", {}), "experiment")
+    experiment = section_from_dict(ExperimentSection, data.get("experiment", {}), "experiment")
     env_data = data.get("env", {})
-    env_name = env_data.get("name", "tagging") if isinstance(env_data, dict) else None
-    if env_name not in ENV_SECTIONS:
-        raise ConfigError(
-            "env.name",
-            f"unknown environment {env_name!r} (known: {', '.join(sorted(ENV_SECTIONS))})",
-        )
-    if experiment.algorithm not in ALGORITHM_SECTIONS:
-        raise ConfigError(
-            "experiment.algorithm",
-            f"unknown algorithm {experiment.algorithm!r} "
-            f"(known: {', '.join(sorted(ALGORITHM_SECTIONS))})",
-        )
+    if not isinstance(env_data, dict):
+        raise ConfigError("env", f"expected a table of settings, got {env_data!r}")
+    env_name = env_data.get("name", "tagging")
+    if not isinstance(env_name, str):
+        raise ConfigError("env.name", f"expected a simulator name, got {env_name!r}")
+    env_section = _env_section(env_name)
+    algorithm_section = _algorithm_section(experiment.algorithm)
     config = Config(
         experiment=experiment,
-        env=_section_from_dict(ENV_SECTIONS[env_name], env_data, "env"),
-        problem=_section_from_dict(ProblemSection, data.get("problem", {}), "problem"),
-        algorithm=_section_from_dict(
-            ALGORITHM_SECTIONS[experiment.algorithm], data.get("algorithm", {}), "algorithm"
-        ),
-        network=_section_from_dict(NetworkSection, data.get("network", {}), "network"),
-        evaluation=_section_from_dict(EvaluationSection, data.get("evaluation", {}), "evaluation"),
-        run=_section_from_dict(RunSection, data.get("run", {}), "run"),
+        env=section_from_dict(env_section, env_data, "env"),
+        problem=section_from_dict(ProblemSection, data.get("problem", {}), "problem"),
+        algorithm=section_from_dict(algorithm_section, data.get("algorithm", {}), "algorithm"),
+        network=section_from_dict(NetworkSection, data.get("network", {}), "network"),
+        evaluation=section_from_dict(EvaluationSection, data.get("evaluation", {}), "evaluation"),
+        run=section_from_dict(RunSection, data.get("run", {}), "run"),
     )
     validate(config)
     return config
@@ -450,15 +424,20 @@ def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config
 # --------------------------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------------------------
-def _require(cond: bool, field: str, message: str):
+def require(cond: bool, field: str, message: str):
+    """``ConfigError(field, message)`` unless ``cond`` (for sections' ``check`` methods)."""
     if not cond:
         raise ConfigError(field, message)
 
 
-def _positive(section: Any, prefix: str, *names: str):
+def require_positive(section: Any, prefix: str, *names: str):
+    """Each named field of ``section`` is ``None`` or ``>= 1`` (``prefix.name`` otherwise)."""
     for n in names:
         v = getattr(section, n)
-        _require(v is None or v >= 1, f"{prefix}.{n}", f"must be >= 1, got {v}")
+        require(v is None or v >= 1, f"{prefix}.{n}", f"must be >= 1, got {v}")
+
+
+_require, _positive = require, require_positive
 
 
 def _probability(section: Any, prefix: str, *names: str):
@@ -522,7 +501,7 @@ def _validate_network(config: Config, training: bool) -> None:
     _require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
     needs_vae = net.observation == "encoded" or net.augment
     _require(
-        not needs_vae or isinstance(env, HeatmapEnvSection),
+        not needs_vae or env.name == "heatmap",
         "network.observation" if net.observation == "encoded" else "network.augment",
         "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
     )
@@ -543,57 +522,9 @@ def validate(config: Config) -> None:
     """Range and consistency checks; raises ``ConfigError`` naming the field."""
     _check_finite(config)
     env = config.env
-    if isinstance(env, TaggingEnvSection):
-        from cognet_jax.envs.tagging import SETTINGS
-
-        _require(
-            env.setting in SETTINGS,
-            "env.setting",
-            f"unknown setting {env.setting!r} (known: {', '.join(sorted(SETTINGS))})",
-        )
-        _positive(env, "env", "horizon")
-        if env.discount is not None:
-            _require(
-                0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}"
-            )
-        for n in ("motion_noise", "obs_noise", "obs_division"):
-            _require(getattr(env, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(env, n)}")
-    if isinstance(env, HeatmapEnvSection):
-        from cognet_jax.envs.heatmap import START_RANGES
-
-        _require(
-            env.start in START_RANGES,
-            "env.start",
-            f"unknown start range {env.start!r} (known: {', '.join(sorted(START_RANGES))})",
-        )
-        _positive(env, "env", "horizon")
-        _require(
-            0.0 < env.discount <= 1.0, "env.discount", f"must be in (0, 1], got {env.discount}"
-        )
-        _require(
-            env.obs_noise_std >= 0,
-            "env.obs_noise_std",
-            f"must be >= 0, got {env.obs_noise_std}",
-        )
-        _require(
-            env.obs_noise_amplitude >= 0,
-            "env.obs_noise_amplitude",
-            f"must be >= 0, got {env.obs_noise_amplitude}",
-        )
-        _require(
-            0.0 <= env.obs_signal <= 1.0,
-            "env.obs_signal",
-            f"must be in [0, 1], got {env.obs_signal}",
-        )
-    if isinstance(env, DpomdpEnvSection):
-        _require(
-            bool(config.problem.path),
-            "problem.path",
-            "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp",
-        )
-        _positive(config.problem, "problem", "horizon")
-        d = config.problem.discount
-        _require(d is None or 0.0 < d <= 1.0, "problem.discount", f"must be in (0, 1], got {d}")
+    check_env = getattr(env, "check", None)  # the section's own checks (``registry``)
+    if callable(check_env):
+        check_env(config)
 
     alg = config.algorithm
     if isinstance(alg, CognetAlgorithmSection):
@@ -666,7 +597,8 @@ def validate(config: Config) -> None:
     if isinstance(alg, GDiceAlgorithmSection):
         _validate_sampler(alg)
         _require(
-            isinstance(env, DpomdpEnvSection) or getattr(env, "obs_division", 0) > 0,
+            env.name != "heatmap"
+            and (env.name != "tagging" or getattr(env, "obs_division", 0) > 0),
             "env.name",
             "G-DICE needs discrete observations: a .dpomdp problem, or tagging with "
             "env.obs_division > 0",
@@ -677,7 +609,7 @@ def validate(config: Config) -> None:
             f"must be 'rollouts', 'exact', 'hybrid' or 'auto', got {alg.evaluator!r}",
         )
         _require(
-            alg.evaluator == "rollouts" or isinstance(env, DpomdpEnvSection),
+            alg.evaluator == "rollouts" or env.name == "dpomdp",
             "algorithm.evaluator",
             f"{alg.evaluator!r} needs a tabular .dpomdp problem (env.name = 'dpomdp')",
         )
@@ -705,9 +637,10 @@ def validate(config: Config) -> None:
             f"must be in (0, 1), got {alg.min_denominator}",
         )
         _require(
-            isinstance(env, TaggingEnvSection),
+            env.name not in ("heatmap", "dpomdp"),
             "env.name",
-            "COG-DICE needs a scalar continuous observation: the tagging environment",
+            "COG-DICE needs a scalar continuous observation: the tagging environment (or a "
+            "registered simulator with one)",
         )
     _positive(config.evaluation, "evaluation", "rollouts", "batch")
     _require(config.evaluation.rollouts >= 2, "evaluation.rollouts", "needs >= 2 for a std error")

@@ -20,17 +20,16 @@ import numpy as np
 
 from cognet_jax import plots
 
-#: Reference values of SPEC section 8, keyed by (env name, setting).
-REFERENCES = {
-    ("tagging", "thesis"): {"reactive 3-node controller": 20.76, "random actions": -23.68},
-    ("tagging", "cogdice-paper"): {"reactive 3-node controller": 108.0, "COG-DICE (paper)": 101.8},
-    ("heatmap", "thesis"): {"full knowledge of own position": 53.14, "random actions": 19.37},
-}
-
 
 def references_for(config) -> dict[str, float]:
-    setting = getattr(config.env, "setting", getattr(config.env, "start", None))
-    return REFERENCES.get((config.env.name, setting), {})
+    """Known values for the run's simulator and setting (its registry entry's
+    ``references``; SPEC section 8 for the built-in ones)."""
+    from cognet_jax.registry import env_entry
+
+    entry = env_entry(config.env.name)
+    if not entry.reference_field:
+        return {}
+    return dict(entry.references.get(getattr(config.env, entry.reference_field), {}))
 
 
 def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:

@@ -42,7 +42,12 @@ def _progress_bar(total: int, enabled: bool, desc: str):
 def honest_evaluation(algorithm, key, policy, rollouts: int, batch: int) -> dict:
     """Mean and standard error of ``rollouts`` fresh rollouts of ``policy``."""
     fn = jax.jit(algorithm.policy_returns, static_argnums=(2, 3))
-    returns = np.asarray(fn(key, policy, rollouts, batch), dtype=np.float64)
+    return return_summary(fn(key, policy, rollouts, batch))
+
+
+def return_summary(returns) -> dict:
+    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64)."""
+    returns = np.asarray(returns, dtype=np.float64)
     return {
         "mean": float(returns.mean()),
         "stderr": float(returns.std(ddof=1) / np.sqrt(returns.size)),
@@ -55,9 +60,7 @@ def exact_evaluation(config: Config, policy) -> dict | None:
     ``{"exact": finite-horizon value at problem.horizon (backward DP)}`` plus
     ``"exact_infinite"`` (Bellman iteration to 1e-10) when the discount is below 1; ``None`` for
     other problems or policies."""
-    from cognet_jax.config import DpomdpEnvSection
-
-    if not isinstance(config.env, DpomdpEnvSection) or not hasattr(policy, "transitions"):
+    if config.env.name != "dpomdp" or not hasattr(policy, "transitions"):
         return None
     from cognet_jax.api import load_problem
     from cognet_jax.exact import exact_value
@@ -215,6 +218,47 @@ def sigint_guard():
             signal.signal(sig, old)
 
 
+def iterate(
+    step,
+    state,
+    *,
+    start: int,
+    iterations: int,
+    history: list,
+    checkpoint_every: int,
+    save,
+    on_interrupt,
+    progress: bool,
+    desc: str,
+    postfix=None,
+):
+    """The training loop of ``train`` and ``sweep``: ``state, metrics = step(state)`` from
+    iteration ``start`` to ``iterations``, each iteration's metrics appended to ``history``.
+
+    ``save(i, state, history)`` writes a checkpoint every ``checkpoint_every`` iterations (0:
+    never) and when a SIGINT / SIGTERM stops the loop (``sigint_guard``: the current iteration
+    finishes first); then ``on_interrupt(i, state, signum)`` writes what the caller keeps and
+    raises. A progress bar every 10 iterations, with ``postfix(metrics) -> dict`` beside it.
+    Returns the final state (``history`` is filled in place)."""
+    i = start
+    with sigint_guard() as sigint, _progress_bar(iterations, progress, desc) as bar:
+        bar.update(start)
+        while i < iterations and not sigint["stop"]:
+            state, metrics = step(state)
+            history.append(metrics)
+            i += 1
+            if checkpoint_every and i % checkpoint_every == 0 and i < iterations:
+                save(i, state, history)
+            if progress and (i % 10 == 0 or i == iterations):
+                if postfix is not None:
+                    bar.set_postfix(**postfix(jax.device_get(metrics)))
+                bar.update(i - bar.n)
+        if i < iterations:
+            save(i, state, history)
+            on_interrupt(i, state, sigint["signum"])
+    return state
+
+
 def _train_meta(config: Config, seed: int) -> dict:
     return {"kind": "train", "config": config.to_dict(), "seed": seed}
 
@@ -325,7 +369,7 @@ def run_training(
     compiled = traced.lower().compile()
     compile_s = time.perf_counter() - t0
 
-    def checkpoint(i):
+    def checkpoint(i, state, history):
         save_checkpoint(
             ckpt_path,
             state=state,
@@ -335,43 +379,40 @@ def run_training(
             meta=_train_meta(config, seed),
         )
 
+    def interrupted(i, state, signum):  # keep what we have
+        save_policy(out_dir / "policy.msgpack", algorithm.best_policy(state))
+        atomic_write_text(
+            out_dir / "results.json",
+            json.dumps(
+                {
+                    "experiment": config.experiment.name,
+                    "algorithm": config.experiment.algorithm,
+                    "seed": seed,
+                    "config": config.to_dict(),
+                    "status": "interrupted",
+                    "iteration": i,
+                    "final_value": None,
+                },
+                indent=1,
+            ),
+        )
+        raise Interrupted(out_dir, i, iterations, signum)
+
     t_loop = time.perf_counter()
-    i = start
-    with (
-        sigint_guard() as sigint,
-        _progress_bar(iterations, progress, config.experiment.name) as bar,
-    ):
-        bar.update(start)
-        while i < iterations and not sigint["stop"]:
-            state, metrics = compiled(k_run, state)
-            history.append(metrics)
-            i += 1
-            if every and i % every == 0 and i < iterations:
-                checkpoint(i)
-            if progress and (i % 10 == 0 or i == iterations):
-                m = jax.device_get(metrics)
-                bar.set_postfix(value=f"{float(m.value):.2f}", best=f"{float(m.best_value):.2f}")
-                bar.update(i - bar.n)
-        if i < iterations:  # SIGINT: keep what we have
-            checkpoint(i)
-            save_policy(out_dir / "policy.msgpack", algorithm.best_policy(state))
-            atomic_write_text(
-                out_dir / "results.json",
-                json.dumps(
-                    {
-                        "experiment": config.experiment.name,
-                        "algorithm": config.experiment.algorithm,
-                        "seed": seed,
-                        "config": config.to_dict(),
-                        "status": "interrupted",
-                        "iteration": i,
-                        "final_value": None,
-                    },
-                    indent=1,
-                ),
-            )
-            raise Interrupted(out_dir, i, iterations, sigint["signum"])
-    checkpoint(i)
+    state = iterate(
+        lambda s: compiled(k_run, s),
+        state,
+        start=start,
+        iterations=iterations,
+        history=history,
+        checkpoint_every=every,
+        save=checkpoint,
+        on_interrupt=interrupted,
+        progress=progress,
+        desc=config.experiment.name,
+        postfix=lambda m: dict(value=f"{float(m.value):.2f}", best=f"{float(m.best_value):.2f}"),
+    )
+    checkpoint(iterations, state, history)
     state, polish_info = finish_search(algorithm, state, log)
     history = stack_history(history)  # on the host: jnp.stack of 500 arrays compiles
     loop_s = time.perf_counter() - t_loop

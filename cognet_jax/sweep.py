@@ -2,7 +2,7 @@
 
 A sweep is the cartesian product of ``grid`` values (``{"algorithm.alpha": [0.1, 0.2], ...}``)
 times ``seeds``. Settings whose fields all live in the algorithm's hyper-parameter pytree or in
-the environment's params pytree (``DYNAMIC_FIELDS``: alpha, entropy settings, learning rate, noise
+the environment's params pytree (``dynamic_fields``: alpha, entropy settings, learning rate, noise
 levels, discount, respawn) share one compiled program: the search of every (seed, setting) pair
 is ``vmap``-ed over a leading ``[runs]`` axis, the hyper-parameters and env params being stacked
 along it. Any other field (nodes, rollouts, horizon, ...) changes shapes or the program, so
@@ -51,24 +51,16 @@ from cognet_jax.memory import budget_bytes, trace_checked
 SWEEP_SPEC = "sweep.json"
 RUNS_DIR = "runs"  # OUT/runs/setting{k}-seed{s}/: each run's best policy and results.json
 
-#: Fields that live in a params pytree (hyper-parameters or env params): sweeping over them
-#: needs no recompilation.
-DYNAMIC_FIELDS = frozenset(
-    {
-        "algorithm.alpha",
-        "algorithm.entropy_injection",
-        "algorithm.entropy_rate",
-        "algorithm.entropy_std",
-        "algorithm.entropy_patience",
-        "algorithm.action_floor",
-        "algorithm.category_floor",
-        "network.learning_rate",
-        "env.motion_noise",
-        "env.obs_noise",
-        "env.discount",
-        "env.respawn",
+
+def dynamic_fields(config: Config) -> frozenset[str]:
+    """Dotted config fields that only change the hyper-parameters or the env params pytree
+    (the registry entries' ``dynamic``), so settings differing in them share one program."""
+    from cognet_jax.registry import algorithm_entry, env_entry
+
+    env = env_entry(config.env.name).dynamic
+    return frozenset(algorithm_entry(config.experiment.algorithm).dynamic) | {
+        f"env.{name}" for name in env
     }
-)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -101,7 +93,7 @@ class Setting:
 
 @dataclass
 class Group:
-    """Settings that share one compiled program (they differ only in ``DYNAMIC_FIELDS``)."""
+    """Settings that share one compiled program (they differ only in ``dynamic_fields``)."""
 
     settings: list[Setting]
     runs: list[tuple[int, int]] = field(default_factory=list)  # (setting index, seed)
@@ -117,7 +109,7 @@ def plan(experiment: str, grid: dict[str, list], overrides: list[str]) -> list[G
         sets = overrides + [f"{n}={json.dumps(v)}" for n, v in values.items()]
         config = load_config(experiment, sets)
         d = config.to_dict()
-        for n in DYNAMIC_FIELDS:
+        for n in dynamic_fields(config):
             section, key = n.split(".")
             if key in d.get(section, {}):
                 d[section][key] = None
@@ -272,7 +264,7 @@ def run_group(
         save_checkpoint,
         stack_history,
     )
-    from cognet_jax.runner import Interrupted, _progress_bar, sigint_guard
+    from cognet_jax.runner import Interrupted, iterate
 
     meta = {"kind": "sweep", "tag": tag, "runs": runs, "config": config.to_dict()}
     ckpt = checkpointing
@@ -286,7 +278,7 @@ def run_group(
         metrics_shape = jax.eval_shape(jax.vmap(step_one), keys, state, hyper, env_params)[1]
         history, start = restore_history(metrics_shape, raw), int(raw["iteration"])
 
-    def save(i):
+    def save(i, state, history):
         if ckpt:
             save_checkpoint(
                 path, state=state, keys={}, iteration=i, history=stack_history(history), meta=meta
@@ -298,23 +290,24 @@ def run_group(
             out = ckpt.work_dir.parent / RUNS_DIR
             write_run_folders(out, by_index, runs[:n_real], best, algorithm, i, iterations, rows)
 
+    def interrupted(i, state, signum):
+        write_policies(i, jax.device_get(jax.vmap(algorithm.best_policy)(state)))
+        out = ckpt.work_dir.parent if ckpt else Path(".")
+        raise Interrupted(out, i, iterations, signum)
+
     t_loop = time.perf_counter()
-    i = start
-    with sigint_guard() as sigint, _progress_bar(iterations, progress, desc) as bar:
-        bar.update(start)
-        while i < iterations and not sigint["stop"]:
-            state, metrics = step(keys, state, hyper, env_params)
-            history.append(metrics)
-            i += 1
-            if ckpt and ckpt.every and i % ckpt.every == 0 and i < iterations:
-                save(i)
-            if progress and (i % 10 == 0 or i == iterations):
-                bar.update(i - bar.n)
-        if i < iterations:
-            save(i)
-            write_policies(i, jax.device_get(jax.vmap(algorithm.best_policy)(state)))
-            out = ckpt.work_dir.parent if ckpt else Path(".")
-            raise Interrupted(out, i, iterations, sigint["signum"])
+    state = iterate(
+        lambda s: step(keys, s, hyper, env_params),
+        state,
+        start=start,
+        iterations=iterations,
+        history=history,
+        checkpoint_every=ckpt.every if ckpt else 0,
+        save=save,
+        on_interrupt=interrupted,
+        progress=progress,
+        desc=desc,
+    )
     # on the host ([runs, iterations]): a jnp.stack of 500 arrays compiles a concatenation
     history = jax.tree.map(lambda x: np.moveaxis(x, 0, 1), stack_history(history))
     loop_s = time.perf_counter() - t_loop
@@ -333,15 +326,11 @@ def run_group(
     best = jax.device_get(jax.vmap(algorithm.best_policy)(state))
     eval_s = time.perf_counter() - t_eval
 
-    from cognet_jax.runner import exact_evaluation
+    from cognet_jax.runner import exact_evaluation, return_summary
 
     rows = []
     for r, (index, seed) in enumerate(runs[:n_real]):
-        final = {
-            "mean": float(returns[r].mean()),
-            "stderr": float(returns[r].std(ddof=1) / np.sqrt(returns[r].size)),
-            "rollouts": int(returns[r].size),
-        }
+        final = return_summary(returns[r])
         exact = exact_evaluation(by_index[index].config, _take(best, r))
         if exact is not None:
             final.update(exact)

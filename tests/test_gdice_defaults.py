@@ -4,12 +4,12 @@ sparse transition rows, and the portfolio of independent and shared searches."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from shared_files import dpomdp_file as _file
 
 from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
 from cognet_jax.controllers.tabular import TabularController
@@ -17,15 +17,6 @@ from cognet_jax.envs.tabular import make_tabular, sparse_rows
 from cognet_jax.exact import exact_value as exact_numpy
 from cognet_jax.exact_jax import exact_value, exact_value_layered
 from cognet_jax.io.dpomdp import parse_dpomdp
-
-DPOMDP_DIR = Path(__file__).resolve().parents[2] / "shared" / "dpomdp"
-
-
-def _file(name: str) -> Path:
-    path = DPOMDP_DIR / f"{name}.dpomdp"
-    if not path.is_file():
-        pytest.skip(f"benchmark file not found at {path}")
-    return path
 
 
 def test_layered_support_allows_only_the_next_layer():

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
+from shared_files import dpomdp_file as _file
 
 from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
 from cognet_jax.algorithms.polish import apply_move, neighbour_moves
@@ -16,15 +16,6 @@ from cognet_jax.controllers.tabular import TabularController
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.exact import exact_value as exact_numpy
 from cognet_jax.io.dpomdp import parse_dpomdp
-
-DPOMDP_DIR = Path(__file__).resolve().parents[2] / "shared" / "dpomdp"
-
-
-def _file(name: str) -> Path:
-    path = DPOMDP_DIR / f"{name}.dpomdp"
-    if not path.is_file():
-        pytest.skip(f"benchmark file not found at {path}")
-    return path
 
 
 def test_moves_cover_every_single_entry_change_of_a_layered_controller():

@@ -73,7 +73,6 @@ Choices (**[choice]**):
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import jax
@@ -82,17 +81,17 @@ import numpy as np
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
-    EntropyConfig,
+    ENTROPY_FIELDS,
     Progress,
     count_table,
-    elite_selection,
+    entropy_config,
     inject_entropy,
-    select_tree,
     smooth,
 )
+from cognet_jax.algorithms.engine import SearchMetrics, ThresholdHyper, ThresholdSearch
+from cognet_jax.config import ENTROPY_SECTION_FIELDS, CogDiceAlgorithmSection, settings_class
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
-from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns
 
 
 # --------------------------------------------------------------------------------------------
@@ -116,31 +115,15 @@ class RegionSample:
     unit_points: jax.Array  # [agents, nodes, regions - 1] float32 in [0, 1], unsorted
 
 
-@struct.dataclass
-class CogDiceHyper:
-    """Dynamic (sweepable) hyper-parameters."""
-
-    alpha: jax.Array | float = 0.1
-    entropy: EntropyConfig = EntropyConfig(enabled=False)
+#: dynamic (sweepable) hyper-parameters: the engine's, shared with G-DICE
+CogDiceHyper = ThresholdHyper
 
 
-@dataclasses.dataclass(frozen=True)
-class CogDiceSettings:
-    """Static settings (they fix array shapes or the program's structure)."""
-
-    nodes: int = 3
-    regions: int = 3
-    iterations: int = 500
-    samples: int = 2000
-    elites: int = 50
-    eval_rollouts: int = 1000
-    common_random_numbers: bool = True
-    entropy_window: int = 4
-    #: 0: best tracking compares the winner's in-loop mean (SPEC); > 0: a fresh mean over this
-    #: many rollouts (``rollout.iteration_best``)
-    best_rollouts: int = 0
-    beta_eps: float = 1e-6
-    min_denominator: float = 1e-6
+#: static settings: the fields of ``config.CogDiceAlgorithmSection`` (documented there) without
+#: the hyper-parameters (``CogDiceHyper``)
+CogDiceSettings = settings_class(
+    "CogDiceSettings", CogDiceAlgorithmSection, exclude=("alpha", *ENTROPY_SECTION_FIELDS)
+)
 
 
 @struct.dataclass
@@ -150,14 +133,8 @@ class CogDiceState:
     progress: Progress
 
 
-@struct.dataclass
-class CogDiceMetrics:
-    value: jax.Array  # [] best sample value of this iteration
-    best_value: jax.Array  # [] best in-loop value so far
-    mean_value: jax.Array  # [] mean sample value
-    threshold: jax.Array  # [] V_w after this iteration
-    kept: jax.Array  # [] number of elites
-    injected: jax.Array  # [] bool
+#: an iteration's figures (the engine's, shared with G-DICE)
+CogDiceMetrics = SearchMetrics
 
 
 # --------------------------------------------------------------------------------------------
@@ -274,13 +251,9 @@ def region_graph_edges(points, transitions) -> list[tuple[int, int, list[tuple[f
 # --------------------------------------------------------------------------------------------
 # algorithm
 # --------------------------------------------------------------------------------------------
-class CogDice:
-    """COG-DICE on an environment with a scalar continuous observation; ``init`` / ``step`` are
-    pure (see the module docstring)."""
-
-    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
-    #: the machine); candidates are evaluated in chunks when they do not fit
-    memory: int | None = None
+class CogDice(ThresholdSearch):
+    """COG-DICE on an environment with a scalar continuous observation; ``init`` / ``ask`` /
+    ``tell`` / ``step`` are pure (``algorithms.engine``; see the module docstring)."""
 
     def __init__(
         self, env, env_params, settings: CogDiceSettings, hyper: CogDiceHyper | None = None
@@ -338,23 +311,17 @@ class CogDice:
         """One deterministic joint controller (no leading axis)."""
         return jax.tree.map(lambda x: x[0], self.draw(key, dist, 1))
 
+    @staticmethod
+    def policies_of(samples: RegionSample) -> DeterministicRegionPolicy:
+        return samples.policy
+
     def sample_policies(self, key: jax.Array, dist: RegionDistribution) -> RegionSample:
         """``samples`` controllers (leaves with a leading ``[samples]`` axis)."""
         return self.draw(key, dist, self.settings.samples)
 
     def evaluate_samples(self, key: jax.Array, policies: DeterministicRegionPolicy) -> jax.Array:
         """Mean return ``[samples]`` of each sampled controller."""
-        s = self.settings
-        return evaluate_candidates(
-            self.env,
-            self.controller,
-            key,
-            s.eval_rollouts,
-            self.env_params,
-            policies,
-            memory=self.memory,
-            common_random_numbers=s.common_random_numbers,
-        )
+        return self.mean_returns(key, policies)
 
     # ---------------------------------------------------------------- update
     def update_distribution(
@@ -416,43 +383,42 @@ class CogDice:
         s = self.settings
         return s.samples * s.eval_rollouts + s.best_rollouts
 
-    def step(self, key: jax.Array, state: CogDiceState, hyper: CogDiceHyper | None = None):
-        """One COG-DICE iteration; returns ``(state, CogDiceMetrics)``."""
-        hyper = self.hyper if hyper is None else hyper
-        k_sample, k_eval = jax.random.split(key)
-        progress = state.progress
-        samples = self.sample_policies(k_sample, state.distribution)
-        values = self.evaluate_samples(k_eval, samples.policy)
-        idx, kept, threshold = elite_selection(values, progress.threshold, self.settings.elites)
-        elites = jax.tree.map(lambda x: x[idx], samples)
-        dist = self.update_distribution(state.distribution, elites, kept, hyper)
-        injected = progress.should_inject(hyper.entropy)
-        dist = self.inject(dist, injected, hyper)
-        progress = progress.replace(threshold=threshold).after_injection(injected)
-        best_idx, winner, winner_value = iteration_best(
-            self.env,
-            self.controller,
-            jax.random.fold_in(key, 1),
-            self.env_params,
-            samples.policy,
-            values,
-            self.settings.best_rollouts,
-        )
-        progress, improved = progress.record(winner_value)
-        best_policy = select_tree(improved, winner, state.best_policy)
-        metrics = CogDiceMetrics(
-            value=values[best_idx],
-            best_value=progress.best_value,
-            mean_value=values.mean(),
-            threshold=progress.threshold,
-            kept=kept.sum(),
-            injected=injected,
-        )
-        return CogDiceState(distribution=dist, best_policy=best_policy, progress=progress), metrics
-
-    def policy_returns(self, key, policy, num: int, batch: int = 10_000):
-        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
-
     @staticmethod
     def best_policy(state: CogDiceState) -> DeterministicRegionPolicy:
         return state.best_policy
+
+
+# ---------------------------------------------------------------------------------------------
+# registration (cognet_jax.registry): config -> algorithm
+# ---------------------------------------------------------------------------------------------
+def build_from_config(config, env, env_params) -> CogDice:
+    """The search of ``config`` (``experiment.algorithm = "cogdice"``)."""
+    from cognet_jax.config import ConfigError
+    from cognet_jax.registry import fields_from
+
+    a = config.algorithm
+    settings = fields_from(CogDiceSettings, a)
+    hyper = fields_from(CogDiceHyper, a, entropy=entropy_config(a))
+    if tuple(env.obs_shape) != () or env.obs_range is None:
+        raise ConfigError(
+            "env.name",
+            f"COG-DICE needs a scalar continuous observation with a range; {config.env.name!r} "
+            f"has obs_shape {env.obs_shape!r} and obs_range {env.obs_range!r}",
+        )
+    return CogDice(env, env_params, settings, hyper)
+
+
+def _register() -> None:
+    from cognet_jax.config import CogDiceAlgorithmSection
+    from cognet_jax.registry import register_algorithm
+
+    register_algorithm(
+        "cogdice",
+        CogDiceAlgorithmSection,
+        build_from_config,
+        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
+        overwrite=False,
+    )
+
+
+_register()

@@ -31,7 +31,6 @@ hyper-parameters; ``"sgd"`` gives SGD with momentum as in the thesis code.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -40,53 +39,47 @@ import optax
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
+    ENTROPY_FIELDS,
     EntropyConfig,
     Progress,
     elite_selection,
+    entropy_config,
     inject_entropy,
     select_tree,
     smooth,
 )
+from cognet_jax.algorithms.engine import RolloutValues
+from cognet_jax.config import (
+    ENTROPY_SECTION_FIELDS,
+    CognetAlgorithmSection,
+    NetworkSection,
+    settings_class,
+)
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.observations import ObservationPipeline, neural_controller
-from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+from cognet_jax.rollout import evaluate_candidates, rollouts
 
 
 @struct.dataclass
 class CognetHyper:
-    """Dynamic (sweepable) hyper-parameters of COGNet-DICE."""
+    """Dynamic (sweepable) hyper-parameters of COGNet-DICE; defaults those of the config."""
 
-    alpha: jax.Array | float = 0.2
-    learning_rate: jax.Array | float = 0.01
+    alpha: jax.Array | float = CognetAlgorithmSection.alpha
+    learning_rate: jax.Array | float = NetworkSection.learning_rate
     entropy: EntropyConfig = EntropyConfig()
 
 
-@dataclasses.dataclass(frozen=True)
-class CognetSettings:
-    """Static settings (they fix array shapes or the program's structure)."""
-
-    nodes: int = 3
-    iterations: int = 500
-    rollouts: int = 1000
-    top: int = 100
-    keep: int = 10
-    eval_rollouts: int = 100
-    hidden: int = 10
-    train_steps: int = 20
-    optimizer: str = "adam"
-    momentum: float = 0.5
-    threshold_rule: str = "elite"
-    separate: bool = False
-    common_random_numbers: bool = True
-    train_last_transition: bool = True
-    #: which rollouts give the networks' training pairs: "kept" (SPEC step 7: the kept
-    #: candidates' original rollouts) or "top" (all K_top pre-selected rollouts)
-    train_on: str = "kept"
-    #: 0: step 8 evaluates the updated policy with K_eval rollouts (SPEC); N > 0: with N, so
-    #: the anytime best is chosen on less noisy values
-    best_rollouts: int = 0
-    entropy_window: int = 4
+#: static settings: the fields of ``config.CognetAlgorithmSection`` (documented there) without
+#: the hyper-parameters (``CognetHyper``), and the networks' fields of ``[network]``
+CognetSettings = settings_class(
+    "CognetSettings",
+    CognetAlgorithmSection,
+    exclude=("alpha", *ENTROPY_SECTION_FIELDS),
+    extra=tuple(
+        (NetworkSection, name) for name in ("hidden", "train_steps", "optimizer", "momentum")
+    ),
+)
 
 
 @struct.dataclass
@@ -170,16 +163,12 @@ def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
     return flat(obs), flat(nodes), flat(nxt), flat(valid)
 
 
-class CognetDice:
+class CognetDice(RolloutValues):
     """COGNet-DICE on one environment; ``init`` / ``step`` are pure and jit-able.
 
     ``pipeline`` maps the environment's observations to the node networks' input (default: the
     identity); see ``cognet_jax.observations``.
     """
-
-    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
-    #: the machine); candidates are evaluated in chunks when they do not fit
-    memory: int | None = None
 
     def __init__(
         self,
@@ -259,10 +248,6 @@ class CognetDice:
         return rollouts(
             self.env, self.controller, key, num_rollouts, self.env_params, policy
         ).mean()
-
-    def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
-        """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
-        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
 
     @staticmethod
     def best_policy(state: CognetState) -> NeuralPolicy:
@@ -358,3 +343,33 @@ class CognetDice:
             policy=policy, opt_state=opt_state, best_policy=best_policy, progress=progress
         )
         return new_state, metrics
+
+
+# ---------------------------------------------------------------------------------------------
+# registration (cognet_jax.registry): config -> algorithm
+# ---------------------------------------------------------------------------------------------
+def build_from_config(config, env, env_params) -> CognetDice:
+    """The search of ``config`` (``experiment.algorithm = "cognet-dice-thesis"``)."""
+    from cognet_jax.api import build_pipeline
+    from cognet_jax.registry import fields_from
+
+    a, net = config.algorithm, config.network
+    settings = fields_from(CognetSettings, a, net)
+    hyper = fields_from(CognetHyper, a, net, entropy=entropy_config(a))
+    return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
+
+
+def _register() -> None:
+    from cognet_jax.config import CognetAlgorithmSection
+    from cognet_jax.registry import register_algorithm
+
+    register_algorithm(
+        "cognet-dice-thesis",
+        CognetAlgorithmSection,
+        build_from_config,
+        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha", "network.learning_rate"),
+        overwrite=False,
+    )
+
+
+_register()

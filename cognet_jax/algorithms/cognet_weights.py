@@ -68,7 +68,6 @@ One iteration (``step``), values are returns to **maximise**:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import jax
@@ -82,11 +81,13 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
+from cognet_jax.algorithms.engine import RolloutValues
+from cognet_jax.config import CognetWeightsAlgorithmSection, NetworkSection, settings_class
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.observations import ObservationPipeline, neural_controller
 from cognet_jax.prng import fast_key
-from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+from cognet_jax.rollout import rollouts
 
 
 @struct.dataclass
@@ -121,30 +122,21 @@ class WeightSample:
 
 @struct.dataclass
 class WeightsHyper:
-    """Dynamic (sweepable) hyper-parameters."""
+    """Dynamic (sweepable) hyper-parameters; defaults those of the config section."""
 
-    alpha: jax.Array | float = 0.3
-    action_floor: jax.Array | float = 0.02
-    category_floor: jax.Array | float = 0.02
+    alpha: jax.Array | float = CognetWeightsAlgorithmSection.alpha
+    action_floor: jax.Array | float = CognetWeightsAlgorithmSection.action_floor
+    category_floor: jax.Array | float = CognetWeightsAlgorithmSection.category_floor
 
 
-@dataclasses.dataclass(frozen=True)
-class WeightsSettings:
-    """Static settings (they fix array shapes or the program's structure)."""
-
-    nodes: int = 3
-    iterations: int = 600
-    candidates: int = 200
-    eval_rollouts: int = 500
-    elites: int = 10
-    hidden: int = 10
-    best_rollouts: int = 1000
-    common_random_numbers: bool = True
-    init_scale: float = 10.0
-    vote_mean: float = 5.0
-    vote_std: float = 5.0
-    standardize_inputs: bool = False
-    paired_best: bool = False
+#: static settings: the fields of ``config.CognetWeightsAlgorithmSection`` (documented there)
+#: without the hyper-parameters (``WeightsHyper``), and the hidden width ``network.hidden``
+WeightsSettings = settings_class(
+    "WeightsSettings",
+    CognetWeightsAlgorithmSection,
+    exclude=("alpha", "action_floor", "category_floor"),
+    extra=((NetworkSection, "hidden"),),
+)
 
 
 #: Rollouts of the uniformly random controller that give the input statistics.
@@ -177,16 +169,13 @@ def _gaussian_refit(mean, std, elite_draws, alpha):
     )
 
 
-class CognetWeights:
-    """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``step`` are pure.
+class CognetWeights(RolloutValues):
+    """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``ask`` /
+    ``evaluate`` / ``tell`` / ``step`` are pure (the protocol of ``algorithms.engine``).
 
     ``pipeline`` maps the environment's observations to the networks' input (identity, or the
     patch VAE's encoder mean; ``cognet_jax.observations``).
     """
-
-    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
-    #: the machine); candidates are evaluated in chunks when they do not fit
-    memory: int | None = None
 
     def __init__(
         self,
@@ -340,26 +329,12 @@ class CognetWeights:
     # ---------------------------------------------------------------- evaluation
     def evaluate_policies(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
         """Mean return ``[C]`` of candidate policies (leading ``[C]`` axis)."""
-        s = self.settings
-        return evaluate_candidates(
-            self.env,
-            self.controller,
-            key,
-            s.eval_rollouts,
-            self.env_params,
-            policies,
-            memory=self.memory,
-            common_random_numbers=s.common_random_numbers,
-        )
+        return self.mean_returns(key, policies)
 
     def fresh_value(self, key: jax.Array, policy: NeuralPolicy) -> jax.Array:
         """Mean return of one policy over ``best_rollouts`` fresh rollouts."""
         n = self.settings.best_rollouts
         return rollouts(self.env, self.controller, key, n, self.env_params, policy).mean()
-
-    def policy_returns(self, key: jax.Array, policy: NeuralPolicy, num: int, batch: int = 10_000):
-        """Returns ``[num]`` of ``policy`` (for honest evaluation; fresh key expected)."""
-        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
 
     # ---------------------------------------------------------------- public
     def init(self, key: jax.Array) -> WeightsState:
@@ -377,13 +352,41 @@ class CognetWeights:
         s = self.settings
         return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
 
+    def ask(self, key: jax.Array, state: WeightsState) -> tuple[WeightSample, NeuralPolicy]:
+        """``(samples, policies)``: ``candidates`` joint controllers drawn from the state's
+        distribution (leading ``[candidates]`` axis); the protocol of ``algorithms.engine``,
+        with the same iteration key for ``ask``, ``evaluate`` and ``tell``."""
+        samples = self.draw(
+            jax.random.split(key, 4)[0], state.distribution, self.settings.candidates
+        )
+        return samples, self.to_policy(samples)
+
+    def evaluate(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
+        """Mean returns ``[candidates]`` of the asked policies (common random numbers)."""
+        return self.evaluate_policies(jax.random.split(key, 4)[1], policies)
+
     def step(self, key: jax.Array, state: WeightsState, hyper: WeightsHyper | None = None):
-        """One iteration; returns ``(state, WeightsMetrics)``."""
+        """One iteration (``ask``, ``evaluate``, ``tell``); returns ``(state, WeightsMetrics)``."""
+        samples, policies = self.ask(key, state)
+        return self.tell(key, state, samples, self.evaluate(key, policies), hyper=hyper)
+
+    def tell(
+        self,
+        key: jax.Array,
+        state: WeightsState,
+        samples: WeightSample,
+        values: jax.Array,
+        *,
+        hyper: WeightsHyper | None = None,
+        fresh=None,
+    ):
+        """The state after ``values [candidates]`` of ``samples``; returns ``(state,
+        WeightsMetrics)``. ``fresh(key, policy) -> value`` values the winner and the mode for
+        the anytime best (default: ``best_rollouts`` fresh rollouts of the simulator)."""
         hyper = self.hyper if hyper is None else hyper
+        fresh_value = self.fresh_value if fresh is None else fresh
         s = self.settings
-        k_draw, k_eval, k_win, k_mode = jax.random.split(key, 4)
-        samples = self.draw(k_draw, state.distribution, s.candidates)
-        values = self.evaluate_policies(k_eval, self.to_policy(samples))
+        _, _, k_win, k_mode = jax.random.split(key, 4)
         elite_values, elite_idx = jax.lax.top_k(values, s.elites)
         elites = jax.tree.map(lambda x: x[elite_idx], samples)
         dist = self.update_distribution(state.distribution, elites, hyper)
@@ -392,11 +395,11 @@ class CognetWeights:
         mode = self.to_policy(self.mode(dist))
         stack = lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
         if s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
-            v_winner, v_mode, v_best = jax.vmap(self.fresh_value, (None, 0))(
+            v_winner, v_mode, v_best = jax.vmap(fresh_value, (None, 0))(
                 k_win, stack(winner, mode, state.best_policy)
             )
         else:  # one batched program for both (vmap over keys draws what two calls would draw)
-            v_winner, v_mode = jax.vmap(self.fresh_value)(
+            v_winner, v_mode = jax.vmap(fresh_value)(
                 jnp.stack([k_win, k_mode]), stack(winner, mode)
             )
         mode_better = v_mode > v_winner
@@ -422,3 +425,34 @@ class CognetWeights:
     @staticmethod
     def best_policy(state: WeightsState) -> NeuralPolicy:
         return state.best_policy
+
+
+# ---------------------------------------------------------------------------------------------
+# registration (cognet_jax.registry): config -> algorithm
+# ---------------------------------------------------------------------------------------------
+def build_from_config(config, env, env_params) -> CognetWeights:
+    """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
+    ``[network]``) on ``env``."""
+    from cognet_jax.api import build_pipeline
+    from cognet_jax.registry import fields_from
+
+    a = config.algorithm
+    settings = fields_from(WeightsSettings, a, config.network)
+    hyper = fields_from(WeightsHyper, a)
+    return CognetWeights(env, env_params, settings, hyper, build_pipeline(config, env))
+
+
+def _register() -> None:
+    from cognet_jax.config import CognetWeightsAlgorithmSection
+    from cognet_jax.registry import register_algorithm
+
+    register_algorithm(
+        "cognet-dice",
+        CognetWeightsAlgorithmSection,
+        build_from_config,
+        dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
+        overwrite=False,
+    )
+
+
+_register()

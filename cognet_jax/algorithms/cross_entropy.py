@@ -145,3 +145,23 @@ class Progress:
 def select_tree(pred: jax.Array, on_true, on_false):
     """``jnp.where`` over two pytrees of the same structure (scalar ``pred``)."""
     return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
+def entropy_config(section) -> EntropyConfig:
+    """The entropy-injection settings of a config section (``entropy_injection``,
+    ``entropy_rate``, ``entropy_std``, ``entropy_patience``)."""
+    return EntropyConfig(
+        enabled=section.entropy_injection,
+        rate=section.entropy_rate,
+        std_threshold=section.entropy_std,
+        patience=section.entropy_patience,
+    )
+
+
+#: the config fields of ``entropy_config``, as sweepable dotted names
+ENTROPY_FIELDS = (
+    "algorithm.entropy_injection",
+    "algorithm.entropy_rate",
+    "algorithm.entropy_std",
+    "algorithm.entropy_patience",
+)

@@ -64,16 +64,22 @@ import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
-    EntropyConfig,
+    ENTROPY_FIELDS,
     Progress,
     count_table,
-    elite_selection,
+    entropy_config,
     inject_entropy,
     select_tree,
     smooth,
 )
+from cognet_jax.algorithms.engine import SearchMetrics, ThresholdHyper, ThresholdSearch
 from cognet_jax.algorithms.polish import neighbour_moves, polish
-from cognet_jax.config import ConfigError
+from cognet_jax.config import (
+    ENTROPY_SECTION_FIELDS,
+    ConfigError,
+    GDiceAlgorithmSection,
+    settings_class,
+)
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.tabular import (
     DeterministicTabularPolicy,
@@ -82,42 +88,24 @@ from cognet_jax.controllers.tabular import (
 )
 from cognet_jax.envs.tabular import TabularEnv
 from cognet_jax.exact_jax import exact_value, exact_value_layered
-from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns
+
+#: dynamic (sweepable) hyper-parameters: the engine's, shared with COG-DICE
+GDiceHyper = ThresholdHyper
 
 
-@struct.dataclass
-class GDiceHyper:
-    """Dynamic (sweepable) hyper-parameters."""
-
-    alpha: jax.Array | float = 0.1
-    entropy: EntropyConfig = EntropyConfig(enabled=False)
-
-
-@dataclasses.dataclass(frozen=True)
-class GDiceSettings:
-    nodes: int = 7
-    iterations: int = 100
-    samples: int = 100
-    elites: int = 10
-    eval_rollouts: int = 100
-    common_random_numbers: bool = True
-    entropy_window: int = 4
-    #: 0: best tracking compares the winner's in-loop mean (SPEC); > 0: a fresh mean over this
-    #: many rollouts (``rollout.iteration_best``); unused with exact values
-    best_rollouts: int = 0
-    evaluator: str = "rollouts"
-    #: with ``evaluator="hybrid"``: how many of the best samples by rollouts get exact values
-    exact_top: int = 50
-    #: one sampled controller for every agent (identical agents only)
-    shared_controller: bool = False
-    #: a time-layered controller: ``horizon`` layers of ``nodes`` nodes
-    layered: bool = False
-    #: independent searches run side by side (``GDicePortfolio``)
-    restarts: int = 1
-    #: after the last iteration, at most this many single-entry changes of the best controller
-    #: by exact steepest ascent (``finish``; :mod:`cognet_jax.algorithms.polish`); only with
-    #: exact values ("exact" or "hybrid" evaluator)
-    polish_sweeps: int = 0
+#: static settings: the fields of ``config.GDiceAlgorithmSection`` (documented there) without the
+#: hyper-parameters (``GDiceHyper``) and the portfolio's own fields (``GDicePortfolio``)
+GDiceSettings = settings_class(
+    "GDiceSettings",
+    GDiceAlgorithmSection,
+    exclude=(
+        "alpha",
+        *ENTROPY_SECTION_FIELDS,
+        "shared_restarts",
+        "explore_restarts",
+        "explore_entropy_rate",
+    ),
+)
 
 
 @struct.dataclass
@@ -137,14 +125,8 @@ class PolishInfo:
     moves_per_sweep: int = struct.field(pytree_node=False, default=0)
 
 
-@struct.dataclass
-class GDiceMetrics:
-    value: jax.Array  # [] best sample value of this iteration
-    best_value: jax.Array  # [] best in-loop value so far
-    mean_value: jax.Array  # [] mean sample value
-    threshold: jax.Array  # [] V_w after this iteration
-    kept: jax.Array  # [] number of elites
-    injected: jax.Array  # [] bool
+#: an iteration's figures (the engine's, shared with COG-DICE)
+GDiceMetrics = SearchMetrics
 
 
 def _counts(env, name: str):
@@ -161,12 +143,9 @@ def identical_agents(env) -> bool:
     )
 
 
-class GDice:
-    """G-DICE on an environment with discrete observations; ``init`` / ``step`` are pure."""
-
-    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
-    #: the machine); candidates are evaluated in chunks when they do not fit
-    memory: int | None = None
+class GDice(ThresholdSearch):
+    """G-DICE on an environment with discrete observations; ``init`` / ``ask`` / ``tell`` /
+    ``step`` are pure (``algorithms.engine``)."""
 
     def __init__(self, env, env_params, settings: GDiceSettings, hyper: GDiceHyper | None = None):
         if env.num_obs is None:
@@ -218,16 +197,7 @@ class GDice:
         s = self.settings
         if s.evaluator == "exact":
             return self.exact_values(policies)
-        means = evaluate_candidates(
-            self.env,
-            self.controller,
-            key,
-            s.eval_rollouts,
-            self.env_params,
-            policies,
-            memory=self.memory,
-            common_random_numbers=s.common_random_numbers,
-        )
+        means = self.mean_returns(key, policies)
         if s.evaluator == "rollouts":
             return means
         _, top = jax.lax.top_k(means, min(s.exact_top, s.samples))
@@ -264,61 +234,32 @@ class GDice:
             return s.samples * s.eval_rollouts
         return s.samples * s.eval_rollouts + s.best_rollouts
 
-    def step(self, key: jax.Array, state: GDiceState, hyper: GDiceHyper | None = None):
-        """One G-DICE iteration; returns ``(state, GDiceMetrics)``."""
-        hyper = self.hyper if hyper is None else hyper
-        k_sample, k_eval = jax.random.split(key)
-        progress = state.progress
-        policies = self.sample_policies(k_sample, state.distribution)
-        values = self.evaluate_samples(k_eval, policies)
-        idx, kept, threshold = elite_selection(values, progress.threshold, self.settings.elites)
-        elites = jax.tree.map(lambda x: x[idx], policies)
-        dist = self.update_distribution(state.distribution, elites, kept, hyper)
-        injected = progress.should_inject(hyper.entropy)
-        dist = TabularDistribution(
+    def inject(self, dist: TabularDistribution, injected, hyper: GDiceHyper):
+        """Entropy injection into actions and transitions where ``injected``."""
+        rate = hyper.entropy.rate
+        return TabularDistribution(
             action_probs=jnp.where(
                 injected,
-                inject_entropy(dist.action_probs, hyper.entropy.rate, action_support(self.env)),
+                inject_entropy(dist.action_probs, rate, action_support(self.env)),
                 dist.action_probs,
             ),
             transition_probs=jnp.where(
                 injected,
-                inject_entropy(
-                    dist.transition_probs,
-                    hyper.entropy.rate,
-                    self.controller.transition_support(),
-                ),
+                inject_entropy(dist.transition_probs, rate, self.controller.transition_support()),
                 dist.transition_probs,
             ),
         )
-        progress = progress.replace(threshold=threshold).after_injection(injected)
-        best_idx, winner, winner_value = iteration_best(
-            self.env,
-            self.controller,
-            jax.random.fold_in(key, 1),
-            self.env_params,
-            policies,
-            values,
-            self.settings.best_rollouts if self.settings.evaluator == "rollouts" else 0,
-        )
-        progress, improved = progress.record(winner_value)
-        best_policy = select_tree(improved, winner, state.best_policy)
-        metrics = GDiceMetrics(
-            value=values[best_idx],
-            best_value=progress.best_value,
-            mean_value=(
-                jnp.mean(values, where=jnp.isfinite(values))  # hybrid: only the exact ones
-                if self.settings.evaluator == "hybrid"
-                else values.mean()
-            ),
-            threshold=progress.threshold,
-            kept=kept.sum(),
-            injected=injected,
-        )
-        return GDiceState(distribution=dist, best_policy=best_policy, progress=progress), metrics
 
-    def policy_returns(self, key, policy, num: int, batch: int = 10_000):
-        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
+    @property
+    def fresh_rollouts(self) -> int:
+        """``best_rollouts`` with the rollout evaluator; exact values need no fresh best."""
+        s = self.settings
+        return s.best_rollouts if s.evaluator == "rollouts" else 0
+
+    def mean_value(self, values: jax.Array) -> jax.Array:
+        if self.settings.evaluator == "hybrid":  # only the exact ones are finite
+            return jnp.mean(values, where=jnp.isfinite(values))
+        return values.mean()
 
     @staticmethod
     def best_policy(state: GDiceState) -> DeterministicTabularPolicy:
@@ -512,3 +453,75 @@ class GDicePortfolio:
         )
         progress = state.progress.replace(best_value=value)
         return state.replace(best_policy=policy, progress=progress), info
+
+
+# ---------------------------------------------------------------------------------------------
+# registration (cognet_jax.registry): config -> algorithm
+# ---------------------------------------------------------------------------------------------
+def build_from_config(config, env, env_params) -> GDice | GDicePortfolio:
+    """The search of ``config`` (``experiment.algorithm = "gdice"``): ``evaluator = "auto"``
+    resolved from the model's exact cost (``api.EXACT_AUTO_LIMIT``), the polish dropped when
+    one sweep costs more than ``api.POLISH_SWEEP_LIMIT``, a portfolio when more than one
+    search runs."""
+    from cognet_jax.api import (
+        EXACT_AUTO_LIMIT,
+        POLISH_SWEEP_LIMIT,
+        check_exact_cost,
+        exact_iteration_cost,
+    )
+    from cognet_jax.exact_jax import exact_cost
+    from cognet_jax.registry import fields_from
+
+    a = config.algorithm
+    if env.num_obs is None:
+        raise ConfigError(
+            "env.name", f"G-DICE needs discrete observations; {config.env.name!r} has none"
+        )
+    evaluator = a.evaluator
+    if evaluator == "auto":
+        cost = exact_iteration_cost(env, a, env_params)
+        hybrid_cost = cost * min(a.exact_top, a.samples) // a.samples
+        evaluator = (
+            "exact"
+            if cost <= EXACT_AUTO_LIMIT
+            else "hybrid"
+            if hybrid_cost <= EXACT_AUTO_LIMIT
+            else "rollouts"
+        )
+    settings = fields_from(GDiceSettings, a, evaluator=evaluator)
+    if evaluator in ("exact", "hybrid"):
+        check_exact_cost(env, a, env_params, evaluator)
+    if settings.polish_sweeps and evaluator in ("exact", "hybrid"):
+        moves = len(GDice(env, env_params, settings).polish_moves())
+        if moves * exact_cost(env, a.nodes, env_params) > POLISH_SWEEP_LIMIT:
+            # too costly for this model: no polish (results.json's "resolved" shows it)
+            settings = dataclasses.replace(settings, polish_sweeps=0)
+    hyper = fields_from(GDiceHyper, a, entropy=entropy_config(a))
+    if a.restarts > 1 or a.shared_restarts > 0 or a.explore_restarts > 0:
+        return GDicePortfolio(
+            env,
+            env_params,
+            settings,
+            hyper,
+            a.shared_restarts,
+            a.explore_restarts,
+            a.explore_entropy_rate,
+        )
+    return GDice(env, env_params, settings, hyper)
+
+
+def _register() -> None:
+    from cognet_jax.config import GDiceAlgorithmSection
+    from cognet_jax.registry import register_algorithm
+
+    register_algorithm(
+        "gdice",
+        GDiceAlgorithmSection,
+        build_from_config,
+        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
+        discrete=True,
+        overwrite=False,
+    )
+
+
+_register()

@@ -267,3 +267,72 @@ def random_value(start: str = "thesis", horizon: int = 4, num_agents: int = 2) -
         ]
         value = reward + np.mean(nxt, axis=0)
     return num_agents * float(value[: hi - lo + 1, : hi - lo + 1].mean())
+
+
+# ---------------------------------------------------------------------------------------------
+# configuration: the [env] section and the registration (cognet_jax.registry)
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class HeatmapSection:
+    """``[env]`` of the 2D heatmap (SPEC 7.2). ``start``: ``"thesis"`` ({-1..12}) or
+    ``"default"`` ({2..13}); observation ``obs_signal * patch + obs_noise_amplitude *
+    N(obs_noise_mean, obs_noise_std)`` per pixel (``obs_signal = 0``: the patch replaced by
+    noise or a constant); rewards per agent on the pre-move state (``D < 9`` / ``9 <= D < 16`` /
+    else)."""
+
+    name: str = "heatmap"
+    start: str = "default"
+    horizon: int = 4
+    discount: float = 1.0
+    obs_noise_amplitude: float = 1.0
+    obs_noise_mean: float = 0.0
+    obs_noise_std: float = 0.0
+    obs_signal: float = 1.0
+    near_reward: float = 50.0
+    mid_reward: float = 1.0
+    far_reward: float = -1.0
+
+    def check(self, config) -> None:
+        from cognet_jax.config import require, require_positive
+
+        require(
+            self.start in START_RANGES,
+            "env.start",
+            f"unknown start range {self.start!r} (known: {', '.join(sorted(START_RANGES))})",
+        )
+        require_positive(self, "env", "horizon")
+        require(
+            0.0 < self.discount <= 1.0, "env.discount", f"must be in (0, 1], got {self.discount}"
+        )
+        for n in ("obs_noise_std", "obs_noise_amplitude"):
+            require(getattr(self, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(self, n)}")
+        require(
+            0.0 <= self.obs_signal <= 1.0,
+            "env.obs_signal",
+            f"must be in [0, 1], got {self.obs_signal}",
+        )
+
+
+def build_from_section(section: HeatmapSection, config) -> tuple[Heatmap, HeatmapParams]:
+    fields = dataclasses.asdict(section)
+    for static in ("name", "start", "horizon"):
+        fields.pop(static)
+    return make_heatmap(section.start, horizon=section.horizon, **fields)
+
+
+def _register() -> None:
+    from cognet_jax.registry import register_env
+
+    register_env(
+        "heatmap",
+        HeatmapSection,
+        build_from_section,
+        dynamic=("discount",),
+        # SPEC section 8
+        references={"thesis": {"full knowledge of own position": 53.14, "random actions": 19.37}},
+        reference_field="start",
+        overwrite=False,
+    )
+
+
+_register()

@@ -185,3 +185,43 @@ def sparse_rows(transition: np.ndarray):
     pad = np.arange(k) >= count
     order = np.where(pad, last, order)
     return jnp.asarray(order, jnp.int32), jnp.asarray(np.where(pad, 0.0, probs), jnp.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# configuration: the [env] section and the registration (cognet_jax.registry)
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class DpomdpSection:
+    """``[env]`` of a tabular problem read from the MADP file named in ``[problem]`` (``path``,
+    ``horizon``, ``discount``)."""
+
+    name: str = "dpomdp"
+
+    def check(self, config) -> None:
+        from cognet_jax.config import require, require_positive
+
+        problem = config.problem
+        require(
+            bool(problem.path),
+            "problem.path",
+            "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp",
+        )
+        require_positive(problem, "problem", "horizon")
+        d = problem.discount
+        require(d is None or 0.0 < d <= 1.0, "problem.discount", f"must be in (0, 1], got {d}")
+
+
+def build_from_section(section: DpomdpSection, config) -> tuple[TabularEnv, TabularParams]:
+    """The parsed model of ``problem.path`` (parsed once per file version, ``api.load_problem``)."""
+    from cognet_jax.api import load_problem
+
+    return make_tabular(load_problem(config), config.problem.horizon, config.problem.discount)
+
+
+def _register() -> None:
+    from cognet_jax.registry import register_env
+
+    register_env("dpomdp", DpomdpSection, build_from_section, overwrite=False)
+
+
+_register()

@@ -194,3 +194,80 @@ def make_tagging(
     params = TaggingParams(discount=s["discount"], respawn=s["respawn"])
     params = params.replace(**overrides)
     return env, params
+
+
+# ---------------------------------------------------------------------------------------------
+# configuration: the [env] section and the registration (cognet_jax.registry)
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class TaggingSection:
+    """``[env]`` of 1D tagging (SPEC 7.1). ``horizon``/``discount``/``respawn`` default to the
+    setting's."""
+
+    name: str = "tagging"
+    setting: str = "thesis"
+    horizon: int | None = None
+    discount: float | None = None
+    respawn: bool | None = None
+    motion_noise: float = 0.0
+    obs_noise: float = 0.0
+    obs_division: float = 0.0
+
+    def check(self, config) -> None:
+        from cognet_jax.config import require, require_positive
+
+        require(
+            self.setting in SETTINGS,
+            "env.setting",
+            f"unknown setting {self.setting!r} (known: {', '.join(sorted(SETTINGS))})",
+        )
+        require_positive(self, "env", "horizon")
+        if self.discount is not None:
+            require(
+                0.0 < self.discount <= 1.0,
+                "env.discount",
+                f"must be in (0, 1], got {self.discount}",
+            )
+        for n in ("motion_noise", "obs_noise", "obs_division"):
+            require(getattr(self, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(self, n)}")
+
+
+def build_from_section(section: TaggingSection, config) -> tuple[Tagging, TaggingParams]:
+    """Env and params of a ``[env]`` section; algorithms that need discrete observations
+    (G-DICE's tabular controllers) read the discretised observation as an index."""
+    from cognet_jax.registry import algorithm_entry
+
+    overrides = dict(motion_noise=section.motion_noise, obs_noise=section.obs_noise)
+    if section.discount is not None:
+        overrides["discount"] = section.discount
+    if section.respawn is not None:
+        overrides["respawn"] = section.respawn
+    discrete = algorithm_entry(config.experiment.algorithm).discrete
+    return make_tagging(
+        section.setting,
+        horizon=section.horizon,
+        obs_division=section.obs_division,
+        obs_index=discrete and section.obs_division > 0,
+        **overrides,
+    )
+
+
+def _register() -> None:
+    from cognet_jax.registry import register_env
+
+    register_env(
+        "tagging",
+        TaggingSection,
+        build_from_section,
+        dynamic=("motion_noise", "obs_noise", "discount", "respawn"),
+        # SPEC section 8
+        references={
+            "thesis": {"reactive 3-node controller": 20.76, "random actions": -23.68},
+            "cogdice-paper": {"reactive 3-node controller": 108.0, "COG-DICE (paper)": 101.8},
+        },
+        reference_field="setting",
+        overwrite=False,  # a user's own "tagging" registered first stays
+    )
+
+
+_register()
