@@ -35,7 +35,7 @@ from pathlib import Path
 
 import jax
 
-from benchmarks import jax_cases, torch_cases
+from benchmarks import jax_cases, numpy_reference, torch_cases
 from benchmarks.report import write_plots, write_readme
 from benchmarks.timing import peak_rss_mib
 
@@ -92,6 +92,9 @@ def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
             timing, rate = jax_cases.rollout_throughput(nodes, num, RUNS, prng="hash")
             rows.append(timing_row(timing, impl="jax-hash", nodes=nodes, rollouts=num, rate=rate))
             log(f"rollouts jax-hash  nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.2f} M/s")
+            timing, rate = numpy_reference.throughput(nodes, num, RUNS)
+            rows.append(timing_row(timing, impl="numpy", nodes=nodes, rollouts=num, rate=rate))
+            log(f"rollouts numpy     nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.3f} M/s")
             if not with_torch:
                 continue
             impls = ["torch-vectorized", "torch-compiled"]

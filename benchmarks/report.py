@@ -65,15 +65,17 @@ def rollout_table(out: dict) -> list[str]:
     rows = out["rollouts"]
     lines = [
         "| nodes | rollouts | JAX ms (min-max) | JAX M agent-steps/s | JAX M/s per core | "
-        "JAX hash-PRNG M/s | torch eager M/s | torch.compile M/s | JAX / best torch-vec | "
-        "torch-loop M/s | JAX / torch-loop |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "JAX hash-PRNG M/s | numpy 1-thread M/s | JAX per core / numpy | torch eager M/s | "
+        "torch.compile M/s | JAX / best torch-vec | torch-loop M/s | JAX / torch-loop |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in (r for r in rows if r["impl"] == "jax"):
         n, num = r["nodes"], r["rollouts"]
         fast = _find(rows, impl="jax-hash", nodes=n, rollouts=num)
         eager = _find(rows, impl="torch-vectorized", nodes=n, rollouts=num)
         compiled = _find(rows, impl="torch-compiled", nodes=n, rollouts=num)
+        numpy_row = _find(rows, impl="numpy", nodes=n, rollouts=num)
+        cores = out.get("cores") or 1
         best = best_torch(rows, n, num)
         loop, extrapolated = loop_at(rows, n, num)
         mark = f" (extrapolated from {loop['rollouts']:.0e})" if loop and extrapolated else ""
@@ -84,6 +86,8 @@ def rollout_table(out: dict) -> list[str]:
             f"{r['rate'] / 1e6:.2f}",
             _per_core(out, r["rate"]),
             f"{fast['rate'] / 1e6:.2f}" if fast else "",
+            f"{numpy_row['rate'] / 1e6:.3f}" if numpy_row else "",
+            f"{r['rate'] / cores / numpy_row['rate']:.1f}x" if numpy_row else "",
             f"{eager['rate'] / 1e6:.3f}" if eager else "",
             f"{compiled['rate'] / 1e6:.3f}" if compiled else "",
             f"{r['rate'] / best['rate']:.1f}x" if best else "",
@@ -370,7 +374,9 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "uses (none for the noise-free simulator here, as XLA drops them on the JAX side); "
         "'best torch-vec' is the faster of the two at that size. JAX hash-PRNG: the same "
         'rollouts driven by the opt-in counter-based generator (`run.prng_impl = "hash"`, '
-        "`cognet_jax/prng.py`); the ratio columns use the default generator.",
+        "`cognet_jax/prng.py`); the ratio columns use the default generator. numpy 1-thread: "
+        "the same rollouts vectorised in numpy (`benchmarks/numpy_reference.py`; elementwise "
+        "kernels and `np.einsum` on one thread), compared with JAX's rate per core.",
         "",
     ]
     if out.get("controller_kinds"):

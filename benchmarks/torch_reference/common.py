@@ -2,7 +2,8 @@
 
 Field names follow ``cognet_jax.algorithms.cognet_dice.CognetSettings`` / ``CognetHyper`` and
 ``cognet_jax.algorithms.cross_entropy.EntropyConfig`` / ``Progress``, so a cognet_jax settings
-object can be passed as is (``as_settings`` / ``as_hyper`` copy the fields by name).
+object can be passed as is (``as_settings`` / ``as_hyper`` copy the fields by name); the
+settings are read from cognet_jax's config declarations (``cognet_jax.config``, no JAX).
 """
 
 from __future__ import annotations
@@ -10,6 +11,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import statistics
+
+from cognet_jax.config import (
+    ENTROPY_SECTION_FIELDS,
+    CognetAlgorithmSection,
+    NetworkSection,
+    settings_class,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,25 +39,17 @@ class CognetHyper:
     entropy: EntropyConfig = dataclasses.field(default_factory=EntropyConfig)
 
 
-@dataclasses.dataclass(frozen=True)
-class CognetSettings:
-    """Structural settings, the same names and defaults as cognet_jax's ``CognetSettings``."""
-
-    nodes: int = 3
-    iterations: int = 500
-    rollouts: int = 1000
-    top: int = 100
-    keep: int = 10
-    eval_rollouts: int = 100
-    hidden: int = 10
-    train_steps: int = 20
-    optimizer: str = "adam"
-    momentum: float = 0.5
-    threshold_rule: str = "elite"
-    separate: bool = False
-    common_random_numbers: bool = True
-    train_last_transition: bool = True
-    entropy_window: int = 4
+#: Structural settings: the fields and defaults of cognet_jax's ``CognetSettings`` (declared in
+#: ``cognet_jax.config.CognetAlgorithmSection`` and ``NetworkSection``) that this reference
+#: implements; it has no ``train_on="top"`` and no fresh re-evaluation (``best_rollouts``).
+CognetSettings = settings_class(
+    "CognetSettings",
+    CognetAlgorithmSection,
+    exclude=("alpha", *ENTROPY_SECTION_FIELDS, "train_on", "best_rollouts"),
+    extra=tuple(
+        (NetworkSection, name) for name in ("hidden", "train_steps", "optimizer", "momentum")
+    ),
+)
 
 
 def as_settings(obj=None, **overrides) -> CognetSettings:
