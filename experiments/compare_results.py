@@ -1,6 +1,7 @@
 """Check that re-run experiments reproduce their saved results: every ``results.json`` below
 experiments/results that differs from its committed version (``git show REV:path``) is compared
-field by field, timings and versions aside.
+field by field, timings and versions aside (fields the saved file does not have yet, such as
+config fields added later with their defaults, are not compared).
 
     python experiments/tagging.py tagging-thesis-n3 --seeds 0   # re-run something
     python experiments/compare_results.py                       # against HEAD
@@ -39,7 +40,7 @@ def differences(old, new, path: str = "") -> list[str]:
     if isinstance(old, dict) and isinstance(new, dict):
         out = []
         for key in sorted(set(old) | set(new)):
-            if key in VOLATILE:
+            if key in VOLATILE or key not in old:  # a field added since: not a result
                 continue
             out += differences(old.get(key), new.get(key), f"{path}.{key}" if path else key)
         return out
