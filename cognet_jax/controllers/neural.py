@@ -27,6 +27,9 @@ from cognet_jax.envs.base import UNROLLED_CATEGORIES
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
 UNROLL_MAX_IN = 8
 UNROLL_MAX_HIDDEN = 32
+#: Small node nets of controllers with at least this many nodes are applied in one fused loop
+#: (``NeuralController.unrolled_node_logits``); fewer nodes use a ``lax.scan`` over the nodes.
+UNROLL_MIN_NODES = 4
 
 
 def _torch_uniform(fan_in: int):
@@ -146,12 +149,27 @@ class NeuralController:
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
 
-        A ``lax.scan`` over the nodes applies node n's member of every agent and keeps its
-        logits where the agent is in node n, instead of gathering each rollout's member weights:
-        under ``vmap`` over rollouts each member becomes one batched matmul and no per-rollout
-        copy of the weights is made (benchmarks/NOTES.md has the side-by-side timings: on the
-        heatmap's 16 -> 160 -> 4 networks the gather is about 4x slower).
-        """
+        Every member of each agent is applied and its logits kept where the agent is in that
+        node (``where``), instead of gathering each rollout's member weights: under ``vmap`` over
+        rollouts each member is then one fused loop (or one batched matmul) over all rollouts and
+        no per-rollout copy of the weights is made (benchmarks/NOTES.md: on the heatmap's
+        16 -> 160 -> 4 networks the gather is about 4x slower).
+
+        Two forms of the same arithmetic, the same numbers bit for bit (tests/test_neural.py):
+        ``lax.scan`` over the nodes (``scan_node_logits``), whose carry is written to memory
+        after each member, or the members written out one after the other
+        (``unrolled_node_logits``), which XLA computes in one fused loop and writes once. The
+        second is used for small (``unrolled``) networks with at least
+        ``UNROLL_MIN_NODES`` nodes: 1.3-1.9x the rollout throughput at 4-8 nodes. With fewer
+        nodes XLA fuses the written-out networks into the softmax and draw that read the
+        logits, and computes them again for each read (3x slower at 3 nodes), so the scan's
+        stores are the cheaper way there (benchmarks/NOTES.md, "Fifth pass")."""
+        if self.unrolled and self.num_nodes >= UNROLL_MIN_NODES:
+            return self.unrolled_node_logits(net_params, nodes, obs)
+        return self.scan_node_logits(net_params, nodes, obs)
+
+    def scan_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
+        """``node_logits`` as a ``lax.scan`` over the nodes (carry ``[agents, nodes]``)."""
         members = jax.tree.map(lambda p: jnp.moveaxis(p, 1, 0), net_params)  # [nodes, agents, ..]
 
         def keep_if_current(out, node_and_member):
@@ -161,6 +179,16 @@ class NeuralController:
 
         init = jnp.zeros((self.num_agents, self.num_nodes), jnp.float32)
         out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
+        return out
+
+    def unrolled_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
+        """``node_logits`` with the members written out in a Python loop (same operations in
+        the same order as ``scan_node_logits``)."""
+        out = jnp.zeros((self.num_agents, self.num_nodes), jnp.float32)
+        for n in range(self.num_nodes):
+            member = jax.tree.map(lambda p, n=n: p[:, n], net_params)  # leaves [agents, ...]
+            logits = jax.vmap(self.one_net_logits)(member, obs)  # [agents, next]
+            out = jnp.where((nodes == n)[:, None], logits, out)
         return out
 
     def all_node_logits(self, net_params: dict, obs: jax.Array) -> jax.Array:

@@ -1,0 +1,53 @@
+"""The two forms of ``NeuralController.node_logits`` (scan over the nodes, members written out)
+give the same numbers bit for bit, alone and inside the rollout engine."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax.controllers.neural import UNROLL_MIN_NODES, NeuralController
+from cognet_jax.envs.tagging import make_tagging
+from cognet_jax.rollout import rollouts
+
+
+@pytest.mark.parametrize(("nodes", "obs_shape"), [(4, ()), (6, ()), (5, (3,))])
+def test_unrolled_and_scan_node_logits_are_identical(nodes, obs_shape):
+    ctrl = NeuralController(2, nodes, 3, obs_shape=obs_shape)
+    assert ctrl.unrolled and nodes >= UNROLL_MIN_NODES
+    params = ctrl.init(jax.random.key(0)).net_params
+    k_obs, k_nodes = jax.random.split(jax.random.key(1))
+    obs = 8.0 * jax.random.normal(k_obs, (4096, 2, *obs_shape))
+    current = jax.random.randint(k_nodes, (4096, 2), 0, nodes)
+
+    def batched(fn):
+        return jax.jit(jax.vmap(fn, (None, 0, 0)))(params, current, obs)
+
+    unrolled = np.asarray(batched(ctrl.unrolled_node_logits))
+    scanned = np.asarray(batched(ctrl.scan_node_logits))
+    np.testing.assert_array_equal(unrolled.view(np.uint32), scanned.view(np.uint32))
+    # and both are the current node's member, as the Flax module computes it
+    member = jax.tree.map(lambda p: p[1, 2], params)
+    at = np.flatnonzero(np.asarray(current[:, 1]) == 2)[:5]
+    direct = jax.vmap(lambda o: ctrl.net.apply(member, o))(obs[at, 1])
+    np.testing.assert_allclose(unrolled[at, 1], direct, rtol=1e-5, atol=1e-5)
+
+
+def test_rollouts_do_not_depend_on_the_form(monkeypatch):
+    env, params = make_tagging("cogdice-paper")  # noisy, respawn
+    ctrl = NeuralController(env.num_agents, 6, env.num_actions)
+    policy = ctrl.init(jax.random.key(3))
+    key = jax.random.key(4)
+
+    def run():
+        out = jax.jit(lambda k, p: rollouts(env, ctrl, k, 512, params, p, record=True))(key, policy)
+        return jax.tree.map(np.asarray, out)
+
+    unrolled = run()
+    monkeypatch.setattr(NeuralController, "node_logits", NeuralController.scan_node_logits)
+    scanned = run()
+    for a, b in zip(jax.tree.leaves(unrolled), jax.tree.leaves(scanned), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert jnp.size(jax.tree.leaves(unrolled)[0]) > 0
