@@ -353,8 +353,9 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         f"- Command: `{out['command']}`, run {out['date']}; load average before "
         f"{out['load_average_before'][0]:.2f}, after {out['load_average_after'][0]:.2f}; "
         f"whole benchmark {out['benchmark_s']:.0f} s; peak RSS {out['peak_rss_mib']:.0f} MiB.",
-        "- Timings: median of >= 5 calls after a warm-up call (min-max in brackets), compile "
-        "time measured apart (ahead-of-time `lower().compile()`).",
+        "- Timings: median of >= 5 calls (min-max in brackets) after a warm-up call and at "
+        "least 0.5 s of further calls (`benchmarks.timing.WARMUP_S`, JAX and torch alike), "
+        "compile time measured apart (ahead-of-time `lower().compile()`).",
         "",
         "## Targets",
         "",

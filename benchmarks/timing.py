@@ -23,10 +23,27 @@ class Timing:
         return f"{self.median_s * 1e3:.2f} ms ({self.min_s * 1e3:.2f}-{self.max_s * 1e3:.2f})"
 
 
-def time_calls(fn: Callable[[], object], runs: int = 5, warmup: int = 1) -> Timing:
-    """Median / min / max wall time of ``fn()`` (outputs blocked until ready)."""
-    for _ in range(warmup):
+#: Before timing, calls are repeated until at least this much wall time has passed (after the
+#: ``warmup`` calls): on this 2-core VM a process that was idle for a few seconds runs its
+#: next ~0.1 s of calls up to 1.6x slower (benchmarks/NOTES.md, "Fifth pass"). Both the JAX
+#: and the torch measurements warm up this way.
+WARMUP_S = 0.5
+
+
+def warm_up(fn: Callable[[], object], calls: int = 1, seconds: float = WARMUP_S) -> None:
+    """Call ``fn()`` ``calls`` times, then again until ``seconds`` of wall time have passed."""
+    t0 = time.perf_counter()
+    for _ in range(calls):
         jax.block_until_ready(fn())
+    while time.perf_counter() - t0 < seconds:
+        jax.block_until_ready(fn())
+
+
+def time_calls(fn: Callable[[], object], runs: int = 5, warmup: int = 1) -> Timing:
+    """Median / min / max wall time of ``fn()`` (outputs blocked until ready), after
+    ``warmup`` calls and at least ``WARMUP_S`` seconds of calls (``warmup=0``: none)."""
+    if warmup:
+        warm_up(fn, warmup)
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()

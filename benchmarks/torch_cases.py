@@ -12,7 +12,7 @@ from __future__ import annotations
 import statistics
 import time
 
-from benchmarks.timing import Timing
+from benchmarks.timing import Timing, warm_up
 
 
 def available() -> bool:
@@ -30,12 +30,15 @@ def version() -> str:
 
 
 def _time(fn, runs: int, warmup: int = 1) -> Timing:
-    """Median of ``runs`` calls after ``warmup`` calls; ``compile_s`` is the first warm-up
-    call's time minus the median (``torch.compile``'s compilation happens there)."""
+    """Median of ``runs`` calls after ``warmup`` calls and at least ``WARMUP_S`` seconds of
+    further calls (as on the JAX side); ``compile_s`` is the first warm-up call's time minus
+    the median (``torch.compile``'s compilation happens there)."""
     t0 = time.perf_counter()
     for _ in range(warmup):
         fn()
     first = time.perf_counter() - t0
+    if warmup:
+        warm_up(fn, calls=0)
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()
