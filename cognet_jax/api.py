@@ -152,10 +152,11 @@ def split_seed_key(key: jax.Array):
     return k_init, k_run, k_eval
 
 
-def make_step(config: Config):
-    """``(algorithm, init, step)``: ``init(init_key)``; ``step(run_key, state, hyper=None)``
-    (``hyper``: the algorithm's dynamic hyper-parameters, default ``algorithm.hyper``)."""
-    algorithm = build_algorithm(config)
+def iteration_step(algorithm):
+    """``step(run_key, state, hyper=None) -> (state, metrics)``: one iteration of
+    ``algorithm`` with the key ``fold_in(run_key, i)``, i read from the state (so a resumed run
+    continues the same random stream). What ``make_step``, ``make_train``, the runner and the
+    sweeps all run."""
 
     def step(run_key, state, hyper=None):
         key = jax.random.fold_in(run_key, state.progress.iteration)
@@ -163,7 +164,27 @@ def make_step(config: Config):
             return algorithm.step(key, state)
         return algorithm.step(key, state, hyper)
 
-    return algorithm, algorithm.init, step
+    return step
+
+
+def honest_returns(algorithm, evaluation):
+    """``returns(key, policy) -> [evaluation.rollouts]``: the returns of the honest evaluation
+    of ``policy``, drawn from the seed key ``key``'s evaluation key (never used by the
+    search); ``evaluation`` is the config's ``[evaluation]`` section."""
+
+    def returns(key, policy):
+        _, _, k_eval = split_seed_key(key)
+        return algorithm.policy_returns(k_eval, policy, evaluation.rollouts, evaluation.batch)
+
+    return returns
+
+
+def make_step(config: Config):
+    """``(algorithm, init, step)``: ``init(init_key)``; ``step(run_key, state, hyper=None)``
+    (``iteration_step``; ``hyper``: the algorithm's dynamic hyper-parameters, default
+    ``algorithm.hyper``)."""
+    algorithm = build_algorithm(config)
+    return algorithm, algorithm.init, iteration_step(algorithm)
 
 
 def make_train(config: Config):
@@ -192,11 +213,9 @@ def make_evaluate(config: Config):
     float summation order)."""
     from cognet_jax.rollout import mean_and_stderr
 
-    algorithm = build_algorithm(config)
-    e = config.evaluation
+    returns = honest_returns(build_algorithm(config), config.evaluation)
 
     def evaluate(key, policy):
-        _, _, k_eval = split_seed_key(key)
-        return mean_and_stderr(algorithm.policy_returns(k_eval, policy, e.rollouts, e.batch))
+        return mean_and_stderr(returns(key, policy))
 
     return evaluate

@@ -42,7 +42,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cognet_jax.api import build_algorithm, seed_key, split_seed_key
+from cognet_jax.api import (
+    build_algorithm,
+    honest_returns,
+    iteration_step,
+    seed_key,
+    split_seed_key,
+)
 from cognet_jax.config import Config, ConfigError, load_config, parse_override
 from cognet_jax.errors import MismatchError
 from cognet_jax.memory import budget_bytes, trace_checked
@@ -238,13 +244,11 @@ def run_group(
 
     def step_one(key, state, hyper, env_params):
         _, k_run, _ = split_seed_key(key)
-        algo = run_algorithm(env_params)
-        return algo.step(jax.random.fold_in(k_run, state.progress.iteration), state, hyper)
+        return iteration_step(run_algorithm(env_params))(k_run, state, hyper)
 
     def eval_one(key, state, env_params):
-        _, _, k_eval = split_seed_key(key)
         algo = run_algorithm(env_params)
-        return algo.policy_returns(k_eval, algo.best_policy(state), ev.rollouts, ev.batch)
+        return honest_returns(algo, ev)(key, algo.best_policy(state))
 
     # every leaf (state, metrics, keys, params) has the leading [runs] axis: shard it
     state = per_run(init_one, sharding, 1)(keys)

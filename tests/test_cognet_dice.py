@@ -187,7 +187,7 @@ def test_best_rollouts_sets_the_step8_evaluation():
     key = jax.random.key(5)
     state, metrics = jax.jit(algorithm.step)(key, init(jax.random.key(4)))
     k_eval = jax.random.split(key, 3)[2]
-    expected = algorithm.evaluate(k_eval, state.policy, 700)
+    expected = algorithm.evaluate_policy(k_eval, state.policy, 700)
     np.testing.assert_allclose(float(metrics.value), float(expected), rtol=1e-6)
     assert algorithm.rollouts_per_iteration == 200 + 20 * 20 + 700
 

@@ -18,7 +18,27 @@ CASES = {
     ),
     "cognet-dice": ("tagging-thesis-n3", ["algorithm.candidates=40", "algorithm.elites=4"]),
     "gdice": ("tagging-paper-gdice-d1", ["env.horizon=5", "algorithm.samples=50"]),
+    "cognet-dice-thesis": (
+        "tagging-thesis-spec-n3",
+        ["algorithm.rollouts=200", "algorithm.top=20", "algorithm.keep=4"],
+    ),
+    "cognet-dice-thesis-separate": (
+        "tagging-separate-n3",
+        ["algorithm.rollouts=200", "network.train_steps=3"],
+    ),
+    # the G-DICE portfolio (independent, shared and exploring searches) with rollout values
+    "gdice-portfolio": (
+        "gdice-dpomdp",
+        ["algorithm.samples=40", 'algorithm.evaluator="rollouts"', "algorithm.nodes=2"],
+    ),
 }
+
+
+def _config(name):
+    experiment, sets = CASES[name]
+    if experiment == "gdice-dpomdp":
+        sets = [f'problem.path="{dpomdp_file("dectiger")}"', *sets]
+    return load_config(experiment, sets)
 
 
 def _same(a, b):
@@ -28,8 +48,9 @@ def _same(a, b):
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_ask_evaluate_tell_is_step(name):
-    experiment, sets = CASES[name]
-    algorithm, init, _ = make_step(load_config(experiment, sets))
+    algorithm, init, _ = make_step(_config(name))
+    if name == "gdice-portfolio":
+        assert len(algorithm.members) == 3  # independent, shared, exploring
     state = init(jax.random.key(0))
     key = jax.random.key(3)
 
@@ -125,3 +146,23 @@ def test_make_train_takes_hyper_parameters_and_make_evaluate_is_honest(tmp_path)
     )
     assert float(mean) == pytest.approx(ref["mean"], rel=1e-5)
     assert float(stderr) == pytest.approx(ref["stderr"], rel=1e-3) and ref["stderr"] > 0
+
+
+@pytest.mark.parametrize("name", ["cognet-dice-thesis", "gdice-portfolio"])
+def test_tell_takes_own_values_and_fresh(name):
+    """Values of one's own go through ``tell``: with every candidate valued 0 and ``fresh``
+    giving 7, the anytime best value is 7."""
+    algorithm, init, _ = make_step(_config(name))
+    state = init(jax.random.key(0))
+    key = jax.random.key(5)
+
+    @jax.jit
+    def iteration(key, state):
+        asked, policies = algorithm.ask(key, state)
+        values = jax.tree.map(jnp.zeros_like, algorithm.evaluate(key, policies))
+        return algorithm.tell(key, state, asked, values, fresh=lambda k, p: jnp.float32(7.0))
+
+    state, metrics = iteration(key, state)
+    assert float(metrics.best_value) == 7.0
+    # the thesis algorithm's value is its updated policy's (fresh); G-DICE's the best sample's
+    assert float(metrics.value) == (7.0 if name == "cognet-dice-thesis" else 0.0)

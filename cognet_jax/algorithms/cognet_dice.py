@@ -103,6 +103,18 @@ class CognetMetrics:
     injected: jax.Array  # [] bool
 
 
+@struct.dataclass
+class CognetAsked:
+    """What ``CognetDice.ask`` drew for ``tell``: the current policy's recorded rollouts
+    (``Trajectory``, leading ``[rollouts]`` axis), the indices ``[top]`` of the pre-selected
+    ones and their action counts ``[top, agents, nodes, actions]`` (``None`` in separate
+    training)."""
+
+    traj: Any
+    top_idx: jax.Array | None = None
+    counts: jax.Array | None = None
+
+
 def make_optimizer(settings: CognetSettings) -> optax.GradientTransformation:
     """The optimiser *without* its learning rate (applied from ``CognetHyper``)."""
     if settings.optimizer == "adam":
@@ -243,7 +255,7 @@ class CognetDice(RolloutValues):
         )
         return net_params, opt_state
 
-    def evaluate(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
+    def evaluate_policy(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
         """Mean return of ``policy`` over ``num_rollouts`` rollouts."""
         return rollouts(
             self.env, self.controller, key, num_rollouts, self.env_params, policy
@@ -262,15 +274,70 @@ class CognetDice(RolloutValues):
         step8 = s.best_rollouts or s.eval_rollouts
         return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + step8
 
-    def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
-        """One COGNet-DICE iteration; returns ``(state, CognetMetrics)``."""
-        hyper = self.hyper if hyper is None else hyper
-        s, ctrl, env = self.settings, self.controller, self.env
-        k_roll, k_cand, k_eval = jax.random.split(key, 3)
-        policy, progress = state.policy, state.progress
+    # -- one iteration: ask / evaluate / tell (algorithms.engine's protocol) ------------------
+    def ask(self, key: jax.Array, state: CognetState) -> tuple[CognetAsked, NeuralPolicy | None]:
+        """Steps 1-3: the current policy's recorded rollouts (the algorithm's simulator), the
+        ``top`` of them and their candidates. Returns ``(asked, candidates)``: ``candidates``
+        is the current policy with ``action_probs [top, agents, nodes, actions]`` (one per
+        pre-selected rollout; the networks are shared), ``None`` in separate training."""
+        s = self.settings
+        k_roll, _, _ = jax.random.split(key, 3)
+        traj = rollouts(
+            self.env,
+            self.controller,
+            k_roll,
+            s.rollouts,
+            self.env_params,
+            state.policy,
+            record=True,
+        )
+        if s.separate:
+            return CognetAsked(traj=traj), None
+        _, top_idx = jax.lax.top_k(traj.ret, s.top)
+        counts = rollout_action_counts(
+            traj.nodes[top_idx], traj.actions[top_idx], s.nodes, self.env.num_actions
+        )  # [top, agents, nodes, actions]
+        candidates = state.policy.replace(
+            action_probs=candidate_action_probs(state.policy.action_probs, counts)
+        )
+        return CognetAsked(traj=traj, top_idx=top_idx, counts=counts), candidates
 
-        # 1-2: rollouts of the current policy, pre-selection
-        traj = rollouts(env, ctrl, k_roll, s.rollouts, self.env_params, policy, record=True)
+    def evaluate(self, key: jax.Array, candidates: NeuralPolicy | None) -> jax.Array | None:
+        """Step 4: mean returns ``[top]`` of the candidates over ``eval_rollouts`` rollouts
+        (common random numbers by default); ``None`` in separate training."""
+        if candidates is None:
+            return None
+        s = self.settings
+        _, k_cand, _ = jax.random.split(key, 3)
+        return evaluate_candidates(
+            self.env,
+            self.controller,
+            k_cand,
+            s.eval_rollouts,
+            self.env_params,
+            candidates,
+            policy_axes=NeuralPolicy(action_probs=0, net_params=None),
+            memory=self.memory,
+            common_random_numbers=s.common_random_numbers,
+        )
+
+    def tell(
+        self,
+        key: jax.Array,
+        state: CognetState,
+        asked: CognetAsked,
+        values: jax.Array | None,
+        *,
+        hyper: CognetHyper | None = None,
+        fresh=None,
+    ):
+        """Steps 5-8 with the candidates' ``values [top]``; returns ``(state, CognetMetrics)``.
+        ``fresh(key, policy) -> value`` values the updated policy in step 8 (default: the
+        mean of ``best_rollouts`` (or ``eval_rollouts``) rollouts of the simulator)."""
+        hyper = self.hyper if hyper is None else hyper
+        s = self.settings
+        _, _, k_eval = jax.random.split(key, 3)
+        policy, progress, traj = state.policy, state.progress, asked.traj
         if s.separate:
             _, kept_idx = jax.lax.top_k(traj.ret, s.keep)
             kept_mask = jnp.ones(s.keep, bool)
@@ -279,31 +346,14 @@ class CognetDice(RolloutValues):
             action_probs = policy.action_probs
             injected = jnp.bool_(False)
         else:
-            _, top_idx = jax.lax.top_k(traj.ret, s.top)
-            counts = rollout_action_counts(
-                traj.nodes[top_idx], traj.actions[top_idx], s.nodes, env.num_actions
-            )  # [top, agents, nodes, actions]
-            # 3-4: clone candidates and evaluate them
-            cand_probs = candidate_action_probs(policy.action_probs, counts)
-            cand_values = evaluate_candidates(
-                env,
-                ctrl,
-                k_cand,
-                s.eval_rollouts,
-                self.env_params,
-                policy.replace(action_probs=cand_probs),
-                policy_axes=NeuralPolicy(action_probs=0, net_params=None),
-                memory=self.memory,
-                common_random_numbers=s.common_random_numbers,
-            )
-            best_candidate = cand_values.max()
+            best_candidate = values.max()
             # 5: threshold
             bar = progress.best_value if s.threshold_rule == "best" else progress.threshold
-            sel, kept_mask, new_bar = elite_selection(cand_values, bar, s.keep)
+            sel, kept_mask, new_bar = elite_selection(values, bar, s.keep)
             threshold = progress.threshold if s.threshold_rule == "best" else new_bar
-            kept_idx = top_idx[sel]
+            kept_idx = asked.top_idx[sel]
             # 6: count MLE over the kept original rollouts, smoothing, entropy injection
-            kept_counts = (counts[sel] * kept_mask[:, None, None, None]).sum(0)
+            kept_counts = (asked.counts[sel] * kept_mask[:, None, None, None]).sum(0)
             action_probs = smooth(policy.action_probs, kept_counts, hyper.alpha)
             injected = progress.should_inject(hyper.entropy)
             action_probs = jnp.where(
@@ -316,7 +366,9 @@ class CognetDice(RolloutValues):
 
         # 7: train the node networks on the kept rollouts' transitions
         if s.train_on == "top" and not s.separate:
-            pairs = training_pairs(traj, top_idx, jnp.ones(s.top, bool), s.train_last_transition)
+            pairs = training_pairs(
+                traj, asked.top_idx, jnp.ones(s.top, bool), s.train_last_transition
+            )
         else:
             pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
         # fold_in (not a 4th split) keeps the random streams of runs without augmentation
@@ -327,7 +379,10 @@ class CognetDice(RolloutValues):
         policy = NeuralPolicy(action_probs=action_probs, net_params=net_params)
 
         # 8: evaluate, record, keep the best
-        value = self.evaluate(k_eval, policy, s.best_rollouts or s.eval_rollouts)
+        if fresh is None:
+            value = self.evaluate_policy(k_eval, policy, s.best_rollouts or s.eval_rollouts)
+        else:
+            value = fresh(k_eval, policy)
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, policy, state.best_policy)
         metrics = CognetMetrics(
@@ -343,6 +398,12 @@ class CognetDice(RolloutValues):
             policy=policy, opt_state=opt_state, best_policy=best_policy, progress=progress
         )
         return new_state, metrics
+
+    def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
+        """One COGNet-DICE iteration (``ask``, ``evaluate``, ``tell``); returns
+        ``(state, CognetMetrics)``."""
+        asked, candidates = self.ask(key, state)
+        return self.tell(key, state, asked, self.evaluate(key, candidates), hyper=hyper)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -24,6 +24,13 @@ A subclass provides ``settings`` (``samples``, ``elites``), ``hyper`` (``alpha``
 ``sample_policies(key, dist)``, ``evaluate_samples(key, policies)``,
 ``update_distribution(dist, elites, kept, hyper)`` and ``inject(dist, injected, hyper)``; and
 ``policies_of(samples)`` when a sample carries more than its policy (COG-DICE's unit points).
+
+The other searches speak the same protocol with the same iteration key: the default
+COGNet-DICE (``cognet_weights.CognetWeights``), a G-DICE portfolio (``gdice.GDicePortfolio``:
+one entry per member search, leading axes ``[restarts, samples]``) and the thesis COGNet-DICE
+(``cognet_dice.CognetDice``: ``ask`` rolls out the current policy on the algorithm's simulator
+and returns the trajectories with the ``[top]`` candidates; ``tell`` takes the candidates'
+values and trains the networks on those trajectories).
 """
 
 from __future__ import annotations

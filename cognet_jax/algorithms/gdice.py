@@ -405,14 +405,51 @@ class GDicePortfolio:
     def rollouts_per_iteration(self) -> int:
         return sum(m.rollouts_per_iteration * r for m, r in zip(self.members, self.restarts))
 
-    def step(self, key: jax.Array, state: PortfolioState, hyper: GDiceHyper | None = None):
-        """One iteration of every member search; returns ``(state, GDiceMetrics)``."""
+    # -- ask / evaluate / tell (algorithms.engine's protocol, one entry per member search) --
+    def _member_keys(self, key: jax.Array, i: int) -> jax.Array:
+        """Keys ``[restarts]`` of member search ``i`` for the iteration key ``key``."""
+        return jax.random.split(jax.random.fold_in(key, i), self.restarts[i])
+
+    def ask(self, key: jax.Array, state: PortfolioState) -> tuple[tuple, tuple]:
+        """``(samples, policies)``: one entry per member search, each with leading axes
+        ``[restarts, samples]`` (see ``members`` and ``restarts``)."""
+        asked = [
+            jax.vmap(m.ask)(self._member_keys(key, i), state.members[i])
+            for i, m in enumerate(self.members)
+        ]
+        return tuple(a[0] for a in asked), tuple(a[1] for a in asked)
+
+    def evaluate(self, key: jax.Array, policies: tuple) -> tuple:
+        """Values ``[restarts, samples]`` per member search (each member's own evaluator)."""
+        return tuple(
+            jax.vmap(m.evaluate)(self._member_keys(key, i), policies[i])
+            for i, m in enumerate(self.members)
+        )
+
+    def tell(
+        self,
+        key: jax.Array,
+        state: PortfolioState,
+        samples: tuple,
+        values: tuple,
+        *,
+        hyper: GDiceHyper | None = None,
+        fresh=None,
+    ):
+        """Every member search told its values (``ThresholdSearch.tell``), then the best of
+        them all kept; returns ``(state, GDiceMetrics)``. ``fresh(key, policy) -> value`` as in
+        ``ThresholdSearch.tell`` (one policy; the portfolio ``vmap``s it over restarts)."""
         hyper = self.hyper if hyper is None else hyper
         members, metrics = [], []
-        for i, (m, r, rate) in enumerate(zip(self.members, self.restarts, self.rates)):
-            keys = jax.random.split(jax.random.fold_in(key, i), r)
+        for i, (m, rate) in enumerate(zip(self.members, self.rates)):
             h = hyper if rate is None else hyper.replace(entropy=hyper.entropy.replace(rate=rate))
-            new, met = jax.vmap(lambda k, s, m=m, h=h: m.step(k, s, h))(keys, state.members[i])
+
+            def tell_one(k, s, smp, v, m=m, h=h):
+                return m.tell(k, s, smp, v, hyper=h, fresh=fresh)
+
+            new, met = jax.vmap(tell_one)(
+                self._member_keys(key, i), state.members[i], samples[i], values[i]
+            )
             members.append(new)
             metrics.append(met)
         values = jnp.concatenate([s.progress.best_value for s in members])
@@ -432,6 +469,12 @@ class GDicePortfolio:
             injected=met.injected.any(),
         )
         return PortfolioState(tuple(members), best_policy, progress), out
+
+    def step(self, key: jax.Array, state: PortfolioState, hyper: GDiceHyper | None = None):
+        """One iteration of every member search (``ask``, ``evaluate``, ``tell``); returns
+        ``(state, GDiceMetrics)``."""
+        samples, policies = self.ask(key, state)
+        return self.tell(key, state, samples, self.evaluate(key, policies), hyper=hyper)
 
     def policy_returns(self, key, policy, num: int, batch: int = 10_000):
         return self.members[0].policy_returns(key, policy, num, batch)
