@@ -39,7 +39,7 @@ HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "heatmap"
 README = HERE / "README.md"
 
-#: What the runs of 2026-11-23 (seed 0, thesis scale) show; the numbers are those of the table.
+#: What the default runs show (seed 0, thesis scale); figures are in the tables.
 DEFAULT_FINDINGS = """\
 **Default `cognet-dice`** (the rows without `-spec`; their 8-seed sweeps are in the section
 "COGNet-DICE (default): 8-seed sweeps and ablations"). On the raw patch the search runs over
@@ -57,7 +57,8 @@ weight 1 collapses its second dimension to the prior (the thesis-algorithm notes
 KL weight 0.01 and 200 epochs both dimensions carry information and mirror positions get
 different latents (table "VAE latents" below, read from the VAE files the runs saved). With the
 default start range {2..13} only (2, 2) earns +50 and a return is mostly the -1 steps, so
-values are small and close to their bound 4.431.
+values are small and close to their bound in
+that range (the references below the table).
 
 **Which policies use their observations** (noise study): the default policies lose value when
 noise is added to the patch and lose most when the patch is replaced by noise or by a constant
@@ -68,69 +69,229 @@ place (raw +options, the one that uses its observation, is the exception); where
 of real patches. Augmentation cannot be credited with robustness here: the augmented policies
 hardly use the observation to begin with."""
 
-FINDINGS = """\
-Findings on the thesis algorithm `cognet-dice-thesis` (seed 0, 500 iterations; the experiments
-were called heatmap-2d-n4 etc. before the default changed and are now the `-spec` ones).
+OPTIONS_SWEEP = RESULTS / "options-sweep" / "runs.csv"
 
-**The target of 50 is out of reach for every controller here.** Each agent starts in node 0
-and makes its first move before its first observation. No policy that does that can beat
-**46.898** in the thesis range: the best single first move for the whole start range, then
-full knowledge of the own position (`heatmap.first_move_blind_value`, exact dynamic
-programming; 4.431 in the default range). The 53.14 of SPEC lets the first move know the start.
-The bound is attained: the 2-node reactive controller "x-1 first; then x-1 while the patch says
-x > 2, else y-1" gets exactly 46.898 through the simulator's own step (tests/test_heatmap.py),
-so 46.898 is the optimum of this class, and the thesis's 44.3 / 43.8 are in-loop values (biased
-upwards, see below).
 
-**SPEC settings** (the first four rows): honest 37.2-37.5. Their best policies are stochastic
-walks toward the source: most nodes keep about half x-1 and half y-1, so the next node hardly
-matters and the observation is not used -- the noise study shows it (values unchanged to
-0.002 from std 0 to 0.2). In-loop bests of 70-75 against honest 37 are the winner's curse of
-100-rollout means of very noisy returns (a rollout's return has a standard deviation of about
-83); every thesis-range run took its best at iteration 140 because the runs share seed 0 and so
-the same evaluation keys.
+def _value(name: str, field: str = "mean", seed: int = 0) -> float | None:
+    r = _load(name, seed)
+    if r is None:
+        return None
+    return r["in_loop_best"] if field == "in_loop_best" else r["final_value"][field]
 
-**"+options" rows** change the two SPEC choices the tagging section changes: the networks train
-on the pairs of all K_top = 100 pre-selected rollouts (`algorithm.train_on="top"`), and step 8
-values the updated policy with 1000 rollouts (`algorithm.best_rollouts=1000`). Raw 4 nodes
-then reaches honest 41.493, 88% of the bound (5 nodes: 40.162). Its policy does use the
-patches: most of its nodes act almost purely (x-1 or y-1 with probability about 0.96) and
-the networks switch between them by position; the noise study shows it, with a loss of 0.7
-at std 0.05 and 2.4 at std 0.2 (same evaluation key at every std). Other runs with the options
-(`cognet-jax train heatmap-2d-spec-n4 --set algorithm.train_on='"top"' --set
-algorithm.best_rollouts=1000` plus `--seed 1`, `--set network.train_steps=50`, `--set
-network.learning_rate=0.03` or `--set algorithm.iterations=1000`) gave 39.517, 40.569, 36.785
-and 41.493 (the same policy as with 500 iterations). Over seeds, and with more rollouts per
-iteration: `cognet-jax sweep heatmap-2d-spec-n4 --seeds 4 --set algorithm.train_on='"top"' --set
-algorithm.best_rollouts=1000 --grid algorithm.rollouts=1000,3000` gave 39.503 +- 0.450 (K_roll
-1000) and **42.698 +- 0.843** (K_roll 3000; seeds 40.2-44.0), mean +- s.e. over 4 seeds
-(experiments/results/heatmap/options-sweep/). With 3000 rollouts the 100 pre-selected ones
-are the best 3.3% instead of 10%, and the networks learn from better examples. The best seed
-reaches 94% of the bound, close to the thesis's in-loop 44.3. (Sweep seed 0 is not the table's
-seed-0 run: with the raw 160-unit networks, batching over seeds changes the rounding of their
-matrix products, and the runs part after 12 iterations; see README.md, Sweeps.)
 
-**Encoded** runs stay at blind walks with the options too (36.7 / 37.3). The VAE's 1-D mean is
-a function of the distance to the source, as the issue asks of it (thesis Fig. 5.10): mirror
-positions get nearly the same mu ((2, 7): -0.991, (7, 2): -0.989). But the better policies
-decide between x-1 and y-1 by *which* coordinate is still above 2, which the distance alone
-cannot tell. The encoder throws away exactly the information the better policy needs. A 2-D
-latent does not bring it back: trained the same way (`cognet_jax.vae.train_vae(latent=2)`, saved
-and passed with `--set network.vae_path=...`), the second mean dimension collapses to the prior
-(standard deviation 0.034 over the reachable positions against 0.86 for the first), and the
-encoded run with the options gave 36.895.
+def _span(values: list[float], fmt: str = ".1f") -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo:{fmt}}" if f"{lo:{fmt}}" == f"{hi:{fmt}}" else f"{lo:{fmt}}-{hi:{fmt}}"
 
-**Noise robustness: what the numbers say.** Only one of the eight policies uses its
-observation (raw +options); it loses 5.6% of its value at std 0.2. The seven others lose
-nothing because they ignore what they see. So the study cannot credit the VAE or the
-augmentation with robustness: the encoded and the augmented searches did not learn an
-observation-using policy at all. With augmentation the raw +options search ended at a blind
-walk (36.9) too; one seed each.
 
-The encoded variant's iterations are 4-10x faster than the raw ones (s / iteration column).
-The iteration of the in-loop best cannot say whether it converges in half the iterations: it
-is set by the shared evaluation keys. The learning curves of the section "does the encoded
-variant converge in half the iterations?" below answer that (it does not)."""
+def _noise_drop(label: str, std: float) -> float | None:
+    """Value at std 0 minus value at ``std`` of one noise-study variant (noise.json)."""
+    path = RESULTS / "noise.json"
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text())
+    if label not in data or std not in data["stds"]:
+        return None
+    means = data[label]["means"]
+    return means[0] - means[data["stds"].index(std)]
+
+
+def _options_sweep() -> dict[int, list[float]] | None:
+    """``algorithm.rollouts`` -> honest values per seed of the saved options sweep."""
+    if not OPTIONS_SWEEP.is_file():
+        return None
+    import csv
+
+    out: dict[int, list[float]] = {}
+    with OPTIONS_SWEEP.open() as f:
+        for row in csv.DictReader(f):
+            out.setdefault(int(row["algorithm.rollouts"]), []).append(float(row["final_mean"]))
+    return out
+
+
+def _mean_stderr(values: list[float]) -> str:
+    import statistics
+
+    se = statistics.stdev(values) / len(values) ** 0.5 if len(values) > 1 else 0.0
+    return f"{statistics.mean(values):.3f} +- {se:.3f}"
+
+
+def _pure_action_share(name: str) -> float | None:
+    """Median over (agent, node) of the largest action probability of a saved best policy."""
+    import numpy as np
+
+    from cognet_jax.runner import load_policy
+
+    if _load(name, 0) is None:
+        return None
+    _, _, policy = load_policy(run_dir(name, 0))
+    return float(np.median(np.asarray(policy.action_probs).max(-1)))
+
+
+def findings() -> str:
+    """What the thesis algorithm's runs show; every figure is read from the saved results
+    (seed 0 unless said otherwise) or computed from the simulator."""
+    from cognet_jax.envs.heatmap import first_move_blind_value
+
+    bound = first_move_blind_value("thesis")
+    spec = [n for n in THESIS_SPEC if _load(n, 0) is not None]
+    if not spec:
+        return ""
+    honest = [_value(n) for n in spec]
+    in_loop = [_value(n, "in_loop_best") for n in spec]
+    spreads = [
+        _load(n, 0)["final_value"]["stderr"] * _load(n, 0)["final_value"]["rollouts"] ** 0.5
+        for n in spec
+    ]
+    best_at = sorted({first_best_iteration(_load(n, 0)["best_per_iteration"]) for n in spec})
+    parts = [
+        "Findings on the thesis algorithm `cognet-dice-thesis` (seed 0, 500 iterations; the "
+        "experiments were called heatmap-2d-n4 etc. before the default changed and are now the "
+        "`-spec` ones).",
+        "",
+        "**The target of 50 is out of reach for every controller here.** Each agent starts in "
+        "node 0 and makes its first move before its first observation. No policy that does that "
+        f"can beat **{bound:.3f}** in the thesis range: the best single first move for the "
+        "whole start range, then full knowledge of the own position "
+        "(`heatmap.first_move_blind_value`, exact dynamic programming; "
+        f"{first_move_blind_value('default'):.3f} in the default range). The {OPTIMUM} of SPEC "
+        "lets the first move know the start. The bound is attained: the 2-node reactive "
+        'controller "x-1 first; then x-1 while the patch says x > 2, else y-1" reaches it '
+        "through the simulator's own step (tests/test_heatmap.py), so it is the optimum of "
+        "this class, and the thesis's "
+        f"{THESIS_SPEC['heatmap-2d-spec-n4']:.1f} / {THESIS_SPEC['heatmap-encoded-spec-n4']:.1f}"
+        " are in-loop values (biased upwards, see below).",
+        "",
+    ]
+    drop = _noise_drop("raw, thesis alg.", 0.2)
+    parts += [
+        f"**SPEC settings** (the first {len(spec)} `-spec` rows): honest {_span(honest)}. Their "
+        "best policies are stochastic walks toward the source: most nodes mix x-1 and y-1, so "
+        "the next node hardly matters and the observation is not used"
+        + (
+            f" -- the noise study shows it (raw: the value at std 0 minus the value at std "
+            f"0.2 is {drop:.3f})."
+            if drop is not None
+            else "."
+        )
+        + f" In-loop bests of {_span(in_loop, '.0f')} against those honest values are the "
+        "winner's curse of 100-rollout means of very noisy returns (a rollout's return has a "
+        f"standard deviation of about {sum(spreads) / len(spreads):.0f}); the runs took their "
+        f"best at iteration {' / '.join(map(str, best_at))}, "
+        + (
+            "the same for all because they share seed 0 and so the same evaluation keys."
+            if len(best_at) == 1
+            else "close together because they share seed 0 and so the same evaluation keys."
+        ),
+        "",
+    ]
+    raw4, raw5 = _value("heatmap-2d-spec-n4+options"), _value("heatmap-2d-spec-n5+options")
+    if raw4 is not None:
+        share = _pure_action_share("heatmap-2d-spec-n4+options")
+        d05 = _noise_drop("raw +options, thesis alg.", 0.05)
+        d2 = _noise_drop("raw +options, thesis alg.", 0.2)
+        parts += [
+            '**"+options" rows** change the two SPEC choices the tagging section changes: the '
+            "networks train on the pairs of all K_top = 100 pre-selected rollouts "
+            '(`algorithm.train_on="top"`), and step 8 values the updated policy with 1000 '
+            f"rollouts (`algorithm.best_rollouts=1000`). Raw 4 nodes then reaches honest "
+            f"{raw4:.3f}, {100 * raw4 / bound:.0f}% of the bound"
+            + (f" (5 nodes: {raw5:.3f})" if raw5 is not None else "")
+            + ". Its policy does use the patches: its nodes act almost purely (median largest "
+            f"action probability {share:.2f}) and the networks switch between them by position"
+            + (
+                f"; the noise study shows it, with a loss of {d05:.1f} at std 0.05 and "
+                f"{d2:.1f} at std 0.2 (same evaluation key at every std)."
+                if d2 is not None
+                else "."
+            ),
+        ]
+        sweep = _options_sweep()
+        if sweep:
+            settings = sorted(sweep)
+            cells = "; ".join(
+                f"K_roll {k}: {_mean_stderr(v)} (seeds {_span(v)})" for k, v in sweep.items()
+            )
+            best = max(max(v) for v in sweep.values())
+            parts[-1] += (
+                " Over seeds, and with more rollouts per iteration: `cognet-jax sweep "
+                "heatmap-2d-spec-n4 --seeds 4 --set algorithm.train_on='\"top\"' --set "
+                "algorithm.best_rollouts=1000 --grid algorithm.rollouts="
+                + ",".join(map(str, settings))
+                + f"` gave {cells}, mean +- s.e. over seeds "
+                "(experiments/results/heatmap/options-sweep/). With more rollouts the 100 "
+                "pre-selected ones are "
+                + " instead of ".join(f"the best {100 * 100 / k:.1f}%" for k in settings[::-1])
+                + f", and the networks learn from better examples. The best seed reaches "
+                f"{100 * best / bound:.0f}% of the bound. (Sweep seed 0 is not the table's seed-0 "
+                "run: with the raw 160-unit networks, batching over seeds changes the rounding "
+                "of their matrix products, and the runs part early; see README.md, Sweeps.)"
+            )
+        parts.append("")
+    enc = [_value(f"heatmap-encoded-spec-n{n}+options") for n in (4, 5)]
+    if all(v is not None for v in enc):
+        parts += [
+            f"**Encoded** runs stay at blind walks with the options too "
+            f"({' / '.join(f'{v:.1f}' for v in enc)}). The VAE's 1-D mean is a function of the "
+            "distance to the source, as the issue asks of it (thesis Fig. 5.10): mirror "
+            'positions get nearly the same mean (table "VAE latents" above, '
+            "heatmap-encoded-spec-n4). But the better policies decide between x-1 and y-1 by "
+            "*which* coordinate is still above 2, which the distance alone cannot tell. The "
+            "encoder throws away exactly the information the better policy needs. A 2-D latent "
+            "trained with the thesis's KL weight 1 collapsed its second dimension to the prior "
+            "when we tried it (that VAE was not kept); the default runs' 2-D latent with KL "
+            "weight 0.01 keeps both (the same table).",
+            "",
+        ]
+    labels = [k for k in NOISE_VARIANTS if "thesis alg." in k]
+    drops = {k: _noise_drop(k, 0.2) for k in labels}
+    drops = {k: v for k, v in drops.items() if v is not None}
+    if drops:
+        data = json.loads((RESULTS / "noise.json").read_text())
+        rel = {k: 100 * v / data[k]["means"][0] for k, v in drops.items()}
+        top = max(rel, key=rel.get)
+        others = [v for k, v in rel.items() if k != top]
+        aug = _value("heatmap-2d-spec-n4+options-aug")
+        parts += [
+            f"**Noise robustness: what the numbers say.** Of the {len(rel)} thesis-algorithm "
+            f"policies, {top.replace(', thesis alg.', '')} loses the most at std 0.2: "
+            f"{rel[top]:.1f}% of its value; the values of the {len(others)} others change by "
+            + (
+                "less than 0.01%"
+                if max(abs(v) for v in others) < 0.01
+                else f"at most {max(abs(v) for v in others):.2f}%"
+            )
+            + ", because they ignore what they see. "
+            "So the study cannot credit the VAE or the "
+            "augmentation with robustness: the encoded and the augmented searches did not learn "
+            "an observation-using policy at all."
+            + (
+                f" With augmentation the raw +options search ended at a blind walk "
+                f"({aug:.1f}) too; one seed each."
+                if aug is not None
+                else ""
+            ),
+            "",
+        ]
+    ratios = []
+    for n in (4, 5):
+        raw, enc = _load(f"heatmap-2d-spec-n{n}", 0), _load(f"heatmap-encoded-spec-n{n}", 0)
+        if raw and enc:
+            per_it = [r["loop_s"] / r["iterations"] for r in (raw, enc)]
+            ratios.append(f"{n} nodes {per_it[0] / per_it[1]:.1f}x")
+    if ratios:
+        parts += [
+            "s / iteration, raw over encoded (thesis algorithm, seed 0): "
+            + ", ".join(ratios)
+            + " (each run's loop time on this machine, measured while other jobs may have "
+            "run). The iteration of the in-loop best cannot say whether encoded runs converge "
+            "in half the iterations: it is set by the shared evaluation keys. The learning "
+            'curves of the section "does the encoded variant converge in half the iterations?" '
+            "below answer that (it does not).",
+        ]
+    return "\n".join(parts).rstrip()
+
+
 NOISE_STDS = (0.0, 0.01, 0.05, 0.1, 0.2, 0.5, 1.0)
 THESIS_ITERATIONS = 500
 
@@ -502,7 +663,7 @@ def write_table() -> None:
     vae_rows = vae_latent_rows()
     if vae_rows:
         body += ["### VAE latents", "", *vae_rows, ""]
-    body += [FINDINGS, ""]
+    body += [findings(), ""]
     body.append(f"Generated by `python experiments/heatmap.py`; machine: {machine()}.")
     replace_block("heatmap", "\n".join(body))
 
