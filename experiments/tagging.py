@@ -193,79 +193,199 @@ def seed_summary_rows(group: str) -> list[str]:
     return rows if len(rows) > 2 else []
 
 
-NOTES = """\
-Columns. Honest value: a fresh evaluation of the run's best policy (10,000 rollouts, a key
-the search never saw), mean +- standard error. In-loop best: the search's own maximum of noisy
-Monte Carlo means (the thesis reports this kind of number); it is biased upwards and shown
-only to make that bias visible. Simulated agent-steps: the search's budget, iterations x
-rollouts per iteration x horizon x agents (the final honest evaluation not included).
-Reference controller: the reactive 3-node controller of SPEC section 8 (start "move left";
-next node by the region of the observation: (-inf, -1] left, (-1, 1] tag, (1, inf) right).
+def _result(name: str, seed: int = 0) -> dict | None:
+    path = out_dir(name, seed) / "results.json"
+    return json.loads(path.read_text()) if path.is_file() else None
 
-The default COGNet-DICE (`cognet-dice`, rows tagging-thesis-n3 / -n6 / tagging-paper-cognet)
-samples whole joint controllers from a distribution over the node networks' weights and refits
-it to the elites (cognet_jax/algorithms/cognet_weights.py); its in-loop best is the largest
-1000-rollout fresh value of an iteration's winner or mode, so the gap to the honest value is
-the winner's curse of 1200 (thesis setting) or 2000 (paper setting) such means. On average it
-beats the reactive controller on the thesis setting because it finds the better joint
-behaviour: the two agents start by moving in opposite directions (the start node of every
-tagging-thesis-n3 policy here: one agent "left", the other "right"; the issue measured 23.2
-for that reactive variant). The 8-seed sweeps of
-these experiments are in the section "COGNet-DICE (default): 8-seed sweeps and ablations".
 
-COGNet-DICE as SPEC section 5 specifies it (tagging-thesis-spec-n3 / -n6, algorithm
-cognet-dice-thesis) stays far from the
-reactive controller. Its node networks learn from the pairs of the K_keep = 10 kept rollouts
-only (at most 60 pairs), and in most iterations nothing is kept: the elite threshold V_w, set
-on one iteration's candidate values, is rarely beaten by the next iteration's until an entropy
-injection resets it (kept_per_iteration in results.json). The "+options" rows change two
-SPEC choices: the networks train on the pairs of all K_top = 100 pre-selected rollouts
-(`algorithm.train_on = "top"`, learning rate 0.03), and step 8 evaluates the updated policy
-with 1000 rollouts instead of K_eval = 100 (`algorithm.best_rollouts = 1000`), so the anytime
-best is not a lucky 100-rollout mean. The rest of the gap to 20.76 is a local optimum of the
-action distributions. In the 3-node "+options" policy the start node's action stays mixed
-between left and right (about 0.43 / 0.55), and that same node is where the networks send
-z < -1, so the controller has no pure "left" node. Leaving the t = 0 visits out of the action
-counts (a one-off experiment, not an option) gave 14.17 and the same mixed node, so the start
-visit alone does not explain it. The SPEC choices we would change are the training set of
-step 7 (top instead of kept) and the size of the step-8 evaluation. COG-DICE on the same
-budget does better than SPEC COGNet-DICE here (the thesis reports the opposite, with in-loop
-values).
+def _honest(name: str, seed: int = 0) -> float | None:
+    r = _result(name, seed)
+    return None if r is None else r["final_value"]["mean"]
 
-Separate training fixes node q to action q mod 3, so node 0, the start node, plays "tag". At
-t = 0 a random position tags successfully with probability 0.19, so both taggers together
-expect -13.4 from that first step against -2 for moving, a loss of about 11 before any
-observation. This caps what the separate runs can reach below the
-reactive controller's 20.76. The 6-node separate run's best policy (-25.3 honest against -2.3
-in-loop) is a lucky 100-rollout mean; the "+options" rows choose the best on 1000-rollout
-evaluations.
 
-COG-DICE paper setting. The budget has to fit 10 minutes on 2 cores; the paper used 500
-iterations x 2000 samples x 1000 rollouts. Runs of 300 iterations with seed 0, all with
-3 regions and alpha 0.1, honest values (`cognet-jax train tagging-paper-cogdice --set ...`):
+def _compare(a: float, b: float, tolerance: float = 0.05) -> str:
+    """'about equal to' within ``tolerance`` (relative), else 'above' / 'below'."""
+    if abs(a - b) <= tolerance * abs(b):
+        return "about equal to"
+    return "above" if a > b else "below"
 
-| samples x rollouts, elites | entropy injection | winner re-evaluated | honest |
-|---|---|---|---|
-| 1000 x 50, 50 | no | no | 76.6 |
-| 1000 x 50, 50 | yes | no | 90.6 |
-| 1000 x 50, 50 | yes | 1000 rollouts | 78.5 |
-| 2000 x 25, 50 | yes | 1000 rollouts | 99.1 |
-| 4000 x 25, 50 | yes | 1000 rollouts | 102.1 (the built-in run) |
 
-Without entropy injection the elite threshold froze after about 100 iterations: no sample
-beat a lucky iteration's V_w again, so nothing was kept. Converged policies that fell short had
-the same flaw. One agent's controller never moved left, because finding a "left" node means
-changing its action, the transitions into it and its division points at the same time. More
-samples per iteration find such joint changes more often, so 4000 samples of 25 rollouts
-each did better than fewer samples evaluated more precisely. COGNet-DICE
-(tagging-paper-cognet-spec, SPEC settings) got far less from the same budget of simulated
-agent-steps. Its networks have to learn the region boundaries from the pairs of 10 kept
-rollouts per iteration, while COG-DICE samples the boundaries directly. G-DICE on the
-discretised problem uses the same search settings as COG-DICE. Against the published G-DICE
-values it is lower at d = 0.5, where each agent has 41 observations and so 41 transition rows
-per node to learn. It is also lower at d = 1 and d = 4, and about equal at d = 2. At d = 4 the
-observation cannot tell "close enough to tag" from "4 away", so no controller tags
-reliably."""
+def _start_actions(name: str, seed: int = 0):
+    """Action probabilities ``[agents, actions]`` of the start node of a saved best policy."""
+    import numpy as np
+
+    from cognet_jax.runner import load_policy
+
+    if _result(name, seed) is None:
+        return None, None, None
+    _, algorithm, policy = load_policy(out_dir(name, seed))
+    return algorithm, policy, np.asarray(policy.action_probs)[:, 0]
+
+
+def _first_step_rewards() -> tuple[float, float, float]:
+    """Thesis setting, t = 0 from uniform positions: the probability that a tag succeeds, and
+    the joint expected reward of both agents tagging and of both moving (closed form)."""
+    from cognet_jax.envs.tagging import make_tagging
+
+    env, params = make_tagging("thesis")
+    length, r = env.length, float(params.tag_radius)
+    hit = (2 * r * length - r * r) / length**2  # P(|p - e| <= r), p and e uniform on [0, L]
+    tag = hit * float(params.tag_reward) + (1 - hit) * float(params.miss_reward)
+    return hit, env.num_agents * tag, env.num_agents * float(params.move_reward)
+
+
+def notes() -> str:
+    """The notes under the tagging table; every figure is read from the saved results or
+    computed from the configs and the simulator."""
+    import numpy as np
+
+    from cognet_jax.config import load_config
+
+    out = [
+        "Columns. Honest value: a fresh evaluation of the run's best policy (10,000 rollouts, a "
+        "key the search never saw), mean +- standard error. In-loop best: the search's own "
+        "maximum of noisy Monte Carlo means (the thesis reports this kind of number); it is "
+        "biased upwards and shown only to make that bias visible. Simulated agent-steps: the "
+        "search's budget, iterations x rollouts per iteration x horizon x agents (the final "
+        "honest evaluation not included). Reference controller: the reactive 3-node controller "
+        'of SPEC section 8 (start "move left"; next node by the region of the observation: '
+        "(-inf, -1] left, (-1, 1] tag, (1, inf) right).",
+        "",
+    ]
+    its = [
+        load_config(e).algorithm.iterations for e in ("tagging-thesis-n3", "tagging-paper-cognet")
+    ]
+    opposite, seeds = 0, 0
+    for seed in range(64):
+        if _result("tagging-thesis-n3", seed) is None:
+            continue
+        _, _, start = _start_actions("tagging-thesis-n3", seed)
+        moves = set(start.argmax(-1).tolist())
+        seeds += 1
+        opposite += moves == {1, 2}  # one agent left, the other right
+    out += [
+        "The default COGNet-DICE (`cognet-dice`, rows tagging-thesis-n3 / -n6 / "
+        "tagging-paper-cognet) samples whole joint controllers from a distribution over the "
+        "node networks' weights and refits it to the elites "
+        "(cognet_jax/algorithms/cognet_weights.py); its in-loop best is the largest fresh "
+        "value of an iteration's winner or mode, so the gap to the honest value is the "
+        f"winner's curse of {2 * its[0]} (thesis setting) or {2 * its[1]} (paper setting) such "
+        "means. On average it beats the reactive controller on the thesis setting because it "
+        "finds the better joint behaviour: the two agents start by moving in opposite "
+        f"directions (the start node of {opposite} of the {seeds} saved tagging-thesis-n3 "
+        'policies: one agent "left", the other "right"; the issue measured 23.2 for that '
+        "reactive variant). The 8-seed sweeps of these experiments are in the section "
+        '"COGNet-DICE (default): 8-seed sweeps and ablations".',
+        "",
+    ]
+    spec = (
+        "COGNet-DICE as SPEC section 5 specifies it (tagging-thesis-spec-n3 / -n6, algorithm "
+        "cognet-dice-thesis) stays far from the reactive controller. Its node networks learn "
+        "from the pairs of the K_keep = 10 kept rollouts only (at most 60 pairs), and in most "
+        "iterations nothing is kept: the elite threshold V_w, set on one iteration's candidate "
+        "values, is rarely beaten by the next iteration's until an entropy injection resets it "
+        '(kept_per_iteration in results.json). The "+options" rows change two SPEC choices: '
+        "the networks train on the pairs of all K_top = 100 pre-selected rollouts "
+        '(`algorithm.train_on = "top"`, learning rate 0.03), and step 8 evaluates the updated '
+        "policy with 1000 rollouts instead of K_eval = 100 (`algorithm.best_rollouts = 1000`), "
+        "so the anytime best is not a lucky 100-rollout mean."
+    )
+    algorithm, policy, start = _start_actions("tagging-thesis-spec-n3+options")
+    if start is not None:
+        import jax
+        import jax.numpy as jnp
+
+        z = jnp.linspace(-10.0, -1.5, 18)
+        logits = jax.vmap(
+            lambda v: algorithm.controller.all_node_logits(policy.net_params, jnp.stack([v, v]))
+        )(z)  # [z, agents, nodes, next]
+        to = np.asarray(logits.argmax(-1))[:, :, 0]  # from the start node
+        targets = [int(np.bincount(to[:, a]).argmax()) for a in range(to.shape[1])]
+        cells = "; ".join(
+            f"agent {a}: left {p[1]:.2f}, right {p[2]:.2f}, tag {p[0]:.2f}"
+            for a, p in enumerate(start)
+        )
+        spec += (
+            f" The rest of the gap to {THESIS_REFERENCE} is in the action distributions. The "
+            f'start node of the 3-node "+options" policy (seed 0) plays {cells}; from it, '
+            "the networks send z < -1 mostly to node "
+            + " / ".join(map(str, targets))
+            + " (agent 0 / 1)"
+            + (
+                ", the start node itself, so a mixed start node is also where the controller "
+                'goes to move left: it has no pure "left" node.'
+                if all(t == 0 for t in targets) and all(min(p[1], p[2]) > 0.2 for p in start)
+                else "."
+            )
+        )
+    cog, net = _honest("tagging-thesis-cogdice-n3"), _honest("tagging-thesis-spec-n3")
+    if cog is not None and net is not None:
+        spec += (
+            " The SPEC choices we would change are the training set of step 7 (top instead of "
+            f"kept) and the size of the step-8 evaluation. COG-DICE on the same budget is "
+            f"{_compare(cog, net)} SPEC COGNet-DICE here ({cog:.3f} against {net:.3f}, 3 nodes; "
+            "the thesis reports COGNet-DICE above COG-DICE, with in-loop values)."
+        )
+    out += [spec, ""]
+    hit, tag, move = _first_step_rewards()
+    sep = _result("tagging-separate-n6")
+    out += [
+        "Separate training fixes node q to action q mod 3, so node 0, the start node, plays "
+        f'"tag". At t = 0 a random position tags successfully with probability {hit:.2f}, so '
+        f"both taggers together expect {tag:.1f} from that first step against {move:.0f} for "
+        f"moving, a loss of about {move - tag:.0f} before any observation. This caps what the "
+        f"separate runs can reach below the reactive controller's {THESIS_REFERENCE}."
+        + (
+            f" The 6-node separate run's best policy ({sep['final_value']['mean']:.1f} honest "
+            f"against {sep['in_loop_best']:.1f} in-loop) is a lucky 100-rollout mean; the "
+            '"+options" rows choose the best on 1000-rollout evaluations.'
+            if sep is not None
+            else ""
+        ),
+        "",
+    ]
+    paper = _result("tagging-paper-cogdice")
+    if paper is not None:
+        a = paper["config"]["algorithm"]
+        out += [
+            "COG-DICE paper setting. The built-in run has to fit 10 minutes on 2 cores; the paper "
+            "used 500 iterations x 2000 samples x 1000 rollouts (the `-full` rows run that "
+            f"budget). Its settings ({a['samples']} samples x {a['eval_rollouts']} rollouts, "
+            f"{a['elites']} elites, alpha {a['alpha']:g}, entropy injection, the winner "
+            f"re-evaluated with {a['best_rollouts']} rollouts) were chosen by single-seed runs "
+            "of 300 iterations that were not kept. In those, without entropy injection the "
+            "elite threshold froze (no sample beat a lucky iteration's V_w again, so nothing "
+            "was kept), and more samples with fewer rollouts each did better than fewer "
+            'samples evaluated more precisely: finding a "left" node means changing an '
+            "action, the transitions into it and its division points at the same time, and "
+            "more samples find such joint changes more often. Seed 0 of the built-in run: "
+            f"{paper['final_value']['mean']:.3f}.",
+        ]
+        spec_paper = _honest("tagging-paper-cognet-spec")
+        if spec_paper is not None:
+            out[-1] += (
+                " COGNet-DICE with SPEC settings (tagging-paper-cognet-spec) got "
+                f"{spec_paper:.3f} from the same budget of simulated agent-steps: its networks "
+                "have to learn the region boundaries from the pairs of 10 kept rollouts per "
+                "iteration, while COG-DICE samples the boundaries directly."
+            )
+        words = []
+        for d in ("0.5", "1", "2", "4"):
+            name = f"tagging-paper-gdice-d{d}"
+            value = _honest(name)
+            if value is not None:
+                published = float(EXPERIMENTS[name][1])
+                words.append(f"d = {d}: {_compare(value, published)} ({value:.1f} / {published})")
+        if words:
+            out[-1] += (
+                " G-DICE on the discretised problem uses the same search settings as COG-DICE; "
+                "against the published G-DICE values (ours / published) it is "
+                + "; ".join(words)
+                + ". At d = 0.5 each agent has 41 observations and so 41 transition rows per "
+                'node to learn; at d = 4 the observation cannot tell "close enough to tag" '
+                'from "4 away", so no controller tags reliably.'
+            )
+    return "\n".join(out).rstrip()
 
 
 #: the paper-budget runs (500 x 2000 x 1000) -> the built-in run of the same algorithm
@@ -310,7 +430,7 @@ def write_table(groups: list[str]) -> None:
         summary = seed_summary_rows(group)
         if summary:
             body += ["Over seeds (same results files):", "", *summary, ""]
-    body += [*paper_budget_paragraph(), NOTES, ""]
+    body += [*paper_budget_paragraph(), notes(), ""]
     body += [f"Generated by `python experiments/tagging.py`; machine: {machine()}."]
     replace_block("tagging", "\n".join(body))
 
