@@ -370,48 +370,11 @@ next iteration's, so a lucky iteration leaves a V_w that no later sample beats a
 distributions freeze; the V_w restart that comes with an injection is what keeps the search
 moving. Dec-Tiger h = 4 needs alpha 0.3 (alpha 0.1 moves the distributions too slowly
 between freezes) and many rollouts per sample, because its returns are very noisy. Recycling
-h = 3 uses 3 nodes (a 3-node controller represents the optimal depth-3 tree; with 7 nodes
-G-DICE stalls at local optima) and the 2000 samples / 25 elites of the COG-DICE paper.
+h = 3 uses 3 nodes (a 3-node controller represents the optimal depth-3 tree; with 7 nodes,
+in runs that were not kept, G-DICE stalled at local optima) and the 2000 samples / 25
+elites of the COG-DICE paper.
 
-Recycling with gamma 0.9, independent agents (SPEC's G-DICE): every seed converges to the
-reactive controller (act on the last observation, 31.496063), just below 31.5; the published
-G-DICE value is 31.27. The best known 31.929134 is a 3-node controller in which *both* agents
-first take action 2 (`waitandrecharge` in the file; the joint action (2, 2) pays 5 in the start
-state, the largest reward of the file), then follow the reactive controller. Changing only one
-agent's first action loses 2.3 (29.21): each agent's best response to the other's reactive
-controller is reactive, so the product of independent per-agent distributions moves away from
-the joint change (among the 25 best of 20,000 uniform samples, SAMPLE_STUDY_INDEPENDENT; a
-third each in the whole sample: `python experiments/gdice.py --sample-study`). In every
-controller G-DICE converged to, node 0 also sits inside the reactive loop, so the first action
-cannot change alone. We tried 3-6 nodes, 200-20,000 samples, 10-50 elites, alpha 0.03-0.2,
-entropy rates 0.02-0.5, with Monte Carlo and with exact values: 31.496063 every time, as in the
-rows recycling-g0.9, recycling-g0.9-paper (the COG-DICE paper's 2000 samples and 25 elites) and
-recycling-g0.9-exact.
-
-Shared controller (rows "-shared"): the same settings with `algorithm.shared_controller =
-true`, which gives both (identical) robots one sampled controller per sample, so G-DICE
-searches over symmetric joint controllers and the joint first move (2, 2) is one draw. Among
-20,000 uniform symmetric samples, SAMPLE_STUDY_SHARED. With the paper's 2000 samples and 25
-elites, G-DICE then finds 31.929134 on 3 of the 4 seeds in the table, and on 7 of 8 in a sweep;
-on the eighth the anytime best is a reactive controller whose lucky 100-rollout mean (32.059)
-no later winner's mean beat, SPEC section 2's winner's curse. Choosing the anytime best by a
-fresh 1000-rollout mean of each iteration's winner (`algorithm.best_rollouts=1000`, row
-recycling-g0.9-paper-shared-fresh) gives 31.929134 on 4 of 4 seeds in the table and 8 of 8 in
-the sweep (`cognet-jax sweep gdice-dpomdp-spec --seeds 8 --set problem.path=.../recycling.dpomdp
---set problem.horizon=100 --set problem.discount=0.9 --set algorithm.nodes=3 --set
-algorithm.samples=2000 --set algorithm.elites=25 --set algorithm.shared_controller=true --set
-algorithm.entropy_injection=true --grid algorithm.best_rollouts=0,1000`;
-experiments/results/gdice-shared-sweep/paper-setting/, with the commands in its README). With
-exact values, 3 nodes, 2000 samples and 25 elites, independent G-DICE gives 31.496063 on 16 of
-16 seeds and shared G-DICE 31.929134 on 16 of 16
-(experiments/results/gdice-shared-sweep/exact-independent-vs-shared/); shared, with 4 and 5
-nodes also 16 of 16, and with 200 samples 13, 13 and 12 of 16 for 3, 4 and 5 nodes
-(.../exact-shared-nodes-samples/). With only 200 samples and Monte Carlo values (row
-recycling-g0.9-shared), 2 of 4 seeds. On the other problems sharing does not hurt: Dec-Tiger h
-= 3 and 4 reach the optimum on 4 of 4 seeds as before, Recycling h = 3 on 4 of 4 instead of 2
-of 4. Sharing restricts the policy space: on a problem whose optimum is asymmetric it can only
-find the best symmetric controller, and agents with different action or observation counts are
-refused (a config error naming `algorithm.shared_controller`).
+RECYCLING_NOTES
 
 Rows "-exact" use `algorithm.evaluator = "exact"`: samples are ranked by their exact expected
 return over the horizon (compiled dynamic programming, `cognet_jax/exact_jax.py`) instead of
@@ -421,12 +384,168 @@ h = 3); SPEC's G-DICE evaluates by rollouts, so the rows without "-exact" are th
 behaviour."""
 
 
+SWEEPS = HERE / "results" / "gdice-shared-sweep"
+
+
+def _values_of(name: str) -> list[float]:
+    """Exact values (infinite-horizon for gamma < 1) of the saved seeds of one run."""
+    return [_achieved(r) for n, _, r in _load_results() if n == name]
+
+
+def _count(values: list[float], target: float) -> str:
+    return f"{sum(v >= target - 1e-5 for v in values)} of {len(values)}"
+
+
+def _sweep_rows(folder: str) -> list[dict]:
+    import csv
+
+    path = SWEEPS / folder / "runs.csv"
+    if not path.is_file():
+        return []
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def recycling_notes() -> str:
+    """The Recycling (gamma 0.9) paragraphs, every count and value from the saved runs and
+    sweeps (experiments/results/gdice, experiments/results/gdice-shared-sweep)."""
+    independent = {n: _values_of(n) for n in ("recycling-g0.9", "recycling-g0.9-paper")}
+    everything = [v for n in BY_NAME if n.startswith("recycling-g0.9") for v in _values_of(n)]
+    if not everything or not all(independent.values()):
+        return "[Recycling gamma 0.9 notes: runs not found]"
+    reactive = max(v for vs in independent.values() for v in vs)
+    best = max(everything)
+    same = all(abs(v - reactive) < 1e-5 for vs in independent.values() for v in vs)
+    spec_ref = BY_NAME["recycling-g0.9"].optimum
+    out = [
+        "Recycling with gamma 0.9, independent agents (SPEC's G-DICE): "
+        + ("every seed" if same else "the best seed")
+        + f" of rows recycling-g0.9 and recycling-g0.9-paper converges to the reactive "
+        f"controller (act on the last observation, {reactive:.6f}), just below "
+        f"{BY_NAME['recycling-g0.9'].target}; the published G-DICE value is 31.27. The best "
+        f"value found here, {best:.6f} (SPEC's best known: {spec_ref}), is a 3-node controller "
+        "in which *both* agents first take action 2 (`waitandrecharge` in the file; the joint "
+        "action (2, 2) pays 5 in the start state, the largest reward of the file), then follow "
+        "the reactive controller. Each agent's best response to the other's reactive "
+        "controller is reactive, so the product of independent per-agent distributions moves "
+        "away from the joint change (among the 25 best of 20,000 uniform samples, "
+        "SAMPLE_STUDY_INDEPENDENT: `python experiments/gdice.py --sample-study`). Tuning runs "
+        "that were not kept (3-6 nodes, 200-20,000 samples, 10-50 elites, alpha 0.03-0.2, "
+        "entropy rates 0.02-0.5, Monte Carlo and exact values) ended at the reactive value "
+        "too, as the rows recycling-g0.9, recycling-g0.9-paper (the COG-DICE paper's 2000 "
+        "samples and 25 elites) and recycling-g0.9-exact do.",
+    ]
+    shared = 'Shared controller (rows "-shared"): the same settings with ' + (
+        "`algorithm.shared_controller = true`, which gives both (identical) robots one "
+        "sampled controller per sample, so G-DICE searches over symmetric joint controllers "
+        "and the joint first move (2, 2) is one draw. Among 20,000 uniform symmetric samples, "
+        "SAMPLE_STUDY_SHARED."
+    )
+    paper_shared = _values_of("recycling-g0.9-paper-shared")
+    if paper_shared:
+        shared += (
+            f" With the paper's 2000 samples and 25 elites, G-DICE then finds {best:.6f} on "
+            f"{_count(paper_shared, best)} seeds in the table"
+        )
+        sweep = _sweep_rows("paper-setting")
+        plain = [r for r in sweep if r["algorithm.best_rollouts"] == "0"]
+        fresh = [r for r in sweep if r["algorithm.best_rollouts"] != "0"]
+        if plain:
+            vals = [float(r["final_exact_infinite"]) for r in plain]
+            missed = [r for r in plain if float(r["final_exact_infinite"]) < best - 1e-5]
+            shared += f", and on {_count(vals, best)} in a sweep"
+            if missed:
+                lucky = ", ".join(f"{float(r['in_loop_best']):.3f}" for r in missed)
+                shared += (
+                    "; where it does not, the anytime best is a reactive controller whose lucky "
+                    f"100-rollout mean ({lucky}) no later winner's mean beat, SPEC section 2's "
+                    "winner's curse"
+                )
+        shared += "."
+        fresh_table = _values_of("recycling-g0.9-paper-shared-fresh")
+        if fresh_table:
+            shared += (
+                " Choosing the anytime best by a fresh 1000-rollout mean of each iteration's "
+                "winner (`algorithm.best_rollouts=1000`, row recycling-g0.9-paper-shared-fresh) "
+                f"gives {best:.6f} on {_count(fresh_table, best)} seeds in the table"
+            )
+            if fresh:
+                vals = [float(r["final_exact_infinite"]) for r in fresh]
+                shared += f" and {_count(vals, best)} in the sweep"
+            shared += (
+                " (`cognet-jax sweep gdice-dpomdp-spec --seeds 8 --set "
+                "problem.path=.../recycling.dpomdp --set problem.horizon=100 --set "
+                "problem.discount=0.9 --set algorithm.nodes=3 --set algorithm.samples=2000 --set "
+                "algorithm.elites=25 --set algorithm.shared_controller=true --set "
+                "algorithm.entropy_injection=true --grid algorithm.best_rollouts=0,1000`; "
+                "experiments/results/gdice-shared-sweep/paper-setting/, with the commands in its "
+                "README)."
+            )
+    vs = _sweep_rows("exact-independent-vs-shared")
+    if vs:
+        ind = [
+            float(r["final_exact_infinite"])
+            for r in vs
+            if r["algorithm.shared_controller"] == "False"
+        ]
+        sh = [
+            float(r["final_exact_infinite"])
+            for r in vs
+            if r["algorithm.shared_controller"] == "True"
+        ]
+        shared += (
+            " With exact values, 3 nodes, 2000 samples and 25 elites, independent G-DICE gives "
+            f"{reactive:.6f} on {_count(ind, reactive)} seeds (and never more: best "
+            f"{max(ind):.6f}) and shared G-DICE {best:.6f} on {_count(sh, best)} "
+            "(experiments/results/gdice-shared-sweep/exact-independent-vs-shared/)"
+        )
+        grid = _sweep_rows("exact-shared-nodes-samples")
+        cells: dict[tuple[int, int], list[float]] = {}
+        for r in grid:
+            key = (int(r["algorithm.nodes"]), int(r["algorithm.samples"]))
+            cells.setdefault(key, []).append(float(r["final_exact_infinite"]))
+        if cells:
+            shared += (
+                "; shared, by nodes and samples: "
+                + ", ".join(
+                    f"{n} nodes x {m} samples {_count(v, best)}"
+                    for (n, m), v in sorted(cells.items())
+                )
+                + " (.../exact-shared-nodes-samples/)"
+            )
+        shared += "."
+    few = _values_of("recycling-g0.9-shared")
+    if few:
+        shared += (
+            " With only 200 samples and Monte Carlo values (row recycling-g0.9-shared), "
+            f"{_count(few, best)} seeds."
+        )
+    others = []
+    for name in ("dectiger-h3", "dectiger-h4", "recycling-h3"):
+        plain, with_shared = _values_of(name), _values_of(f"{name}-shared")
+        if plain and with_shared:
+            opt = BY_NAME[name].optimum
+            others.append(
+                f"{name} reaches the optimum on {_count(with_shared, opt)} seeds shared against "
+                f"{_count(plain, opt)} independent"
+            )
+    if others:
+        shared += " On the other problems of the table: " + "; ".join(others) + "."
+    shared += (
+        " Sharing restricts the policy space: on a problem whose optimum is asymmetric it can "
+        "only find the best symmetric controller, and agents with different action or "
+        "observation counts are refused (a config error naming `algorithm.shared_controller`)."
+    )
+    out.append(shared)
+    return "\n\n".join(out)
+
+
 def notes() -> str:
-    """NOTES with the sample-study figures filled in (computed, never typed; a note that says
-    so when the problem file is missing)."""
+    """NOTES with the Recycling paragraphs and the sample-study figures filled in (computed,
+    never typed; a note that says so when the problem file is missing)."""
     import textwrap
 
-    paragraphs = NOTES.split("\n\n")
+    paragraphs = NOTES.replace("RECYCLING_NOTES", recycling_notes()).split("\n\n")
     if (DPOMDP_DIR / "recycling.dpomdp").is_file():
         texts = _study_text(sample_study())
     else:
