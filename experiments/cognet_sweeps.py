@@ -64,7 +64,7 @@ RUNS = {
     "heatmap-encoded-n4-latent1": (
         "heatmap-encoded-n4",
         ["network.vae_latent=1", "network.vae_kl_weight=1.0", "network.vae_epochs=60"],
-        "ablation: the thesis's 1-D VAE (distance only; bound 42.735)",
+        "ablation: the thesis's 1-D VAE (distance only: see the heatmap's distance-only bound)",
     ),
     "heatmap-encoded-n4-default": (
         "heatmap-encoded-n4",
@@ -158,10 +158,10 @@ is the fresh 10,000-rollout evaluation of its best policy, +- is the standard er
 seeds. Sweep wall time covers the 8 seeds in one program on 2 cores (compile included); the
 wall time of single `cognet-jax train` runs is in the tagging and heatmap tables. The sweeps
 heatmap-2d-n4-plain and heatmap-2d-n4-hidden16 shared the machine with a test run, so their
-wall times are too high (heatmap-2d-n4-best1000 ran alone: its settings differ only in 18,000
-fewer fresh rollouts per iteration). Rows whose overrides switch `standardize_inputs` and
-`paired_best` off ran before those options existed, with the code path that is still taken when
-they are off."""
+wall times are too high (heatmap-2d-n4-best1000 ran alone: its settings differ only in the
+number of fresh rollouts per iteration, 2 x 1000 instead of 2 x `best_rollouts`). Rows whose
+overrides switch `standardize_inputs` and `paired_best` off ran before those options existed,
+with the code path that is still taken when they are off."""
 
 
 def write_table() -> None:

@@ -108,8 +108,7 @@ def table() -> list[str]:
                 "",
                 f"{problem} h {horizon}, best exact value by nodes per layer: "
                 + "; ".join(
-                    f"{n} nodes {max(v):.4f} (median {statistics.median(v):.4f}, "
-                    f"{len(v)} seeds)"
+                    f"{n} nodes {max(v):.4f} (median {statistics.median(v):.4f}, {len(v)} seeds)"
                     for n, v in sorted(per_nodes.items())
                 )
                 + ".",
