@@ -229,3 +229,12 @@ def test_cli_imports_a_plugin_that_registers_a_simulator(tmp_path, capsys):
     assert main(["train", str(toml), "--import", str(tmp_path / "missing.py")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--import" in err[0] and "missing.py" in err[0]
+
+
+def test_readme_states_the_user_simulator_module_size():
+    """The README's line count of the user simulator (up to its registration) is the block's."""
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    stated = int(re.search(r"with its registration, is (\d+) lines in one module", text).group(1))
+    block = _readme_block("### Your own simulator")
+    upto = block[: block.index("\n", block.index("register_env("))]
+    assert stated == len(upto.splitlines())
