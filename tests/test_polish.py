@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from shared_files import dpomdp_file as _file
@@ -84,9 +85,21 @@ def test_portfolio_polish_never_lowers_the_best_value():
     state = algo.init(jax.random.key(2))
     state, _ = jax.jit(algo.step)(jax.random.key(3), state)
     before = float(state.progress.best_value)
-    state, info = jax.jit(algo.finish)(state)
-    assert float(state.progress.best_value) >= before - 1e-6
+    # what each member search's best polishes to on its own
+    search = algo.members[0]
+    alone = [
+        float(search.polish_best(jax.tree.map(lambda x, i=i: x[i], m.best_policy), -jnp.inf)[1])
+        for m in state.members
+        for i in range(m.progress.best_value.shape[0])
+    ]
+    finished, info = jax.jit(algo.finish)(state)
+    value = float(finished.progress.best_value)
+    assert value >= before - 1e-6
     assert int(info.moves_applied) <= 3
+    # the kept policy is the best polished one, and its exact value is the reported one
+    assert value == pytest.approx(max(max(alone), before), abs=1e-5)
+    exact = float(search.exact_values(jax.tree.map(lambda x: x[None], finished.best_policy))[0])
+    assert exact == pytest.approx(value, abs=1e-5)
 
 
 def test_train_and_sweep_record_the_polish(tmp_path):

@@ -113,38 +113,3 @@ def polish(
     start = (policy, value_of(policy), jnp.int32(0), jnp.bool_(sweeps > 0))
     policy, value, applied, _ = jax.lax.while_loop(keep_going, sweep, start)
     return policy, value, applied
-
-
-def perturbed_polish(
-    exact_values: Callable,
-    policy: DeterministicTabularPolicy,
-    value: jax.Array,
-    moves: np.ndarray,
-    sweeps: int,
-    key: jax.Array,
-    rounds: int,
-    kicks: int,
-    batch: int = 256,
-) -> tuple[DeterministicTabularPolicy, jax.Array, jax.Array]:
-    """Iterated local search from a polished ``policy`` of exact value ``value``: ``rounds``
-    times, ``kicks`` moves drawn uniformly from ``moves`` are applied to the best policy so far,
-    the result is polished (at most ``sweeps`` moves) and kept if it beats the best by the
-    polish's tolerance. Single-entry steepest ascent stops where every one-entry change loses;
-    a kick of a few entries at once reaches the neighbouring basins. Returns ``(policy, value,
-    rounds that improved)``; jit-able."""
-    moves_arr = jnp.asarray(moves)
-
-    def one_round(carry, k):
-        best, best_value = carry
-        picks = jax.random.randint(k, (kicks,), 0, len(moves))
-        p = best
-        for i in range(kicks):
-            p = apply_move(p, moves_arr[picks[i]])
-        p, v, _ = polish(exact_values, p, moves, sweeps, batch)
-        better = v > best_value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(best_value))
-        return (select_tree(better, p, best), jnp.where(better, v, best_value)), better
-
-    (policy, value), improved = jax.lax.scan(
-        one_round, (policy, value), jax.random.split(key, rounds)
-    )
-    return policy, value, improved.sum()
