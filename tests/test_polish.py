@@ -95,7 +95,7 @@ def test_portfolio_polish_never_lowers_the_best_value():
     finished, info = jax.jit(algo.finish)(state)
     value = float(finished.progress.best_value)
     assert value >= before - 1e-6
-    assert int(info.moves_applied) <= 3
+    assert int(info.moves_applied) <= 3 and info.moves_per_sweep == len(search.polish_moves())
     # the kept policy is the best polished one, and its exact value is the reported one
     assert value == pytest.approx(max(max(alone), before), abs=1e-5)
     exact = float(search.exact_values(jax.tree.map(lambda x: x[None], finished.best_policy))[0])
@@ -109,6 +109,7 @@ def test_train_and_sweep_record_the_polish(tmp_path):
 
     sets = [
         f"problem.path={str(_file('dectiger'))!r}",
+        "problem.horizon=2",
         "algorithm.iterations=3",
         "algorithm.samples=50",
         "algorithm.polish_sweeps=5",

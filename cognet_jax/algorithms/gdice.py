@@ -452,10 +452,10 @@ class GDicePortfolio:
             )
             members.append(new)
             metrics.append(met)
-        values = jnp.concatenate([s.progress.best_value for s in members])
+        bests = jnp.concatenate([s.progress.best_value for s in members])
         policies = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[s.best_policy for s in members])
-        winner = jnp.argmax(values)
-        progress, improved = state.progress.record(values[winner])
+        winner = jnp.argmax(bests)
+        progress, improved = state.progress.record(bests[winner])
         best_policy = select_tree(
             improved, jax.tree.map(lambda x: x[winner], policies), state.best_policy
         )
@@ -509,12 +509,6 @@ class GDicePortfolio:
         policy, info = take(polished), take(infos)
         value = jnp.maximum(values[winner], state.progress.best_value)
         progress = state.progress.replace(best_value=value)
-        info = PolishInfo(
-            before=info.before,
-            after=info.after,
-            moves_applied=info.moves_applied,
-            moves_per_sweep=len(search.polish_moves()),
-        )
         return state.replace(best_policy=policy, progress=progress), info
 
 
