@@ -1,10 +1,9 @@
 """Exact local search ("polish") of a deterministic tabular controller, after a G-DICE search.
 
-A cross-entropy search ends near an optimum but often a few table entries away from it: on the
-box-pushing benchmark at h 4 (optimum 98.593), 8 seeds of the default ``gdice-dpomdp`` ended
-between 67.8 and 97.69, half of them within 1.0 of the optimum. When every controller's value
-can be computed exactly (a tabular model), a steepest-ascent search over single-entry changes
-finishes that job cheaply.
+A cross-entropy search ends near an optimum but often a few table entries away from it (the
+"before polish" column of experiments/README.md, problems outside ../shared). When every
+controller's value can be computed exactly (a tabular model), a steepest-ascent search over
+single-entry changes finishes that job cheaply.
 
 Moves (all static, listed once by :func:`neighbour_moves` as rows ``(kind, agent, node, obs,
 value)``; ``agent = -1`` changes every agent's entry at once, for identical agents):
