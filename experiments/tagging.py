@@ -211,7 +211,8 @@ def _compare(a: float, b: float, tolerance: float = 0.05) -> str:
 
 
 def _start_actions(name: str, seed: int = 0):
-    """Action probabilities ``[agents, actions]`` of the start node of a saved best policy."""
+    """``(algorithm, policy, start)`` of a saved best policy, ``start`` the action
+    probabilities ``[agents, actions]`` of its start node (``None`` three times if unsaved)."""
     import numpy as np
 
     from cognet_jax.runner import load_policy
