@@ -110,6 +110,10 @@ EXACT_AUTO_LIMIT = 300_000_000
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
 #: ``GDice.polish_moves``); above it the polish is skipped.
 POLISH_SWEEP_LIMIT = 3_000_000_000
+#: Largest working set (float32 numbers) of one agent's best response in the polish
+#: (``algorithms.best_response.best_response_cost``); above it, or above
+#: ``POLISH_SWEEP_LIMIT`` multiply-adds, the best responses are skipped.
+BEST_RESPONSE_FLOATS = 1 << 25
 
 
 def exact_iteration_cost(env, a, env_params=None) -> int:

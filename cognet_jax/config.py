@@ -154,6 +154,10 @@ class GDiceAlgorithmSection:
     #: after the last iteration, at most this many single-entry changes of the best controller
     #: by exact steepest ascent (exact or hybrid evaluator only; 0: none, as in SPEC)
     polish_sweeps: int = 0
+    #: with the polish of a layered controller: at most this many rounds of each agent's exact
+    #: best response to the others (written into its layers when it fits), each followed by
+    #: the single-entry polish (``algorithms.best_response``; 0: none)
+    best_response_rounds: int = 0
 
 
 @dataclasses.dataclass
@@ -617,6 +621,7 @@ def validate(config: Config) -> None:
         _require(alg.shared_restarts >= 0, "algorithm.shared_restarts", "must be >= 0")
         _require(alg.explore_restarts >= 0, "algorithm.explore_restarts", "must be >= 0")
         _require(alg.polish_sweeps >= 0, "algorithm.polish_sweeps", "must be >= 0")
+        _require(alg.best_response_rounds >= 0, "algorithm.best_response_rounds", "must be >= 0")
         _probability(alg, "algorithm", "explore_entropy_rate")
     if isinstance(alg, CogDiceAlgorithmSection):
         _validate_sampler(alg)

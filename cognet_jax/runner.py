@@ -159,11 +159,13 @@ def finish_search(algorithm, state, log=print) -> tuple[object, dict | None]:
         "value_after": float(info.after),
         "moves_applied": int(info.moves_applied),
         "moves_per_sweep": int(info.moves_per_sweep),
+        "best_responses_applied": int(info.responses_applied),
         "seconds": time.perf_counter() - t0,
     }
     log(
         f"polish: exact {record['value_before']:.6f} -> {record['value_after']:.6f} "
         f"({record['moves_applied']} moves of {record['moves_per_sweep']} tried per sweep, "
+        f"{record['best_responses_applied']} best responses, "
         f"{record['seconds']:.1f} s)"
     )
     return state, record

@@ -352,6 +352,7 @@ def run_group(
                     "value_after": float(polish.after[r]),
                     "moves_applied": int(polish.moves_applied[r]),
                     "moves_per_sweep": int(polish.moves_per_sweep),
+                    "best_responses_applied": int(polish.responses_applied[r]),
                 },
                 "values_per_iteration": history.value[r].tolist(),
                 "best_per_iteration": history.best_value[r].tolist(),

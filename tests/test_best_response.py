@@ -1,0 +1,97 @@
+"""Exact best response of one agent in a layered controller (``algorithms.best_response``)."""
+
+from __future__ import annotations
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from shared_files import dpomdp_file as _file
+
+from cognet_jax.algorithms.best_response import best_response
+from cognet_jax.controllers.tabular import DeterministicTabularPolicy, TabularController
+from cognet_jax.envs.tabular import make_tabular
+from cognet_jax.exact import exact_value as exact_numpy
+from cognet_jax.exact import policy_tree_transitions, tree_num_nodes
+from cognet_jax.io.dpomdp import parse_dpomdp
+
+
+def _tree_values(model, other_actions, other_trans, agent, horizon):
+    """Exact value of every deterministic policy tree of ``agent`` against the other agent's
+    fixed controller (brute force, numpy)."""
+    z, a = model.obs_counts[agent], model.action_counts[agent]
+    nodes = tree_num_nodes(z, horizon)
+    trans = policy_tree_transitions(z, horizon)
+    width = max(nodes, other_actions.shape[0])
+    values = []
+    for tree in itertools.product(range(a), repeat=nodes):
+        acts = np.zeros((2, width), np.int64)
+        tr = np.zeros((2, width, max(model.obs_counts)), np.int64)
+        acts[agent, :nodes], tr[agent, :nodes, :z] = tree, trans
+        other = 1 - agent
+        acts[other, : len(other_actions)] = other_actions
+        tr[other, : len(other_actions)] = other_trans
+        values.append(exact_numpy(model, acts, tr, horizon, 1.0))
+    return np.array(values)
+
+
+@pytest.mark.parametrize("name, horizon, width", [("dectiger", 3, 4), ("recycling", 3, 4)])
+def test_best_response_is_the_best_tree_and_its_layers_play_it(name, horizon, width):
+    model = parse_dpomdp(_file(name), discount=1.0)
+    env, params = make_tabular(model, horizon)
+    ctrl = TabularController(
+        2,
+        width * horizon,
+        env.num_actions,
+        env.num_obs,
+        action_counts=env.action_counts,
+        layers=horizon,
+    )
+    for seed in range(3):
+        policy = ctrl.sample(jax.random.key(seed), ctrl.init_distribution())
+        for agent in (0, 1):
+            new, value, fits = jax.jit(
+                lambda p, agent=agent: best_response(env, params, p, width, agent)
+            )(policy)
+            other = 1 - agent
+            trees = _tree_values(
+                model,
+                np.asarray(policy.actions[other]),
+                np.asarray(policy.transitions[other]),
+                agent,
+                horizon,
+            )
+            # the best tree of this agent, found by enumerating every one of them
+            assert float(value) == pytest.approx(trees.max(), abs=1e-3)
+            assert bool(fits)  # 2 observations: at most 4 histories in the last layer
+            got = exact_numpy(
+                model, np.asarray(new.actions), np.asarray(new.transitions), horizon, 1.0
+            )
+            assert got == pytest.approx(trees.max(), abs=1e-3)
+            # the other agent's rows are untouched
+            assert np.array_equal(np.asarray(new.actions[other]), np.asarray(policy.actions[other]))
+            assert np.array_equal(
+                np.asarray(new.transitions[other]), np.asarray(policy.transitions[other])
+            )
+
+
+def test_a_response_that_needs_more_nodes_than_a_layer_has_is_refused():
+    model = parse_dpomdp(_file("dectiger"), discount=1.0)
+    env, params = make_tabular(model, 3)
+    ctrl = TabularController(2, 3, env.num_actions, env.num_obs, layers=3)  # width 1
+    # the other agent listens twice: the best response opens the door the growls point away
+    # from, which needs different actions after different observations at step 3
+    policy = DeterministicTabularPolicy(
+        actions=jnp.zeros((2, 3), jnp.int32),
+        transitions=jnp.asarray([[[1, 1], [2, 2], [2, 2]]] * 2, jnp.int32),
+    )
+    assert ctrl.layer_width == 1
+    listen = int(np.argmax([a == "listen" for a in model.action_names[0]]))
+    policy = policy.replace(actions=jnp.full((2, 3), listen, jnp.int32))
+    new, value, fits = best_response(env, params, policy, 1, 0)
+    assert not bool(fits)
+    assert np.array_equal(np.asarray(new.actions), np.asarray(policy.actions))
+    before = exact_numpy(model, np.asarray(policy.actions), np.asarray(policy.transitions), 3, 1.0)
+    assert float(value) > before  # the tree exists, it only does not fit
