@@ -97,6 +97,15 @@ def table() -> list[str]:
     return rows
 
 
+def _with_best_responses() -> str:
+    """How many saved runs had the best responses (runs saved before they existed had not)."""
+    rounds = [
+        json.loads(p.read_text())["config"]["algorithm"].get("best_response_rounds", 0)
+        for p in sorted(RESULTS.glob("*/results.json"))
+    ]
+    return f"{sum(r > 0 for r in rounds)} of the {len(rounds)} saved runs below had them"
+
+
 def settings_sentence() -> str:
     """The settings paragraph, read from the experiment file (nothing typed by hand)."""
     from cognet_jax.config import load_config
@@ -129,7 +138,14 @@ def settings_sentence() -> str:
         f"{'; '.join(searches)}. The policy with the best exact (or fresh) value is kept"
         + (
             f", then polished: up to {a.polish_sweeps} single-entry changes by exact steepest "
-            "ascent."
+            "ascent"
+            + (
+                f", then up to {a.best_response_rounds} rounds of every agent's exact best "
+                "response to the others (kept when it fits the layers and improves), each "
+                f"followed by that polish ({_with_best_responses()})."
+                if a.best_response_rounds
+                else "."
+            )
             if a.polish_sweeps
             else "."
         )
