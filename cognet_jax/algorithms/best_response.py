@@ -21,9 +21,10 @@ response to the others' fixed controllers makes every such change at once:
    probability, so its exact value is ``V_0``.
 
 What is maximised: the joint controller's exact expected return over the horizon, by the rows
-of one agent. Cost (see :func:`best_response_cost`): ``sum_t (A Z)^t * A * r * S * (K + JO)``
-multiply-adds for agent i (``r = width^(agents-1)``, K = S or the successors per row), memory
-about ``(A Z)^(h-2) * S * r`` floats (the last step's beliefs are reduced as they are made).
+of one agent. Cost (see :func:`best_response_cost`): ``sum_{t < h-1} (A Z)^t * A * r * S *
+(K + JO)`` multiply-adds for agent i (the last step only sums rewards; ``r =
+width^(agents-1)``, K = S or the successors per row), memory about ``(A Z)^(h-2) * S * r``
+floats (the last step's beliefs are reduced as they are made).
 """
 
 from __future__ import annotations
@@ -150,7 +151,7 @@ def best_response(
     gamma = jnp.asarray(params.discount, jnp.float32)
     s_count = env.num_states
     # joint observation -> the agent's child slot z * r + r' (per others' node r)
-    slot = own_obs[None, :] * r_count + nxt  # [h, r, JO] via broadcasting below
+    slot = own_obs * r_count + nxt  # [h, r, JO]
 
     def expand(t, belief):
         """One path's ``belief [S, r]`` -> immediate rewards ``[A]`` and children

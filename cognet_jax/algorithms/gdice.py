@@ -223,6 +223,10 @@ class GDice(ThresholdSearch):
         nodes = s.nodes if s.layered else self.controller.num_nodes
         return jax.vmap(lambda p: value(self.env, self.env_params, p, nodes))(policies)
 
+    def exact_value_of(self, policy: DeterministicTabularPolicy) -> jax.Array:
+        """Exact expected return ``[]`` of one controller (:meth:`exact_values` of a batch of 1)."""
+        return self.exact_values(jax.tree.map(lambda x: x[None], policy))[0]
+
     def update_distribution(self, dist: TabularDistribution, elites, kept, hyper: GDiceHyper):
         """Count MLE over the kept elites' tables + smoothing. ``elites``: policies with a
         leading ``[elites]`` axis, ``kept [elites]`` bool."""
@@ -308,7 +312,7 @@ class GDice(ThresholdSearch):
             candidate, _, fits = best_response(
                 self.env, self.env_params, policy, self.settings.nodes, agent
             )
-            new = self.exact_values(jax.tree.map(lambda x: x[None], candidate))[0]
+            new = self.exact_value_of(candidate)
             better = fits & (new > value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(value)))
             policy = select_tree(better, candidate, policy)
             value = jnp.where(better, new, value)
@@ -321,7 +325,7 @@ class GDice(ThresholdSearch):
         until a round changes nothing or ``best_response_rounds`` rounds."""
         moves = self.polish_moves()
         sweeps = self.settings.polish_sweeps
-        before = self.exact_values(jax.tree.map(lambda x: x[None], policy))[0]
+        before = self.exact_value_of(policy)
         policy, value, applied = polish(self.exact_values, policy, moves, sweeps)
         responses = jnp.int32(0)
         if self.best_responds:
