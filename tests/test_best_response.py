@@ -14,27 +14,24 @@ from cognet_jax.algorithms.best_response import best_response
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy, TabularController
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.exact import exact_value as exact_numpy
-from cognet_jax.exact import policy_tree_transitions, tree_num_nodes
+from cognet_jax.exact import exact_values, policy_tree_transitions, tree_num_nodes
 from cognet_jax.io.dpomdp import parse_dpomdp
 
 
 def _tree_values(model, other_actions, other_trans, agent, horizon):
     """Exact value of every deterministic policy tree of ``agent`` against the other agent's
-    fixed controller (brute force, numpy)."""
+    fixed controller (brute force, numpy, one batch)."""
     z, a = model.obs_counts[agent], model.action_counts[agent]
     nodes = tree_num_nodes(z, horizon)
-    trans = policy_tree_transitions(z, horizon)
+    trees = np.array(list(itertools.product(range(a), repeat=nodes)), np.int64)
     width = max(nodes, other_actions.shape[0])
-    values = []
-    for tree in itertools.product(range(a), repeat=nodes):
-        acts = np.zeros((2, width), np.int64)
-        tr = np.zeros((2, width, max(model.obs_counts)), np.int64)
-        acts[agent, :nodes], tr[agent, :nodes, :z] = tree, trans
-        other = 1 - agent
-        acts[other, : len(other_actions)] = other_actions
-        tr[other, : len(other_actions)] = other_trans
-        values.append(exact_numpy(model, acts, tr, horizon, 1.0))
-    return np.array(values)
+    acts = np.zeros((len(trees), 2, width), np.int64)
+    tr = np.zeros((len(trees), 2, width, max(model.obs_counts)), np.int64)
+    acts[:, agent, :nodes], tr[:, agent, :nodes, :z] = trees, policy_tree_transitions(z, horizon)
+    other = 1 - agent
+    acts[:, other, : len(other_actions)] = other_actions
+    tr[:, other, : len(other_actions)] = other_trans
+    return np.asarray(exact_values(model, acts, tr, horizon, 1.0))
 
 
 @pytest.mark.parametrize("name, horizon, width", [("dectiger", 3, 4), ("recycling", 3, 4)])
@@ -90,8 +87,63 @@ def test_a_response_that_needs_more_nodes_than_a_layer_has_is_refused():
     assert ctrl.layer_width == 1
     listen = int(np.argmax([a == "listen" for a in model.action_names[0]]))
     policy = policy.replace(actions=jnp.full((2, 3), listen, jnp.int32))
-    new, value, fits = best_response(env, params, policy, 1, 0)
+    new, value, fits = jax.jit(lambda p: best_response(env, params, p, 1, 0))(policy)
     assert not bool(fits)
     assert np.array_equal(np.asarray(new.actions), np.asarray(policy.actions))
     before = exact_numpy(model, np.asarray(policy.actions), np.asarray(policy.transitions), 3, 1.0)
     assert float(value) > before  # the tree exists, it only does not fit
+
+
+def _random_model_text(seed: int, states: int, actions, observations) -> str:
+    """A random 2-agent MADP model whose agents differ (two-decimal probabilities, so the
+    rows sum to 1 exactly in the text)."""
+    rng = np.random.default_rng(seed)
+
+    def row(n):
+        shares = 1 + rng.multinomial(100 - n, np.ones(n) / n)
+        return " ".join(f"{k / 100:.2f}" for k in shares)
+
+    lines = ["agents: 2", "discount: 1", "values: reward", f"states: {states}", "start:"]
+    lines += ["uniform", "actions:", *map(str, actions), "observations:", *map(str, observations)]
+    for a0, a1 in itertools.product(range(actions[0]), range(actions[1])):
+        for s in range(states):
+            lines += [f"T: {a0} {a1} : {s} :", row(states)]
+            lines += [f"O: {a0} {a1} : {s} :", row(observations[0] * observations[1])]
+            lines.append(f"R: {a0} {a1} : {s} : * : * : {rng.normal():.2f}")
+    return "\n".join(lines) + "\n"
+
+
+def test_best_response_of_agents_with_different_action_and_observation_counts():
+    """Agent 0 has 3 actions and 2 observations, agent 1 has 2 actions and 3 observations:
+    each agent's response is the best of its enumerated trees (2,187 and 8,192 of them)."""
+    horizon, width = 3, 9
+    model = parse_dpomdp(_random_model_text(4, 3, (3, 2), (2, 3)).encode(), discount=1.0)
+    env, params = make_tabular(model, horizon)
+    ctrl = TabularController(
+        2,
+        width * horizon,
+        env.num_actions,
+        env.num_obs,
+        action_counts=env.action_counts,
+        obs_counts=env.obs_counts,
+        layers=horizon,
+    )
+    policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
+    for agent in (0, 1):
+        new, value, fits = jax.jit(
+            lambda p, agent=agent: best_response(env, params, p, width, agent)
+        )(policy)
+        other = 1 - agent
+        trees = _tree_values(
+            model,
+            np.asarray(policy.actions[other]),
+            np.asarray(policy.transitions[other]),
+            agent,
+            horizon,
+        )
+        assert bool(fits)  # at most 9 histories in a layer
+        assert float(value) == pytest.approx(trees.max(), abs=1e-3)
+        got = exact_numpy(model, np.asarray(new.actions), np.asarray(new.transitions), horizon, 1.0)
+        assert got == pytest.approx(trees.max(), abs=1e-3)
+        # the agent's actions stay within its own action count
+        assert int(np.asarray(new.actions[agent]).max()) < model.action_counts[agent]

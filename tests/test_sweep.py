@@ -224,6 +224,14 @@ def _tiny_args(out):
     return args + ["--out", str(out), "--no-progress"]
 
 
+@pytest.fixture(scope="module")
+def tiny_reference(tmp_path_factory):
+    """The uninterrupted tiny sweep the interrupted ones are compared with."""
+    out = tmp_path_factory.mktemp("tiny-reference")
+    assert main(_tiny_args(out)) == 0
+    return json.loads((out / "runs.json").read_text())
+
+
 def _start_until_checkpoint(out, every):
     """Start a tiny sweep in a subprocess checkpointing every ``every`` iterations; return it
     and its checkpoint path once the first checkpoint exists."""
@@ -245,12 +253,10 @@ def _start_until_checkpoint(out, every):
     return proc, ckpt
 
 
-def test_sigint_then_resume_is_identical(tmp_path):
+def test_sigint_then_resume_is_identical(tiny_reference, tmp_path):
     """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
     with exactly the numbers of an uninterrupted sweep."""
-    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
-    assert main(_tiny_args(ref_dir)) == 0
-    reference = json.loads((ref_dir / "runs.json").read_text())
+    out, reference = tmp_path / "cut", tiny_reference
     proc, ckpt = _start_until_checkpoint(out, 10)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
@@ -273,13 +279,11 @@ def test_sigint_then_resume_is_identical(tmp_path):
     assert _table(resumed) == _table(reference)
 
 
-def test_sigkill_leaves_an_intact_checkpoint_then_resume_is_identical(tmp_path):
+def test_sigkill_leaves_an_intact_checkpoint_then_resume_is_identical(tiny_reference, tmp_path):
     """A sweep killed without warning (SIGKILL) keeps its last checkpoint intact (atomic
     writes: it parses and its history is a prefix of the uninterrupted sweep's); --resume
     finishes with exactly the numbers of an uninterrupted sweep."""
-    ref_dir, out = tmp_path / "ref", tmp_path / "cut"
-    assert main(_tiny_args(ref_dir)) == 0
-    reference = json.loads((ref_dir / "runs.json").read_text())
+    out, reference = tmp_path / "cut", tiny_reference
     proc, ckpt = _start_until_checkpoint(out, 5)
     t0 = time.time()
     first = read_checkpoint(ckpt)["iteration"]
