@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from typing import Any
 
 import jax
@@ -206,10 +207,18 @@ def check_traced(traced, memory: int | None, what: str = "one iteration") -> Non
 
 def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iteration"):
     """``jitted.trace(*args)`` (``jitted`` from ``jax.jit``) checked by :func:`check_traced`;
-    JAX's own refusal of too-large random draws becomes a ``ResourceError`` too. Lower the
+    JAX's own refusal of too-large random draws, and a size past 32-bit integers, become a
+    ``ResourceError`` too. Lower the
     result to compile it."""
     try:
         traced = jitted.trace(*args)
+    except OverflowError as err:  # a count past int32, e.g. nodes x layers
+        found = re.search(r"value (-?\d+)", str(err))
+        size = f"a size of {found.group(1)}" if found else "a size"
+        raise ResourceError(
+            f"{what}: {size} does not fit the 32-bit integers arrays are indexed with; lower "
+            "the sizes in the config (nodes, samples, candidates, rollouts, horizon)"
+        ) from None
     except ValueError as err:
         if "random draws" in str(err) or "too large" in str(err):
             raise ResourceError(

@@ -1,6 +1,8 @@
 """Memory budget: candidates evaluated in chunks give the unchunked numbers, one candidate
 over the budget and arrays that cannot fit are refused before compiling, with one line."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -92,8 +94,6 @@ def test_one_candidate_over_the_budget_is_refused_with_the_numbers():
 def test_a_run_within_a_small_budget_matches_the_unchunked_run(tmp_path):
     """A run whose candidates are chunked (``run.memory_gb`` small) reproduces the run without
     a budget: the same values per iteration up to the last bits of the means."""
-    import json
-
     base = ["--no-progress", *sets("algorithm.iterations=3", "run.plots=false")]
     small = f"run.memory_gb={50 * 1000 * 100 / 1e9}"  # about 10 of 50 candidates at once
     for name, extra in (("full", []), ("small", sets(small))):
@@ -119,6 +119,22 @@ def test_sizes_over_the_budget_are_refused_before_compiling(
     argv = ["train", experiment, "--out", str(out), *sets(override, "run.memory_gb=0.01")]
     line = one_line_error(capsys, argv, expected, "GB", "run.memory_gb")
     assert not out.exists(), line
+
+
+def test_a_size_past_32_bit_integers_is_refused_in_one_line(capsys, tmp_path):
+    """A layered controller of 10^9 nodes per layer x 3 layers: the node count overflows int32
+    while the initial state is traced; refused with the number, nothing written."""
+    from shared_files import dpomdp_file
+
+    out = tmp_path / "never"
+    overrides = sets(
+        f"problem.path={json.dumps(str(dpomdp_file('dectiger')))}",
+        "problem.horizon=3",
+        "algorithm.nodes=1000000000",
+    )
+    argv = ["train", "gdice-dpomdp", "--out", str(out), *overrides]
+    one_line_error(capsys, argv, "the initial state", "2999999999", "32-bit", "nodes")
+    assert not out.exists()
 
 
 def test_memory_gb_must_not_be_negative(capsys):
