@@ -34,6 +34,28 @@ def _tree_values(model, other_actions, other_trans, agent, horizon):
     return np.asarray(exact_values(model, acts, tr, horizon, 1.0))
 
 
+def _check_response(model, env, params, policy, width, agent, horizon):
+    """The agent's response is worth the best of its enumerated trees, its layers play that
+    value exactly, and the other agent's rows are untouched; returns the new policy."""
+    new, value, fits = jax.jit(lambda p: best_response(env, params, p, width, agent))(policy)
+    other = 1 - agent
+    trees = _tree_values(
+        model,
+        np.asarray(policy.actions[other]),
+        np.asarray(policy.transitions[other]),
+        agent,
+        horizon,
+    )
+    assert bool(fits)  # the tests' widths hold every history of a layer
+    # the best tree of this agent, found by enumerating every one of them
+    assert float(value) == pytest.approx(trees.max(), abs=1e-3)
+    got = exact_numpy(model, np.asarray(new.actions), np.asarray(new.transitions), horizon, 1.0)
+    assert got == pytest.approx(trees.max(), abs=1e-3)
+    assert np.array_equal(np.asarray(new.actions[other]), np.asarray(policy.actions[other]))
+    assert np.array_equal(np.asarray(new.transitions[other]), np.asarray(policy.transitions[other]))
+    return new
+
+
 @pytest.mark.parametrize("name, horizon, width", [("dectiger", 3, 4), ("recycling", 3, 4)])
 def test_best_response_is_the_best_tree_and_its_layers_play_it(name, horizon, width):
     model = parse_dpomdp(_file(name), discount=1.0)
@@ -48,30 +70,8 @@ def test_best_response_is_the_best_tree_and_its_layers_play_it(name, horizon, wi
     )
     for seed in range(3):
         policy = ctrl.sample(jax.random.key(seed), ctrl.init_distribution())
-        for agent in (0, 1):
-            new, value, fits = jax.jit(
-                lambda p, agent=agent: best_response(env, params, p, width, agent)
-            )(policy)
-            other = 1 - agent
-            trees = _tree_values(
-                model,
-                np.asarray(policy.actions[other]),
-                np.asarray(policy.transitions[other]),
-                agent,
-                horizon,
-            )
-            # the best tree of this agent, found by enumerating every one of them
-            assert float(value) == pytest.approx(trees.max(), abs=1e-3)
-            assert bool(fits)  # 2 observations: at most 4 histories in the last layer
-            got = exact_numpy(
-                model, np.asarray(new.actions), np.asarray(new.transitions), horizon, 1.0
-            )
-            assert got == pytest.approx(trees.max(), abs=1e-3)
-            # the other agent's rows are untouched
-            assert np.array_equal(np.asarray(new.actions[other]), np.asarray(policy.actions[other]))
-            assert np.array_equal(
-                np.asarray(new.transitions[other]), np.asarray(policy.transitions[other])
-            )
+        for agent in (0, 1):  # 2 observations: at most 4 histories in the last layer
+            _check_response(model, env, params, policy, width, agent, horizon)
 
 
 def test_a_response_that_needs_more_nodes_than_a_layer_has_is_refused():
@@ -129,21 +129,7 @@ def test_best_response_of_agents_with_different_action_and_observation_counts():
         layers=horizon,
     )
     policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
-    for agent in (0, 1):
-        new, value, fits = jax.jit(
-            lambda p, agent=agent: best_response(env, params, p, width, agent)
-        )(policy)
-        other = 1 - agent
-        trees = _tree_values(
-            model,
-            np.asarray(policy.actions[other]),
-            np.asarray(policy.transitions[other]),
-            agent,
-            horizon,
-        )
-        assert bool(fits)  # at most 9 histories in a layer
-        assert float(value) == pytest.approx(trees.max(), abs=1e-3)
-        got = exact_numpy(model, np.asarray(new.actions), np.asarray(new.transitions), horizon, 1.0)
-        assert got == pytest.approx(trees.max(), abs=1e-3)
+    for agent in (0, 1):  # at most 9 histories in a layer
+        new = _check_response(model, env, params, policy, width, agent, horizon)
         # the agent's actions stay within its own action count
         assert int(np.asarray(new.actions[agent]).max()) < model.action_counts[agent]
