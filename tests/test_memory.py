@@ -137,5 +137,23 @@ def test_a_size_past_32_bit_integers_is_refused_in_one_line(capsys, tmp_path):
     assert not out.exists()
 
 
+def test_a_horizon_of_a_million_is_refused_in_seconds(capsys, tmp_path):
+    """``problem.horizon=1000000`` on Dec-Tiger (gdice-dpomdp: a layer per step): the cost
+    estimates stay small numbers (no integer of a million digits) and the size check refuses
+    the 5-million-node controller before anything compiles."""
+    import time
+
+    from shared_files import dpomdp_file
+
+    out = tmp_path / "never"
+    overrides = sets(
+        f"problem.path={json.dumps(str(dpomdp_file('dectiger')))}", "problem.horizon=1000000"
+    )
+    t0 = time.perf_counter()
+    one_line_error(capsys, ["train", "gdice-dpomdp", "--out", str(out), *overrides], "GB")
+    assert time.perf_counter() - t0 < 60
+    assert not out.exists()
+
+
 def test_memory_gb_must_not_be_negative(capsys):
     one_line_error(capsys, ["train", *sets("run.memory_gb=-1")], "run.memory_gb")

@@ -40,20 +40,25 @@ from cognet_jax.envs.tabular import TabularEnv, TabularParams
 
 #: paths pushed forward together in one ``lax.map`` batch
 PATH_BATCH = 64
+#: :func:`best_response_cost` reports at most this (far above any limit it is compared with)
+COST_CAP = 1 << 80
 
 
 def best_response_cost(env: TabularEnv, width: int, agent: int, params=None) -> tuple[int, int]:
-    """``(multiply-adds, floats held)`` of :func:`best_response` for ``agent``."""
+    """``(multiply-adds, floats held)`` of :func:`best_response` for ``agent``, each at most
+    ``COST_CAP``."""
     h, s = env.horizon, env.num_states
     a, z = env.action_counts[agent], env.obs_counts[agent]
     r = width ** (env.num_agents - 1)
     k = s
     if params is not None and params.successors is not None:
         k = params.successors.shape[-1]
-    paths = [(a * z) ** t for t in range(h)]  # histories with actions, per time step
+    paths = [1]  # histories with actions, per time step, capped (a long horizon would build
+    for _ in range(h - 1):  # integers of millions of digits)
+        paths.append(min(paths[-1] * a * z, COST_CAP))
     flops = sum(paths[:-1]) * a * r * s * (k + env.num_joint_obs) + paths[-1] * a * r * s
     memory = paths[max(h - 2, 0)] * s * r + paths[-1] * a
-    return int(flops), int(memory)
+    return min(int(flops), COST_CAP), min(int(memory), COST_CAP)
 
 
 def _other_tables(env: TabularEnv, policy: DeterministicTabularPolicy, width: int, agent: int):
