@@ -208,8 +208,7 @@ def check_traced(traced, memory: int | None, what: str = "one iteration") -> Non
 def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iteration"):
     """``jitted.trace(*args)`` (``jitted`` from ``jax.jit``) checked by :func:`check_traced`;
     JAX's own refusal of too-large random draws, and a size past 32-bit integers, become a
-    ``ResourceError`` too. Lower the
-    result to compile it."""
+    ``ResourceError`` too. Lower the result to compile it."""
     try:
         traced = jitted.trace(*args)
     except OverflowError as err:  # a count past int32, e.g. nodes x layers

@@ -34,6 +34,19 @@ def _tree_values(model, other_actions, other_trans, agent, horizon):
     return np.asarray(exact_values(model, acts, tr, horizon, 1.0))
 
 
+def _layered_controller(env, width, horizon):
+    """A 2-agent controller of ``horizon`` layers of ``width`` nodes for ``env``."""
+    return TabularController(
+        2,
+        width * horizon,
+        env.num_actions,
+        env.num_obs,
+        action_counts=env.action_counts,
+        obs_counts=env.obs_counts,
+        layers=horizon,
+    )
+
+
 def _check_response(model, env, params, policy, width, agent, horizon):
     """The agent's response is worth the best of its enumerated trees, its layers play that
     value exactly, and the other agent's rows are untouched; returns the new policy."""
@@ -60,14 +73,7 @@ def _check_response(model, env, params, policy, width, agent, horizon):
 def test_best_response_is_the_best_tree_and_its_layers_play_it(name, horizon, width):
     model = parse_dpomdp(_file(name), discount=1.0)
     env, params = make_tabular(model, horizon)
-    ctrl = TabularController(
-        2,
-        width * horizon,
-        env.num_actions,
-        env.num_obs,
-        action_counts=env.action_counts,
-        layers=horizon,
-    )
+    ctrl = _layered_controller(env, width, horizon)
     for seed in range(3):
         policy = ctrl.sample(jax.random.key(seed), ctrl.init_distribution())
         for agent in (0, 1):  # 2 observations: at most 4 histories in the last layer
@@ -119,15 +125,7 @@ def test_best_response_of_agents_with_different_action_and_observation_counts():
     horizon, width = 3, 9
     model = parse_dpomdp(_random_model_text(4, 3, (3, 2), (2, 3)).encode(), discount=1.0)
     env, params = make_tabular(model, horizon)
-    ctrl = TabularController(
-        2,
-        width * horizon,
-        env.num_actions,
-        env.num_obs,
-        action_counts=env.action_counts,
-        obs_counts=env.obs_counts,
-        layers=horizon,
-    )
+    ctrl = _layered_controller(env, width, horizon)
     policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
     for agent in (0, 1):  # at most 9 histories in a layer
         new = _check_response(model, env, params, policy, width, agent, horizon)

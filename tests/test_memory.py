@@ -2,11 +2,13 @@
 over the budget and arrays that cannot fit are refused before compiling, with one line."""
 
 import json
+import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from shared_files import dpomdp_file
 
 from cognet_jax import memory
 from cognet_jax.algorithms.cognet_dice import NeuralPolicy
@@ -121,18 +123,17 @@ def test_sizes_over_the_budget_are_refused_before_compiling(
     assert not out.exists(), line
 
 
+def _dectiger_train_argv(out, *overrides):
+    """``cognet-jax train gdice-dpomdp`` on Dec-Tiger with ``overrides``, writing to ``out``."""
+    path = f"problem.path={json.dumps(str(dpomdp_file('dectiger')))}"
+    return ["train", "gdice-dpomdp", "--out", str(out), *sets(path, *overrides)]
+
+
 def test_a_size_past_32_bit_integers_is_refused_in_one_line(capsys, tmp_path):
     """A layered controller of 10^9 nodes per layer x 3 layers: the node count overflows int32
     while the initial state is traced; refused with the number, nothing written."""
-    from shared_files import dpomdp_file
-
     out = tmp_path / "never"
-    overrides = sets(
-        f"problem.path={json.dumps(str(dpomdp_file('dectiger')))}",
-        "problem.horizon=3",
-        "algorithm.nodes=1000000000",
-    )
-    argv = ["train", "gdice-dpomdp", "--out", str(out), *overrides]
+    argv = _dectiger_train_argv(out, "problem.horizon=3", "algorithm.nodes=1000000000")
     one_line_error(capsys, argv, "the initial state", "2999999999", "32-bit", "nodes")
     assert not out.exists()
 
@@ -141,16 +142,9 @@ def test_a_horizon_of_a_million_is_refused_in_seconds(capsys, tmp_path):
     """``problem.horizon=1000000`` on Dec-Tiger (gdice-dpomdp: a layer per step): the cost
     estimates stay small numbers (no integer of a million digits) and the size check refuses
     the 5-million-node controller before anything compiles."""
-    import time
-
-    from shared_files import dpomdp_file
-
     out = tmp_path / "never"
-    overrides = sets(
-        f"problem.path={json.dumps(str(dpomdp_file('dectiger')))}", "problem.horizon=1000000"
-    )
     t0 = time.perf_counter()
-    one_line_error(capsys, ["train", "gdice-dpomdp", "--out", str(out), *overrides], "GB")
+    one_line_error(capsys, _dectiger_train_argv(out, "problem.horizon=1000000"), "GB")
     assert time.perf_counter() - t0 < 60
     assert not out.exists()
 
