@@ -161,7 +161,7 @@ SCALING_BASES = (
 def scaling_cases() -> list[tuple[str, str, str, int, list[str]]]:
     """``(algorithm, experiment, axis, value, overrides)`` of every scaling measurement, each
     config checked (``load_config``) so that a bad case fails before the long measurements."""
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     cases = []
     for algorithm, experiment, rollout_cases in SCALING_BASES:

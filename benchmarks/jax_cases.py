@@ -52,11 +52,13 @@ def controller_case(kind: str, nodes: int):
     """``(env, params, controller, policy)`` of one controller kind of ``CONTROLLER_KINDS``:
     one controller drawn from the algorithm's initial distribution."""
     from cognet_jax.api import build_algorithm
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     experiment, sets = CONTROLLER_KINDS[kind]
-    algorithm = build_algorithm(load_config(experiment, [*sets, f"algorithm.nodes={nodes}"]))
-    env, params, ctrl = algorithm.env, algorithm.env_params, algorithm.controller
+    algorithm, search_params = build_algorithm(
+        load_config(experiment, [*sets, f"algorithm.nodes={nodes}"])
+    )
+    env, params, ctrl = algorithm.env, search_params.env, algorithm.controller
     if kind.startswith("neural"):
         policy = ctrl.init(jax.random.key(0))
     elif kind.startswith("regions"):
@@ -88,14 +90,15 @@ def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict
     compile time apart; the state is carried from call to call as in a real run. Also returns
     the compiled program's XLA buffer sizes (bytes: arguments, outputs, temporaries)."""
     from cognet_jax.api import make_step
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     config = load_config(experiment, sets)
-    _, init, step = make_step(config)
-    state = init(jax.random.key(0))
+    algorithm, params, step = make_step(config)
+    state = algorithm.init(jax.random.key(0), params)
     key = jax.random.key(1)
     t0 = time.perf_counter()
-    compiled = jax.jit(step).lower(key, state).compile()
+    # the params are constants of the program, as the command line compiles it
+    compiled = jax.jit(lambda k, s: step(k, s, params)).lower(key, state).compile()
     compile_s = time.perf_counter() - t0
     holder = {"state": state}
 
@@ -151,12 +154,12 @@ def sweep_ratio(
 def full_run(experiment: str = "tagging-thesis-spec-n3") -> tuple[float, dict]:
     """Wall seconds of ``cognet-jax train EXPERIMENT`` without plots (compile, all iterations
     and the honest 10,000-rollout evaluation included) and its results dict."""
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
 
     config = load_config(experiment, ["run.plots=false", "run.progress=false"])
     t0 = time.perf_counter()
-    results = run_training(config, 0, HERE / ".last_full_run", log=lambda *_: None)
+    results = train(config, 0, HERE / ".last_full_run", log=lambda *_: None)
     return time.perf_counter() - t0, results
 
 

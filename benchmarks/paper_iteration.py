@@ -48,11 +48,12 @@ def seconds_per_iteration(experiment: str, sets: list[str], calls: int = 3) -> t
     """Median seconds of ``calls`` compiled iterations after a warm-up one, and the
     agent-steps one iteration simulates."""
     from cognet_jax.api import make_step
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
-    algorithm, init, step = make_step(load_config(experiment, sets))
-    state = init(jax.random.key(0))
-    compiled = jax.jit(step).lower(jax.random.key(1), state).compile()
+    algorithm, params, step = make_step(load_config(experiment, sets))
+    state = algorithm.init(jax.random.key(0), params)
+    # the params are constants of the program, as the command line compiles it
+    compiled = jax.jit(lambda k, s: step(k, s, params)).lower(jax.random.key(1), state).compile()
     state, metrics = compiled(jax.random.key(1), state)
     jax.block_until_ready(metrics)
     times = []

@@ -12,7 +12,15 @@ import importlib
 _PUBLIC = {
     "Config": "cognet_jax.config",
     "ConfigError": "cognet_jax.config",
-    "load_config": "cognet_jax.config",
+    "load_config": "cognet_jax.registry",
+    "config_from_dict": "cognet_jax.registry",
+    "make_env": "cognet_jax.api",
+    "list_envs": "cognet_jax.registry",
+    "register_env": "cognet_jax.registry",
+    "make_algorithm": "cognet_jax.api",
+    "list_algorithms": "cognet_jax.registry",
+    "register_algorithm": "cognet_jax.registry",
+    "SearchParams": "cognet_jax.api",
     "build_algorithm": "cognet_jax.api",
     "build_env": "cognet_jax.api",
     "make_step": "cognet_jax.api",
@@ -22,12 +30,8 @@ _PUBLIC = {
     "controller_step": "cognet_jax.controllers.step",
     "portable_policy": "cognet_jax.controllers.encoded",
     "EncodedPolicy": "cognet_jax.controllers.encoded",
-    "make_env": "cognet_jax.registry",
-    "list_envs": "cognet_jax.registry",
-    "register_env": "cognet_jax.registry",
-    "make_algorithm": "cognet_jax.registry",
-    "list_algorithms": "cognet_jax.registry",
-    "register_algorithm": "cognet_jax.registry",
+    "train": "cognet_jax.driver",
+    "evaluate_run": "cognet_jax.driver",
 }
 __all__ = sorted(_PUBLIC)
 __version__ = "0.1.0"

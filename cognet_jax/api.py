@@ -1,152 +1,118 @@
-"""Public entry points: build an environment and algorithm from a ``Config`` and get pure
-functions to run it.
+"""Public entry points: build a simulator and a search from a ``Config`` (or by name), and get
+pure functions to run them.
 
-* ``make_step(config) -> (algorithm, init, step)`` with ``init(key) -> state`` and
-  ``step(run_key, state) -> (state, metrics)``; iteration i uses ``fold_in(run_key, i)`` where i is
-  read from the state, so a resumed run continues the same random stream.
-* ``make_train(config) -> train(key, hyper=None)``: the whole search as one pure function
-  (``lax.scan`` over iterations) returning ``(final_state, metrics per iteration)``;
-  ``jax.jit(jax.vmap(train))`` runs many seeds at once, ``vmap`` over ``hyper`` many settings.
-* ``make_evaluate(config) -> evaluate(key, policy)``: the honest value (mean, standard error).
+* ``build_algorithm(config) -> (algorithm, params)``: the immutable search object and its
+  ``SearchParams`` (the simulator's params pytree and the hyper-parameters), gymnax style;
+  every method of the search takes ``params`` explicitly (``algorithms.engine``).
+* ``make_train(config) -> train(key, params=None) -> (final_state, metrics)``: the whole search
+  as one pure function -- ``lax.scan`` over ``algorithm.iterations`` iterations, then the
+  algorithm's ``finish`` (G-DICE's exact polish) -- returning the policy ``cognet-jax train
+  --seed s`` returns for ``key = seed_key(config, s)``. ``jax.vmap`` over keys runs many
+  seeds, over ``params`` many noise levels or ``alpha`` values, in one program.
+* ``make_evaluate(config) -> evaluate(key, policy, params=None) -> (mean, stderr)``: the
+  honest value of a policy from the seed key's evaluation key, which the search never uses.
 
-Key layout for a seed: ``key -> (init_key, run_key, eval_key)``; ``eval_key`` is reserved for the
-honest final evaluation and never touches the search.
+Key layout for a seed: ``key -> (init_key, run_key, eval_key)`` (``split_seed_key``);
+iteration i uses ``fold_in(run_key, i)`` with i read from the state (``iteration_step``), so a
+resumed run continues the same random stream; ``eval_key`` is reserved for the honest final
+evaluation (``honest_returns``). The command line (``cognet_jax.driver``) runs these same
+functions.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 
-from cognet_jax.config import Config
+from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.config import (
+    Config,
+    ConfigError,
+    ExperimentSection,
+    NetworkSection,
+    ProblemSection,
+    section_from_dict,
+)
+from cognet_jax.memory import budget_bytes
+from cognet_jax.prng import make_key
+from cognet_jax.registry import algorithm_entry, config_from_dict, env_entry, validate
+from cognet_jax.rollout import mean_and_stderr
 
 
 def build_env(config: Config):
-    """The environment and its params pytree described by ``config.env`` (and, for a tabular
-    problem, ``config.problem``), built by the simulator's registry entry."""
-    from cognet_jax.registry import env_entry
-
+    """``(env, env_params)`` described by ``config.env`` (and, for a model file,
+    ``config.problem``), built by the simulator's registry entry."""
     return env_entry(config.env.name).build(config.env, config)
 
 
-#: the last parsed model, keyed by (resolved path, mtime, size, discount): a run builds the
-#: env, the exact evaluation and the plots' names from one parse
-_PARSED: dict = {}
-#: files larger than this get a "parsing ..." line on stderr
-PARSE_PROGRESS_BYTES = 1_000_000
-
-
-def load_problem(config: Config):
-    """The parsed ``TabularModel`` of ``config.problem.path`` (ConfigError if unreadable);
-    parsed once per file version and discount, then reused."""
-    import sys
-    import time
-    from pathlib import Path
-
-    from cognet_jax.config import ConfigError
-    from cognet_jax.io.dpomdp import parse_dpomdp
-
-    path = Path(config.problem.path).expanduser()
-    if not path.is_file():
-        raise ConfigError("problem.path", f"no such file: {config.problem.path}")
-    st = path.stat()
-    key = (str(path.resolve()), st.st_mtime_ns, st.st_size, config.problem.discount)
-    if key not in _PARSED:
-        _PARSED.clear()
-        large = st.st_size > PARSE_PROGRESS_BYTES
-        if large:
-            print(f"parsing {path} ({st.st_size / 1e6:.1f} MB) ...", file=sys.stderr, flush=True)
-        t0 = time.perf_counter()
-        _PARSED[key] = parse_dpomdp(str(path), discount=config.problem.discount)
-        if large:
-            print(f"parsed {path} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return _PARSED[key]
-
-
-def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
-    """The algorithm object (``init``/``step``/``evaluate``) for ``config``, with the memory
-    budget ``run.memory_gb`` shared by ``lanes`` searches run side by side (a sweep's runs)."""
-    from cognet_jax.memory import budget_bytes
-
-    algorithm = _build_algorithm(config, env, env_params)
-    algorithm.memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
-    return algorithm
-
-
-def _build_algorithm(config: Config, env=None, env_params=None):
-    """The algorithm's registry entry builds it (``cognet_jax.registry``)."""
-    from cognet_jax.registry import algorithm_entry
-
-    if env is None:
-        env, env_params = build_env(config)
-    return algorithm_entry(config.experiment.algorithm).build(config, env, env_params)
-
-
-def build_pipeline(config: Config, env):
-    """The COGNet-DICE observation pipeline of ``config.network`` (trains or loads the VAE
-    only when the encoded pipeline or augmentation needs it)."""
-    from cognet_jax.observations import ObservationPipeline, resolve_vae
-
-    net = config.network
-    vae = None
-    if net.observation == "encoded" or net.augment:
-        vae = resolve_vae(
-            net.vae_path, net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight
-        )
-    return ObservationPipeline(
-        kind=net.observation,
-        raw_shape=env.obs_shape,
-        vae=vae,
-        augment_samples=net.augment_samples if net.augment else 0,
+def params_of(config: Config, env_params=None) -> SearchParams:
+    """The ``SearchParams`` of ``config``: its simulator's params (``env_params`` when given)
+    and its algorithm's hyper-parameters (the registry entry's ``hyper``)."""
+    if env_params is None:
+        _, env_params = build_env(config)
+    return SearchParams(
+        env=env_params, hyper=algorithm_entry(config.experiment.algorithm).hyper(config)
     )
 
 
-#: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).
-EXACT_EVALUATOR_LIMIT = 2_000_000_000
-#: ``evaluator = "auto"`` ranks samples exactly up to this many multiply-adds per iteration
-#: (about 0.1-0.3 s on two cores), by rollouts above it.
-EXACT_AUTO_LIMIT = 300_000_000
+def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
+    """``(algorithm, params)`` for ``config``: the immutable search (built by its registry
+    entry) and its ``SearchParams``. The memory budget ``run.memory_gb`` is shared by
+    ``lanes`` searches run side by side (a sweep's runs)."""
+    if env is None:
+        env, env_params = build_env(config)
+    entry = algorithm_entry(config.experiment.algorithm)
+    memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
+    algorithm = entry.build(config, env, env_params, memory)
+    return algorithm, params_of(config, env_params)
 
 
-#: Largest exact cost of one polish sweep (every single-entry change of the best controller,
-#: ``GDice.polish_moves``); above it the polish is skipped.
-POLISH_SWEEP_LIMIT = 3_000_000_000
-#: Largest working set (float32 numbers) of one agent's best response in the polish
-#: (``algorithms.best_response.best_response_cost``); above it, or above
-#: ``POLISH_SWEEP_LIMIT`` multiply-adds, the best responses are skipped.
-BEST_RESPONSE_FLOATS = 1 << 25
+def make_env(name: str, algorithm: str = "cognet-dice", **settings):
+    """``(env, env_params)`` of simulator ``name`` with ``settings`` (fields of its ``[env]``
+    section; for a simulator that reads ``[problem]`` also its fields: ``path``, ``horizon``,
+    ``discount``), validated as a config file is, for the search ``algorithm`` (e.g.
+    ``"gdice"`` makes tagging with ``obs_division > 0`` return observation indices)."""
+    entry = env_entry(name)
+    env_fields = {f.name for f in dataclasses.fields(entry.section)} - {"name"}
+    problem_fields = {f.name for f in dataclasses.fields(ProblemSection)}
+    reads_problem = "problem" in entry.reads
+    data: dict = {"experiment": {"algorithm": algorithm}, "env": {"name": name}, "problem": {}}
+    for key, value in settings.items():
+        if key in env_fields:
+            data["env"][key] = value
+        elif reads_problem and key in problem_fields:
+            data["problem"][key] = value
+        else:
+            known = sorted(env_fields | (problem_fields if reads_problem else set()))
+            raise ConfigError(f"env.{key}", f"unknown setting of {name!r} (known: {known})")
+    return build_env(config_from_dict(data))
 
 
-def exact_iteration_cost(env, a, env_params=None) -> int:
-    """Multiply-adds of exact values for one iteration's samples (all restarts)."""
-    from cognet_jax.exact_jax import exact_cost
+@dataclasses.dataclass
+class ExternalEnvSection:
+    """The ``[env]`` of a config whose simulator is passed as an object (``make_algorithm``)."""
 
-    # a layered controller's recursion runs over one layer (``nodes`` per agent) per step
-    searches = a.restarts + a.shared_restarts + a.explore_restarts
-    return exact_cost(env, a.nodes, env_params) * a.samples * searches
+    name: str = "external"
 
 
-def check_exact_cost(env, a, env_params=None, evaluator: str = "exact") -> None:
-    """``ConfigError`` on ``algorithm.evaluator`` when exact values would cost more than
-    ``EXACT_EVALUATOR_LIMIT`` per iteration."""
-    from cognet_jax.config import ConfigError
-
-    cost = exact_iteration_cost(env, a, env_params)
-    if evaluator == "hybrid":
-        cost = cost * min(a.exact_top, a.samples) // a.samples
-    if cost > EXACT_EVALUATOR_LIMIT:
-        raise ConfigError(
-            "algorithm.evaluator",
-            f"{evaluator!r} would need {cost:.2e} multiply-adds per iteration (nodes^agents * S "
-            f"* (S + joint observations) * horizon * samples * searches > "
-            f"{EXACT_EVALUATOR_LIMIT:.0e}); use "
-            "'rollouts' or fewer nodes/samples"
-            + (" or exact_top" if evaluator == "hybrid" else ""),
-        )
+def make_algorithm(name: str, env, env_params, network: dict | None = None, **settings):
+    """``(algorithm, params)``: the search ``name`` on a simulator object ``env`` (any
+    ``envs.base.Environment``, e.g. your own) with ``settings`` (fields of its ``[algorithm]``
+    section) and ``network`` (fields of ``[network]``), validated as a config file is."""
+    entry = algorithm_entry(name)
+    config = Config(
+        experiment=ExperimentSection(name=name, algorithm=name),
+        env=ExternalEnvSection(),
+        algorithm=section_from_dict(entry.section, settings, "algorithm"),
+        network=section_from_dict(NetworkSection, network or {}, "network"),
+    )
+    validate(config, env_reads=())
+    return build_algorithm(config, env, env_params)
 
 
 def seed_key(config: Config, seed: int) -> jax.Array:
-    from cognet_jax.prng import make_key
-
+    """The key of seed ``seed`` (``run.prng_impl``'s generator): what ``train --seed`` uses."""
     return make_key(seed, config.run.prng_impl)
 
 
@@ -157,69 +123,102 @@ def split_seed_key(key: jax.Array):
 
 
 def iteration_step(algorithm):
-    """``step(run_key, state, hyper=None) -> (state, metrics)``: one iteration of
-    ``algorithm`` with the key ``fold_in(run_key, i)``, i read from the state (so a resumed run
-    continues the same random stream). What ``make_step``, ``make_train``, the runner and the
-    sweeps all run."""
+    """``step(run_key, state, params) -> (state, metrics)``: one iteration of ``algorithm``
+    with the key ``fold_in(run_key, i)``, i read from the state (so a resumed run continues the
+    same random stream). What ``make_train``, the driver and the sweeps all run."""
 
-    def step(run_key, state, hyper=None):
+    def step(run_key, state, params):
         key = jax.random.fold_in(run_key, state.progress.iteration)
-        if hyper is None:
-            return algorithm.step(key, state)
-        return algorithm.step(key, state, hyper)
+        return algorithm.step(key, state, params)
 
     return step
 
 
 def honest_returns(algorithm, evaluation):
-    """``returns(key, policy) -> [evaluation.rollouts]``: the returns of the honest evaluation
-    of ``policy``, drawn from the seed key ``key``'s evaluation key (never used by the
-    search); ``evaluation`` is the config's ``[evaluation]`` section."""
+    """``returns(key, policy, params) -> [evaluation.rollouts]``: the returns of the honest
+    evaluation of ``policy``, drawn from the seed key ``key``'s evaluation key (never used by
+    the search); ``evaluation`` is the config's ``[evaluation]`` section. The one honest
+    evaluation: ``make_evaluate``, ``cognet-jax train``, ``sweep`` and ``evaluate`` run it."""
 
-    def returns(key, policy):
+    def returns(key, policy, params):
         _, _, k_eval = split_seed_key(key)
-        return algorithm.policy_returns(k_eval, policy, evaluation.rollouts, evaluation.batch)
+        return algorithm.returns(k_eval, policy, evaluation.rollouts, params, evaluation.batch)
 
     return returns
 
 
 def make_step(config: Config):
-    """``(algorithm, init, step)``: ``init(init_key)``; ``step(run_key, state, hyper=None)``
-    (``iteration_step``; ``hyper``: the algorithm's dynamic hyper-parameters, default
-    ``algorithm.hyper``)."""
-    algorithm = build_algorithm(config)
-    return algorithm, algorithm.init, iteration_step(algorithm)
+    """``(algorithm, params, step)``: the search of ``config``, its params and
+    ``step(run_key, state, params)`` (``iteration_step``); ``algorithm.init(init_key, params)``
+    starts it."""
+    algorithm, params = build_algorithm(config)
+    return algorithm, params, iteration_step(algorithm)
+
+
+def search_program(algorithm, iterations: int):
+    """``run(key, params) -> (final_state, metrics)``: the whole search of ``algorithm`` from
+    a seed key -- ``init``, ``iterations`` steps (``lax.scan``), ``finish``. Pure."""
+    step = iteration_step(algorithm)
+
+    def run(key, params):
+        k_init, k_run, _ = split_seed_key(key)
+        state = algorithm.init(k_init, params)
+        state, metrics = jax.lax.scan(
+            lambda s, _: step(k_run, s, params), state, None, length=iterations
+        )
+        state, _ = algorithm.finish(state, params)
+        return state, metrics
+
+    return run
 
 
 def make_train(config: Config):
-    """A pure ``train(key, hyper=None) -> (final_state, metrics)`` running
-    ``algorithm.iterations`` iterations; metrics leaves have a leading ``[iterations]`` axis.
+    """A pure ``train(key, params=None) -> (final_state, metrics)`` running
+    ``algorithm.iterations`` iterations and then ``finish`` (the G-DICE polish), so
+    ``algorithm.best_policy(final_state)`` is the policy ``cognet-jax train --seed s`` writes
+    for ``key = seed_key(config, s)``; metrics leaves have a leading ``[iterations]`` axis.
 
-    ``key`` is a seed key (``seed_key(config, seed)`` gives the CLI's); ``hyper`` the dynamic
-    hyper-parameters (a pytree like ``build_algorithm(config).hyper``, e.g. with another
-    ``alpha``), so ``jax.vmap(train, in_axes=(None, 0))(key, stacked_hypers)`` searches with
+    ``params``: a ``SearchParams`` like ``build_algorithm(config)[1]`` (``None``: that one, as
+    constants of the program, as the command line runs it), e.g. with another ``alpha`` or
+    noise level, so ``jax.vmap(train, in_axes=(None, 0))(key, stacked_params)`` searches with
     many settings in one program. ``make_evaluate(config)`` gives the honest value."""
-    algorithm, init, step = make_step(config)
-    iterations = config.algorithm.iterations
+    algorithm, default = build_algorithm(config)
+    run = search_program(algorithm, config.algorithm.iterations)
 
-    def train(key, hyper=None):
-        k_init, k_run, _ = split_seed_key(key)
-        state = init(k_init)
-        return jax.lax.scan(lambda s, _: step(k_run, s, hyper), state, None, length=iterations)
+    def train(key, params=None):
+        return run(key, default if params is None else params)
 
     return train
 
 
 def make_evaluate(config: Config):
-    """A pure ``evaluate(key, policy) -> (mean, stderr)``: the honest value of ``policy``, the
-    mean return of ``evaluation.rollouts`` fresh rollouts drawn from the seed key's evaluation
-    key, which the search never uses -- what ``cognet-jax train`` reports for the seed (up to
-    float summation order)."""
-    from cognet_jax.rollout import mean_and_stderr
+    """A pure ``evaluate(key, policy, params=None) -> (mean, stderr)``: the honest value of
+    ``policy``, the mean return of ``evaluation.rollouts`` fresh rollouts drawn from the seed
+    key's evaluation key (``honest_returns``), which the search never uses. ``results.json``'s
+    ``final_value`` sums the same returns in float64; this float32 mean agrees with it to
+    float32 rounding."""
+    algorithm, default = build_algorithm(config)
+    returns = honest_returns(algorithm, config.evaluation)
 
-    returns = honest_returns(build_algorithm(config), config.evaluation)
-
-    def evaluate(key, policy):
-        return mean_and_stderr(returns(key, policy))
+    def evaluate(key, policy, params=None):
+        return mean_and_stderr(returns(key, policy, default if params is None else params))
 
     return evaluate
+
+
+__all__ = [
+    "SearchParams",
+    "build_algorithm",
+    "build_env",
+    "honest_returns",
+    "iteration_step",
+    "make_algorithm",
+    "make_env",
+    "make_evaluate",
+    "make_step",
+    "make_train",
+    "params_of",
+    "search_program",
+    "seed_key",
+    "split_seed_key",
+]

@@ -17,6 +17,7 @@ the new checkpoint, never a torn one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -25,6 +26,9 @@ from typing import Any
 import jax
 import numpy as np
 from flax import serialization
+
+from cognet_jax.errors import CorruptFileError, MismatchError
+from cognet_jax.prng import impl_of
 
 CHECKPOINT_NAME = "checkpoint.msgpack"
 FORMAT = 1
@@ -93,8 +97,6 @@ def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
-    from cognet_jax.errors import CorruptFileError
-
     try:
         raw = serialization.msgpack_restore(path.read_bytes())
     except Exception as err:  # msgpack's errors for truncated or foreign bytes
@@ -116,8 +118,6 @@ def read_checkpoint(path: str | Path) -> dict:
 def restore_state(template: Any, raw: dict) -> Any:
     """The algorithm state stored in ``raw`` with the structure (and types) of ``template``;
     ``CorruptFileError`` when it does not fit."""
-    from cognet_jax.errors import CorruptFileError
-
     try:
         return serialization.from_state_dict(template, raw["state"])
     except (ValueError, KeyError, TypeError, AttributeError) as err:
@@ -136,8 +136,7 @@ def restore_history(template: Any, raw: dict) -> list:
 
 
 def restore_key(raw: dict, name: str, impl: str) -> jax.Array:
-    from cognet_jax.prng import impl_of
-
+    """The typed key ``name`` stored in ``raw`` (generator ``impl``, ``run.prng_impl``)."""
     return jax.random.wrap_key_data(np.asarray(raw["keys"][name]), impl=impl_of(impl))
 
 
@@ -150,8 +149,6 @@ POLICY_VERSION = 1
 
 def policy_bytes(policy) -> bytes:
     """The bytes of a policy file for ``policy`` (a policy pytree)."""
-    import hashlib
-
     body = serialization.to_bytes(jax.device_get(policy))
     header = {
         "format": POLICY_FORMAT,
@@ -167,10 +164,6 @@ def read_policy(path: str | Path, template):
     """The policy saved in ``path``, restored into the structure of ``template``. A damaged
     file (truncated, checksum, foreign bytes, newer version) is a ``CorruptFileError``; a
     policy of another kind or other shapes is a ``MismatchError``."""
-    import hashlib
-
-    from cognet_jax.errors import CorruptFileError, MismatchError, restore_msgpack
-
     path = Path(path)
     try:
         raw = serialization.msgpack_restore(path.read_bytes())
@@ -191,3 +184,24 @@ def read_policy(path: str | Path, template):
             f"{path}: holds a {raw.get('kind')} where this configuration needs a {kind}"
         )
     return restore_msgpack(path, template, data=body)
+
+
+def restore_msgpack(path: str | Path, template, data: bytes | None = None):
+    """``flax.serialization.from_bytes(template, bytes of path)`` with every way a damaged file
+    fails (truncated, trailing bytes, wrong structure, wrong shapes) turned into one
+    ``CorruptFileError``; the restored leaves must have the template's shapes. ``data``: the
+    bytes to restore when they are not the whole file (named ``path`` in errors)."""
+    path = Path(path)
+    data = path.read_bytes() if data is None else data
+    try:
+        restored = serialization.from_bytes(template, data)
+    except Exception as err:  # msgpack and flax raise ValueError, TypeError, AttributeError, ...
+        raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
+    want = [np.shape(x) for x in jax.tree.leaves(template)]
+    got = [np.shape(x) for x in jax.tree.leaves(restored)]
+    if want != got:
+        raise MismatchError(
+            f"{path}: holds arrays of shapes {got[:3]}... where this model needs {want[:3]}...: "
+            "it was saved for other settings (nodes, problem, network size)"
+        )
+    return restored

@@ -11,23 +11,37 @@ cognet-jax list
 
 Every user-facing failure (bad config field, unreadable or corrupt file, a policy that does not
 fit the model, ...) prints one line ``error: ...`` naming the file and line or the field, and
-exits with status 2; ``--debug`` (any subcommand) shows the traceback instead. SIGINT and
-SIGTERM stop a search after its current iteration with a checkpoint and the best policy
-written (exit ``128 + signal``).
+exits with status 2; ``--debug`` (any subcommand) shows the traceback instead. SIGINT, SIGTERM
+and SIGHUP stop a search after its current iteration with a checkpoint and the best policy
+written (``cognet_jax.signals``, ``cognet_jax.driver``); every command ends on them with one
+line and status ``128 + signal``.
+
+Commands import the driver (and JAX) only when they run, so ``--help``, ``list`` and
+``inspect`` start without JAX.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
+import importlib.util
 import json
 import math
+import os
 import shutil
 import sys
 import time
+import warnings
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
+from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
 from cognet_jax.errors import InputError
+from cognet_jax.io.dpomdp import DpomdpWarning, parse_dpomdp
+from cognet_jax.registry import load_config
+from cognet_jax.signals import Stopped, install_stop_handlers
 
 DEFAULT_EXPERIMENT = "tagging-thesis-n3"
 
@@ -54,7 +68,21 @@ def _add_overrides(parser: argparse.ArgumentParser, help_text: str) -> None:
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
-def _parser() -> argparse.ArgumentParser:
+def _add_checkpoints(parser: argparse.ArgumentParser, resumed: str) -> None:
+    """``--checkpoint-every K`` and ``--resume DIR`` (continue ``resumed``)."""
+    parser.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        metavar="K",
+        help="also write the search state every K iterations (run.checkpoint_every; "
+        "run.checkpoint_seconds writes it every 60 s of search by default)",
+    )
+    parser.add_argument("--resume", metavar="DIR", default=None, help=f"continue {resumed}")
+
+
+def _common() -> argparse.ArgumentParser:
+    """The options every command takes: ``--debug`` and ``--import``."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
         "--debug", action="store_true", help="show the Python traceback of an error"
@@ -68,32 +96,19 @@ def _parser() -> argparse.ArgumentParser:
         help="import a module or .py file first, e.g. one that registers your own simulator "
         "(cognet_jax.register_env); repeatable",
     )
-    p = argparse.ArgumentParser(
-        prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[common]
-    )
-    sub = p.add_subparsers(dest="command", required=True)
-    add_parser = sub.add_parser
-    sub.add_parser = lambda *a, **kw: add_parser(*a, parents=[common], **kw)  # noqa: E731
+    return common
 
+
+def _add_train(sub) -> None:
     t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
     _add_experiment(t)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
     _add_overrides(t, "override a config field; repeatable")
-    t.add_argument(
-        "--checkpoint-every",
-        type=int,
-        default=None,
-        metavar="K",
-        help="write the full search state every K iterations (run.checkpoint_every)",
-    )
-    t.add_argument(
-        "--resume",
-        metavar="DIR",
-        default=None,
-        help="continue the interrupted run in DIR from its checkpoint (config and seed from it)",
-    )
+    _add_checkpoints(t, "the interrupted run in DIR from its checkpoint (config and seed from it)")
 
+
+def _add_sweep(sub) -> None:
     w = sub.add_parser(
         "sweep",
         help="many seeds x settings in one compiled program; writes runs.csv/json, summary.md",
@@ -110,19 +125,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     w.add_argument("--out", default=None, help="output folder (default runs/sweep-EXPERIMENT)")
     _add_overrides(w, "override a config field for every run; repeatable")
-    w.add_argument(
-        "--checkpoint-every",
-        type=int,
-        default=0,
-        metavar="K",
-        help="write the search state of every run every K iterations (always on Ctrl-C)",
-    )
-    w.add_argument(
-        "--resume",
-        metavar="DIR",
-        default=None,
-        help="continue the interrupted sweep in DIR (experiment, seeds, grid from it)",
-    )
+    _add_checkpoints(w, "the interrupted sweep in DIR (experiment, seeds, grid from it)")
     w.add_argument(
         "--cpu-devices",
         type=int,
@@ -140,12 +143,20 @@ def _parser() -> argparse.ArgumentParser:
         help="initialise jax.distributed from the scheduler's environment (SLURM, ...)",
     )
 
+
+def _add_evaluate(sub) -> None:
     e = sub.add_parser("evaluate", help="re-evaluate the saved best policy of a run folder")
     e.add_argument("run_dir")
     e.add_argument(
         "--rollouts", type=int, default=None, help="default: the run's evaluation.rollouts"
     )
-    e.add_argument("--seed", type=int, default=12345, help="evaluation seed")
+    e.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="draw from this seed's evaluation key (default: the run's own seed, which "
+        "reproduces its results.json final_value)",
+    )
     e.add_argument(
         "--set",
         dest="overrides",
@@ -155,6 +166,8 @@ def _parser() -> argparse.ArgumentParser:
         help="change the evaluation setting (e.g. env.obs_noise=0.1)",
     )
 
+
+def _add_vae(sub) -> None:
     v = sub.add_parser("vae", help="patch VAE for heatmap observations (SPEC section 6)")
     vsub = v.add_subparsers(dest="vae_command", required=True)
     vt = vsub.add_parser(
@@ -170,6 +183,19 @@ def _parser() -> argparse.ArgumentParser:
     vt.add_argument("--no-noise", action="store_true", help="train on the 144 clean patches only")
     vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
+
+def _parser() -> argparse.ArgumentParser:
+    common = _common()
+    p = argparse.ArgumentParser(
+        prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[common]
+    )
+    sub = p.add_subparsers(dest="command", required=True)
+    add_parser = sub.add_parser
+    sub.add_parser = lambda *a, **kw: add_parser(*a, parents=[common], **kw)  # noqa: E731
+    _add_train(sub)
+    _add_sweep(sub)
+    _add_evaluate(sub)
+    _add_vae(sub)
     sub.add_parser("list", help="list the built-in experiments")
     i = sub.add_parser(
         "inspect", help="parse a .dpomdp file and print its sizes (or the first error in it)"
@@ -202,18 +228,17 @@ def _removed_on_failure(out: Path):
 
 
 def _train(args) -> int:
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import Interrupted, resume_target, run_training
+    from cognet_jax.driver import Interrupted, resume_target, train
 
     try:
         if args.resume:
             config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
-            run_training(config, seed, Path(args.resume), resume=True)
+            train(config, seed, Path(args.resume), resume=True)
             return 0
         config = load_config(args.experiment, args.overrides + _run_overrides(args))
         out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
         with _removed_on_failure(out):
-            run_training(config, args.seed, out)
+            train(config, args.seed, out)
     except Interrupted as err:
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
@@ -229,8 +254,6 @@ def init_distributed(args) -> None:
     if args.cluster:
         jax.distributed.initialize()
     elif any(v is not None for v in explicit):
-        from cognet_jax.config import ConfigError
-
         for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
             if v is None:
                 raise ConfigError(name.lstrip("-"), f"{name} is needed for a multi-process sweep")
@@ -243,11 +266,7 @@ def set_cpu_devices(requested: int | None, runs: int) -> None:
     """Split the host CPU into ``requested`` JAX devices (default ``min(cores, runs)``) so the
     sharded ``[runs]`` axis keeps every core busy. Must run before JAX starts its backends;
     does nothing when ``XLA_FLAGS`` already sets the host device count."""
-    import os
-
     import jax
-
-    from cognet_jax.config import ConfigError
 
     if requested is not None and requested < 1:
         raise ConfigError("cpu-devices", f"must be >= 1, got {requested}")
@@ -261,28 +280,21 @@ def set_cpu_devices(requested: int | None, runs: int) -> None:
 
 
 def _sweep(args) -> int:
-    from cognet_jax.config import ConfigError
-    from cognet_jax.runner import Interrupted
-    from cognet_jax.sweep import SWEEP_SPEC, Checkpointing, parse_grid, run_sweep, write_outputs
+    from cognet_jax.driver import Interrupted
+    from cognet_jax.sweep import parse_grid, read_spec, run_sweep, write_outputs
 
-    if args.checkpoint_every < 0:
+    if args.checkpoint_every is not None and args.checkpoint_every < 0:
         raise ConfigError("checkpoint-every", f"must be >= 0, got {args.checkpoint_every}")
+    run_sets = _run_overrides(args)
     if args.resume:
-        spec_path = Path(args.resume) / "sweep-state" / SWEEP_SPEC
-        if not spec_path.is_file():
-            raise FileNotFoundError(f"{spec_path} not found: is {args.resume} a sweep folder?")
-        spec = json.loads(spec_path.read_text())
-        experiment, seeds, grid, overrides = (
-            spec["experiment"],
-            spec["seeds"],
-            spec["grid"],
-            spec["overrides"],
-        )
-        out = Path(args.resume)
+        spec = read_spec(args.resume)
+        experiment, seeds, grid = spec["experiment"], spec["seeds"], spec["grid"]
+        overrides, out = spec["overrides"] + run_sets, Path(args.resume)
     else:
         if args.seeds < 1:
             raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
-        experiment, grid, overrides = args.experiment, parse_grid(args.grid), args.overrides
+        experiment, grid = args.experiment, parse_grid(args.grid)
+        overrides = args.overrides + run_sets
         seeds = list(range(args.first_seed, args.first_seed + args.seeds))
         out = Path(args.out or f"runs/sweep-{Path(args.experiment).stem}")
     processes = args.num_processes or 1
@@ -292,7 +304,6 @@ def _sweep(args) -> int:
     import jax
 
     main_process = jax.process_index() == 0
-    checkpointing = Checkpointing(out / "sweep-state", args.checkpoint_every, bool(args.resume))
     try:
         result = run_sweep(
             experiment,
@@ -301,11 +312,12 @@ def _sweep(args) -> int:
             overrides,
             progress=not args.no_progress and main_process,
             log=print if main_process else (lambda *a: None),
-            checkpointing=checkpointing,
+            out=out,
+            resume=bool(args.resume),
         )
     except Interrupted as err:
         print(f"error: {err}", file=sys.stderr)
-        return 130
+        return 128 + err.signum
     if main_process:
         write_outputs(result, out)
         print((out / "summary.md").read_text())
@@ -315,21 +327,14 @@ def _sweep(args) -> int:
 
 
 def _evaluate(args) -> int:
-
-    from cognet_jax.prng import make_key
-    from cognet_jax.runner import honest_evaluation, load_policy
+    from cognet_jax.driver import evaluate_run
 
     if args.rollouts is not None and args.rollouts < 2:
         raise UsageError(f"--rollouts must be >= 2, got {args.rollouts}")
-    config, algorithm, policy = load_policy(args.run_dir, args.overrides)
-    rollouts = args.rollouts or config.evaluation.rollouts
-    t0 = time.perf_counter()
-    key = make_key(args.seed, config.run.prng_impl)
-    value = honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
-    value.update(seed=args.seed, overrides=args.overrides, wall_s=time.perf_counter() - t0)
+    value = evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides)
     print(
-        f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({rollouts} rollouts, "
-        f"seed {args.seed}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
+        f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
+        f"seed {value['seed']}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
     )
     log = Path(args.run_dir) / "evaluations.jsonl"
     with log.open("a") as f:
@@ -339,9 +344,8 @@ def _evaluate(args) -> int:
 
 
 def _vae(args) -> int:
-    from tqdm.auto import tqdm
-
-    from cognet_jax.vae import diagnostics, plot_mu, save_vae, train_vae
+    from cognet_jax.reporting import plot_vae_mu
+    from cognet_jax.vae import diagnostics, save_vae, train_vae
 
     if args.epochs < 1:
         raise UsageError("--epochs must be >= 1")
@@ -378,7 +382,7 @@ def _vae(args) -> int:
     )
     save_vae(out / "vae.msgpack", vae)
     (out / "vae.json").write_text(json.dumps(info, indent=1))
-    plot_mu(vae, out / "vae_mu.png")
+    plot_vae_mu(vae, out / "vae_mu.png")
     print(
         f"vae: final loss {losses[-1]:.3f}; Spearman(mu, distance) "
         f"{info['spearman_mu_distance']:.4f}; mu {info['mu_source_corner']:.2f} at (2, 2) .. "
@@ -389,8 +393,6 @@ def _vae(args) -> int:
 
 
 def _list(args) -> int:
-    from cognet_jax.config import builtin_experiments, read_experiment
-
     for name in builtin_experiments():
         desc = read_experiment(name).get("experiment", {}).get("description", "")
         print(f"{name:28s} {desc}")
@@ -399,10 +401,6 @@ def _list(args) -> int:
 
 def _inspect(args) -> int:
     """Sizes of a model, its warnings (as ``warning:`` lines) and how long it took to parse."""
-    import time
-
-    from cognet_jax.io.dpomdp import parse_dpomdp
-
     t0 = time.perf_counter()
     model = parse_dpomdp(args.file)
     wall = time.perf_counter() - t0
@@ -428,18 +426,8 @@ def _one_line(err: BaseException) -> str:
     return " ".join(text.split())
 
 
-def _sigterm_as_interrupt(signum, frame):
-    """Outside a search loop (loading, compiling, the final evaluation) SIGTERM stops the
-    command like Ctrl-C; inside it ``runner.sigint_guard`` stops after the iteration."""
-    raise KeyboardInterrupt
-
-
 def _one_line_warnings() -> None:
     """Show the parser's warnings (``DpomdpWarning``) as one ``warning: ...`` line each."""
-    import warnings
-
-    from cognet_jax.io.dpomdp import DpomdpWarning
-
     default = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
@@ -453,10 +441,6 @@ def _one_line_warnings() -> None:
 
 def import_plugin(name: str) -> None:
     """Import a module by name, or a ``.py`` file by path (``--import``)."""
-    import importlib
-    import importlib.util
-    from pathlib import Path
-
     path = Path(name)
     if name.endswith(".py"):
         if not path.is_file():
@@ -473,10 +457,8 @@ def import_plugin(name: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import signal
-
+    install_stop_handlers()
     args = _parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     _one_line_warnings()
     try:
         for name in args.imports:
@@ -494,8 +476,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {_one_line(err)}", file=sys.stderr)
         return 2
+    except Stopped as err:
+        print(f"error: stopped by {err}", file=sys.stderr)
+        return 128 + err.signum
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("error: interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
         if args.debug:

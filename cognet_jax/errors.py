@@ -2,7 +2,8 @@
 
 Every such error derives from ``InputError``; its ``str()`` is one line that names the field or
 the file (and line). The CLI prints exactly that line and exits with status 2
-(``cognet_jax.cli``); ``--debug`` shows the traceback.
+(``cognet_jax.cli``); ``--debug`` shows the traceback. This module imports nothing but the
+standard library, so the ``.dpomdp`` parser (``cognet_jax.io.dpomdp``) stays free of JAX.
 """
 
 from __future__ import annotations
@@ -25,7 +26,11 @@ class CorruptFileError(InputError):
 
 
 class MismatchError(InputError):
-    """A saved policy does not fit the model or settings it is asked to run with."""
+    """A saved policy or checkpoint does not fit the model or settings it is asked to run with."""
+
+
+class ResourceError(InputError):
+    """A setting asks for more memory than the budget allows (one line, with the numbers)."""
 
 
 def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
@@ -43,28 +48,3 @@ def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
     if missing:
         raise CorruptFileError(path, f"missing {', '.join(missing)}")
     return data
-
-
-def restore_msgpack(path: str | Path, template, data: bytes | None = None):
-    """``flax.serialization.from_bytes(template, bytes of path)`` with every way a damaged file
-    fails (truncated, trailing bytes, wrong structure, wrong shapes) turned into one
-    ``CorruptFileError``; the restored leaves must have the template's shapes. ``data``: the
-    bytes to restore when they are not the whole file (named ``path`` in errors)."""
-    import jax
-    import numpy as np
-    from flax import serialization
-
-    path = Path(path)
-    data = path.read_bytes() if data is None else data
-    try:
-        restored = serialization.from_bytes(template, data)
-    except Exception as err:  # msgpack and flax raise ValueError, TypeError, AttributeError, ...
-        raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
-    want = [np.shape(x) for x in jax.tree.leaves(template)]
-    got = [np.shape(x) for x in jax.tree.leaves(restored)]
-    if want != got:
-        raise MismatchError(
-            f"{path}: holds arrays of shapes {got[:3]}... where this model needs {want[:3]}...: "
-            "it was saved for other settings (nodes, problem, network size)"
-        )
-    return restored

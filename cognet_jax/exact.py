@@ -234,31 +234,15 @@ def exact_values(
     return out
 
 
-def exact_value(
-    model: Any,
-    actions,
-    transitions,
-    horizon: int | None,
-    discount: float,
-    tol: float = 1e-10,
-    max_iter: int = 100_000,
-) -> float:
+def exact_value(model: Any, actions, transitions, horizon: int | None, discount: float, **options):
     """Exact value of one deterministic joint controller: ``actions [agents, nodes]``,
     ``transitions [agents, nodes, obs]``; ``E[sum_{t<h} gamma^t r_t]`` from node 0 and
     ``s_0 ~ b0``. ``horizon=None`` with ``discount < 1``: the infinite discounted value, by
     value iteration until the error bound ``gamma/(1-gamma) max|V_k - V_{k-1}|`` is at most
-    ``tol`` (so the result is within ``tol`` of the true value)."""
-    return float(
-        exact_values(
-            model,
-            np.asarray(actions)[None],
-            np.asarray(transitions)[None],
-            horizon,
-            discount,
-            tol=tol,
-            max_iter=max_iter,
-        )[0]
-    )
+    ``tol`` (so the result is within ``tol`` of the true value). ``options``: ``tol`` and
+    ``max_iter`` of ``exact_values``."""
+    batch = (np.asarray(actions)[None], np.asarray(transitions)[None])
+    return float(exact_values(model, *batch, horizon, discount, **options)[0])
 
 
 # --------------------------------------------------------------------------------------------
@@ -394,80 +378,83 @@ def _exhaustive(m: _Arrays, h: int, discount: float, nodes: list[int]) -> Optimu
     return Optimum(best_val, actions, transitions)
 
 
-def _best_response_search(m: _Arrays, h: int, discount: float) -> Optimum:
-    n = len(m.action_counts)
-    S = m.b0.shape[0]
+def _level(m: _Arrays, d: int, h: int, trees: list, p_of: tuple, P: int):
+    """Level d of the others' joint trees: ``(lsizes, rew [P, S, L, A], trans)`` with the
+    others' local joint nodes ``L = prod(lsizes)``, ``rew[p, s, l, a] = R(s, ja)`` and, below
+    the last level, ``trans[a][p, l, s, t, jo] = T(t|s, ja) O(jo|ja, t)`` for the joint action
+    ``ja`` of the others' nodes and the last agent's action ``a``."""
+    n, S = len(m.action_counts), m.b0.shape[0]
     A_last, Z_last = m.action_counts[-1], m.obs_counts[-1]
     oth_A, oth_Z = m.action_counts[:-1], m.obs_counts[:-1]
-    oth_nodes = [tree_num_nodes(z, h) for z in oth_Z]
-    trees = [_all_trees(oth_A[i], oth_nodes[i]) for i in range(n - 1)]
-    sizes = tuple(len(t) for t in trees)
-    P = int(np.prod(sizes))  # joint trees of the other agents (1 when n == 1)
-    p_of = np.unravel_index(np.arange(P), sizes) if n > 1 else ()
-    OO = int(np.prod(oth_Z))  # joint observations of the other agents
-    gamma = float(discount)
+    lsizes = tuple(z**d for z in oth_Z)
+    L = int(np.prod(lsizes))
+    ls = np.unravel_index(np.arange(L), lsizes) if n > 1 else ()
+    oa = np.zeros((P, L), dtype=np.int64)  # the others' joint action at (p, l)
+    stride = 1
+    for i in reversed(range(n - 1)):
+        node = _level_offset(oth_Z[i], d) + ls[i]
+        oa += trees[i][p_of[i][:, None], node[None, :]] * stride
+        stride *= oth_A[i]
+    if P * L * S * A_last > MAX_BRUTE_ENTRIES:
+        raise ValueError("problem too large for the brute-force search")
+    ja_all = oa[:, :, None] * A_last + np.arange(A_last)  # [P, L, A]
+    rew = m.rew[:, ja_all].transpose(1, 0, 2, 3)  # [P, S, L, A]
+    if d == h - 1:
+        return lsizes, rew, None
+    if P * L * S * S * int(np.prod(oth_Z)) * Z_last * A_last > MAX_BRUTE_ENTRIES:
+        raise ValueError("problem too large for the brute-force search")
+    trans = []
+    for a in range(A_last):
+        ja = ja_all[:, :, a]
+        Tg = m.trans[:, ja, :].transpose(1, 2, 0, 3)  # [P, L, S, S']
+        Og = m.obs[ja]  # [P, L, S', JO]
+        trans.append(Tg[..., None] * Og[:, :, None, :, :])
+    return lsizes, rew, trans
 
-    # Per level d: joint action of the others at each (p, local joint node l) of that level.
-    levels = []
-    for d in range(h):
-        lsizes = tuple(z**d for z in oth_Z)
-        L = int(np.prod(lsizes))
-        ls = np.unravel_index(np.arange(L), lsizes) if n > 1 else ()
-        oa = np.zeros((P, L), dtype=np.int64)
-        stride = 1
-        for i in reversed(range(n - 1)):
-            node = _level_offset(oth_Z[i], d) + ls[i]
-            oa += trees[i][p_of[i][:, None], node[None, :]] * stride
-            stride *= oth_A[i]
-        if P * L * S * A_last > MAX_BRUTE_ENTRIES:
-            raise ValueError("problem too large for the brute-force search")
-        # reward[p, s, l, a] = R(s, oa * A_last + a)
-        ja_all = oa[:, :, None] * A_last + np.arange(A_last)  # [P, L, A]
-        rew = m.rew[:, ja_all].transpose(1, 0, 2, 3)  # [P, S, L, A]
-        trans = None
-        if d < h - 1:
-            if P * L * S * S * OO * Z_last * A_last > MAX_BRUTE_ENTRIES:
-                raise ValueError("problem too large for the brute-force search")
-            # K[a][p, l, s, t, jo] = T(t|s, ja) O(jo|ja, t)
-            trans = []
-            for a in range(A_last):
-                ja = ja_all[:, :, a]
-                Tg = m.trans[:, ja, :].transpose(1, 2, 0, 3)  # [P, L, S, S']
-                Og = m.obs[ja]  # [P, L, S', JO]
-                trans.append(Tg[..., None] * Og[:, :, None, :, :])
-        levels.append((lsizes, rew, trans))
 
-    def children(d: int, nxt: np.ndarray) -> np.ndarray:
+class _Response(NamedTuple):
+    """The last agent's best response to every joint tree ``p < P`` of the others, by
+    recursion over its own histories (``levels``: ``_level`` of every depth)."""
+
+    levels: list
+    oth_Z: tuple
+    Z_last: int
+    A_last: int
+    S: int
+    P: int
+    h: int
+    gamma: float
+
+    def children(self, d: int, nxt: np.ndarray) -> np.ndarray:
         """``nxt [P, S', L, JO]`` -> child alphas ``[Z_last, P, S', L']`` of level d+1."""
-        lsizes = levels[d][0]
-        k = n - 1
-        x = nxt.reshape((P, S) + lsizes + tuple(oth_Z) + (Z_last,))
+        k = len(self.oth_Z)
+        x = nxt.reshape((self.P, self.S) + self.levels[d][0] + tuple(self.oth_Z) + (self.Z_last,))
         # interleave (l_i, z_i) so the child's local index is l_i * Z_i + z_i, agent-major
         perm = [len(x.shape) - 1, 0, 1]
         for i in range(k):
             perm += [2 + i, 2 + k + i]
         x = x.transpose(perm)
-        return x.reshape((Z_last, P, S, int(np.prod(levels[d + 1][0]))))
+        return x.reshape((self.Z_last, self.P, self.S, int(np.prod(self.levels[d + 1][0]))))
 
-    def best_response(d: int, alpha: np.ndarray, local: int, record: bool):
+    def value(self, d: int, alpha: np.ndarray, local: int, record: bool):
         """Best value ``[P]`` of the last agent from its node (level d, index ``local``) given
-        the unnormalised distribution ``alpha [P, S, L]`` over (state, others' node)."""
-        lsizes, rew, trans = levels[d]
+        the unnormalised distribution ``alpha [P, S, L]`` over (state, others' node); with
+        ``record`` also its plan ``{(level, local): action}`` (for ``P = 1``)."""
+        _, rew, trans = self.levels[d]
         imm = np.einsum("psl,psla->pa", alpha, rew)  # [P, A]
-        if d == h - 1:
+        if d == self.h - 1:
             if record:
                 a = int(np.argmax(imm[0]))
                 return imm[:, a], {(d, local): a}
             return imm.max(axis=1), None
         best, best_plan = None, None
-        for a in range(A_last):
-            nxt = np.einsum("psl,plstj->ptlj", alpha, trans[a])
-            kids = children(d, nxt)
+        for a in range(self.A_last):
+            kids = self.children(d, np.einsum("psl,plstj->ptlj", alpha, trans[a]))
             val = imm[:, a].copy()
             plan = {(d, local): a} if record else None
-            for z in range(Z_last):
-                v, sub = best_response(d + 1, kids[z], local * Z_last + z, record)
-                val += gamma * v
+            for z in range(self.Z_last):
+                v, sub = self.value(d + 1, kids[z], local * self.Z_last + z, record)
+                val += self.gamma * v
                 if record:
                     plan.update(sub)
             if best is None:
@@ -479,25 +466,33 @@ def _best_response_search(m: _Arrays, h: int, discount: float) -> Optimum:
                 best = np.maximum(best, val)
         return best, best_plan
 
+
+def _best_response_search(m: _Arrays, h: int, discount: float) -> Optimum:
+    n = len(m.action_counts)
+    S = m.b0.shape[0]
+    A_last, Z_last = m.action_counts[-1], m.obs_counts[-1]
+    oth_A, oth_Z = m.action_counts[:-1], m.obs_counts[:-1]
+    trees = [_all_trees(oth_A[i], tree_num_nodes(oth_Z[i], h)) for i in range(n - 1)]
+    sizes = tuple(len(t) for t in trees)
+    P = int(np.prod(sizes))  # joint trees of the other agents (1 when n == 1)
+    p_of = np.unravel_index(np.arange(P), sizes) if n > 1 else ()
+    levels = [_level(m, d, h, trees, p_of, P) for d in range(h)]
+    search = _Response(levels, tuple(oth_Z), Z_last, A_last, S, P, h, float(discount))
     alpha0 = np.zeros((P, S, 1))
     alpha0[:, :, 0] = m.b0[None, :]
-    values, _ = best_response(0, alpha0, 0, record=False)
+    values, _ = search.value(0, alpha0, 0, record=False)
     p_best = int(np.argmax(values))
 
     # Replay the best response to the best trees of the others, recording its actions.
-    sub_levels = []
-    for lsizes, rew, trans in levels:
-        sub_levels.append(
-            (
-                lsizes,
-                rew[p_best : p_best + 1],
-                None if trans is None else [t[p_best : p_best + 1] for t in trans],
-            )
+    narrowed = [
+        (
+            lsizes,
+            rew[p_best : p_best + 1],
+            None if tr is None else [t[p_best : p_best + 1] for t in tr],
         )
-    levels[:] = sub_levels
-    P = 1
-    alpha0 = alpha0[:1]
-    val_best, plan = best_response(0, alpha0, 0, record=True)
+        for lsizes, rew, tr in levels
+    ]
+    _, plan = search._replace(levels=narrowed, P=1).value(0, alpha0[:1], 0, record=True)
     last_tree = np.zeros(tree_num_nodes(Z_last, h), dtype=np.int64)
     for (d, local), a in plan.items():
         last_tree[_level_offset(Z_last, d) + local] = a

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import TabularEnv, TabularParams, _strides
@@ -115,12 +114,3 @@ def exact_value_layered(
     v_last = jnp.zeros((width**n, env.num_states), jnp.float32)
     v0, _ = jax.lax.scan(backup, v_last, (acts, local), reverse=True)
     return v0[0] @ params.initial_belief
-
-
-def exact_values_numpy_layout(env, params, actions, transitions, nodes: int) -> np.ndarray:
-    """Convenience for tests: values ``[B]`` of ``actions [B, agents, nodes]``,
-    ``transitions [B, agents, nodes, obs]`` given as arrays."""
-    pol = DeterministicTabularPolicy(
-        actions=jnp.asarray(actions, jnp.int32), transitions=jnp.asarray(transitions, jnp.int32)
-    )
-    return np.asarray(jax.vmap(lambda p: exact_value(env, params, p, nodes))(pol))

@@ -15,6 +15,9 @@ uses the same key (common random numbers) and its own rollouts are never split.
   upper bound (every array of one step of one rollout, summed) says the batch could be too big.
 * :func:`candidate_chunk` -- how many candidates to evaluate at once, or ``ResourceError``
   when even one candidate's rollouts exceed the budget.
+
+This module is a leaf of the rollout layer: the rollouts it measures come in as a function
+``run(key, policy, num, env_params) -> returns [num]`` (``cognet_jax.rollout`` passes its own).
 * :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
   budget; a program whose single array cannot fit is refused with its shape.
 
@@ -33,16 +36,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cognet_jax.errors import InputError
+from cognet_jax.errors import ResourceError
 
 #: the share of physical memory a run may use when ``run.memory_gb`` is 0
 DEFAULT_MEMORY_SHARE = 0.5
 #: rollouts per candidate and candidates of the probe that measures bytes per rollout
 PROBE_ROLLOUTS, PROBE_CANDIDATES = 256, 4
-
-
-class ResourceError(InputError):
-    """A setting asks for more memory than the budget allows (one line, with the numbers)."""
 
 
 def machine_memory_bytes() -> int:
@@ -112,13 +111,11 @@ def _with_params(env_params):
     return (), lambda e: env_params
 
 
-def _step_upper_bound(env, controller, env_params, policy) -> int:
+def _step_upper_bound(run, env_params, policy) -> int:
     """Bytes of every array one time step of one rollout creates, summed (an upper bound on
     what a rollout keeps alive; 10-100x what XLA needs after fusion)."""
-    from cognet_jax.rollout import rollouts
-
     extra, read = _with_params(env_params)
-    jaxpr = jax.make_jaxpr(lambda k, p, *e: rollouts(env, controller, k, 1, read(e), p))(
+    jaxpr = jax.make_jaxpr(lambda k, p, *e: run(k, p, 1, read(e)))(
         jax.random.key(0), _abstract(policy), *extra
     )
     return sum(_aval_bytes(a) for a, _ in jaxpr_arrays(jaxpr.jaxpr))
@@ -127,14 +124,13 @@ def _step_upper_bound(env, controller, env_params, policy) -> int:
 _PROBED: dict = {}
 
 
-def rollout_bytes(env, controller, env_params, policy) -> float:
+def rollout_bytes(run, env_params, policy, cache: tuple = ()) -> float:
     """Bytes one in-flight rollout of ``policy`` needs in a batch of candidates, measured from
-    XLA's buffer assignment of a small probe (cached per env, controller and shapes)."""
-    from cognet_jax.rollout import rollouts
-
+    XLA's buffer assignment of a small probe (cached per ``cache`` -- what identifies ``run``
+    -- and shapes)."""
     policy = _abstract(policy)
     extra, read = _with_params(env_params)
-    cache_key = (id(env), id(controller), id(env_params), str(jax.tree.structure(policy)))
+    cache_key = (*cache, id(env_params), str(jax.tree.structure(policy)))
     cache_key += tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves((policy, extra)))
     if cache_key not in _PROBED:
         stacked = jax.tree.map(
@@ -142,10 +138,7 @@ def rollout_bytes(env, controller, env_params, policy) -> float:
         )
 
         def probe(k, ps, *e):
-            def one(p):
-                return rollouts(env, controller, k, PROBE_ROLLOUTS, read(e), p).mean()
-
-            return jax.vmap(one)(ps)
+            return jax.vmap(lambda p: run(k, p, PROBE_ROLLOUTS, read(e)).mean())(ps)
 
         compiled = jax.jit(probe).lower(jax.random.key(0), stacked, *extra).compile()
         temp = compiled.memory_analysis().temp_size_in_bytes
@@ -154,23 +147,23 @@ def rollout_bytes(env, controller, env_params, policy) -> float:
 
 
 def candidate_chunk(
-    env,
-    controller,
+    run,
     env_params,
     policy,
     candidates: int,
     rollouts: int,
     memory: int | None,
     what: str = "algorithm.eval_rollouts",
+    cache: tuple = (),
 ) -> int:
-    """How many of ``candidates`` candidates (``rollouts`` rollouts each) to evaluate at once
-    within ``memory`` bytes (None: :func:`budget_bytes`); ``candidates`` when all fit.
-    ``policy`` is one candidate (arrays or shapes). Raises ``ResourceError`` naming ``what``
-    when one candidate's rollouts alone exceed the budget."""
+    """How many of ``candidates`` candidates (``rollouts`` rollouts each, by ``run``) to
+    evaluate at once within ``memory`` bytes (None: :func:`budget_bytes`); ``candidates`` when
+    all fit. ``policy`` is one candidate (arrays or shapes). Raises ``ResourceError`` naming
+    ``what`` when one candidate's rollouts alone exceed the budget."""
     memory = budget_bytes() if memory is None else memory
-    if candidates * rollouts * _step_upper_bound(env, controller, env_params, policy) <= memory:
+    if candidates * rollouts * _step_upper_bound(run, env_params, policy) <= memory:
         return candidates
-    per_rollout = rollout_bytes(env, controller, env_params, policy)
+    per_rollout = rollout_bytes(run, env_params, policy, cache)
     per_candidate = rollouts * per_rollout
     if per_candidate > memory:
         raise ResourceError(

@@ -29,11 +29,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
-from cognet_jax.vae import TrainedVAE, load_vae, train_vae
+from cognet_jax.config import ConfigError, require, require_positive
+from cognet_jax.controllers.neural import NeuralController
+from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae
 
 KINDS = ("raw", "encoded")
 #: File name of the VAE a run used, inside its output folder.
@@ -110,8 +113,6 @@ class ObservationPipeline:
 def neural_controller(env, nodes: int, hidden: int, pipeline: ObservationPipeline | None = None):
     """``(pipeline, NeuralController)`` of a COGNet-DICE search on ``env``: the networks read
     the pipeline's features (``pipeline=None``: the raw observation)."""
-    from cognet_jax.controllers.neural import NeuralController
-
     if pipeline is None:
         pipeline = ObservationPipeline("raw", env.obs_shape)
     controller = NeuralController(
@@ -137,13 +138,53 @@ def resolve_vae(
 ) -> TrainedVAE:
     """The VAE in ``vae_path`` or, when it is empty, the on-demand one (see module docstring).
     A missing file raises ``ConfigError`` naming ``network.vae_path``."""
-    from pathlib import Path
-
-    from cognet_jax.config import ConfigError
-
     if vae_path:
         path = Path(vae_path).expanduser()
         if not path.is_file():
             raise ConfigError("network.vae_path", f"no such file: {vae_path}")
         return load_vae(path)
     return trained_vae(seed, epochs, latent, kl_weight)
+
+
+def check_network(config, training: bool) -> None:
+    """``ConfigError`` naming the field for a bad ``[network]`` of a COGNet-DICE search;
+    ``training``: the optimiser settings are checked too (the thesis algorithm trains its
+    networks; the weight-space search samples them)."""
+    net = config.network
+    require_positive(net, "network", "hidden")
+    if training:
+        require_positive(net, "network", "train_steps")
+        require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
+        require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
+    require_positive(net, "network", "vae_epochs", "augment_samples", "vae_latent")
+    require(net.vae_kl_weight > 0, "network.vae_kl_weight", f"must be > 0, got {net.vae_kl_weight}")
+    require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
+    needs_vae = net.observation == "encoded" or net.augment
+    require(
+        not needs_vae or config.env.name == "heatmap",
+        "network.observation" if net.observation == "encoded" else "network.augment",
+        "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
+    )
+
+
+def build_pipeline(config, env) -> ObservationPipeline:
+    """The observation pipeline of ``config.network`` (trains or loads the VAE only when the
+    encoded pipeline or augmentation needs it)."""
+    net = config.network
+    vae = None
+    if net.observation == "encoded" or net.augment:
+        if tuple(env.obs_shape) != (PATCH_FEATURES,):
+            raise ConfigError(
+                "network.observation",
+                f"the patch VAE reads [{PATCH_FEATURES}] patches; this simulator observes "
+                f"shape {tuple(env.obs_shape)}",
+            )
+        vae = resolve_vae(
+            net.vae_path, net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight
+        )
+    return ObservationPipeline(
+        kind=net.observation,
+        raw_shape=env.obs_shape,
+        vae=vae,
+        augment_samples=net.augment_samples if net.augment else 0,
+    )

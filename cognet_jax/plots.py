@@ -51,7 +51,12 @@ Interval = tuple[float, float]
 Edge = tuple[int, int, list]
 
 
-def _save(fig, path, dpi: int) -> str | Path:
+def _save(fig, path, dpi: int, title: str | None = None) -> str | Path:
+    """Lay out ``fig`` (with ``title`` above its panels, if any), write it to ``path``, close
+    it."""
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
@@ -104,10 +109,7 @@ def plot_action_distributions(
         ax.grid(axis="y", alpha=0.3)
     axes[0, 0].set_ylabel("probability")
     axes[0, -1].legend(title="action", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, title)
 
 
 def plot_node_responses(
@@ -156,10 +158,7 @@ def plot_node_responses(
     fig.legend(
         handles, lab, title="next node", loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8
     )
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, title)
 
 
 # --------------------------------------------------------------------------- training curves
@@ -203,7 +202,6 @@ def plot_values(
     ax.legend(fontsize=8, loc="best")
     if title:
         ax.set_title(title)
-    fig.tight_layout()
     return _save(fig, path, dpi)
 
 
@@ -233,7 +231,6 @@ def plot_value_vs_noise(
         ax.legend(fontsize=8, loc="best")
     if title:
         ax.set_title(title)
-    fig.tight_layout()
     return _save(fig, path, dpi)
 
 
@@ -375,16 +372,15 @@ def _overlap(a, b) -> float:
     return max(0.0, min(a[1], b[1]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[2], b[2]))
 
 
-def _draw_graph(ax, probs: np.ndarray, edges: Sequence[Edge], names: list[str]) -> None:
-    nodes = probs.shape[0]
-    radius, loop = _NODE_R, _LOOP
-    node_fs, edge_fs = 9, 8
-    angles, centers, limits = _layout(nodes)
-    colors = _colors(nodes)
-    box = dict(boxstyle="round,pad=0.15", facecolor="white", edgecolor="none", alpha=0.95)
-    taken = []  # approximate boxes of what is drawn, to place edge labels where it is free
-    circles = []
-    for q in range(nodes):
+_NODE_FS, _EDGE_FS = 9, 8
+_LABEL_BOX = dict(boxstyle="round,pad=0.15", facecolor="white", edgecolor="none", alpha=0.95)
+
+
+def _draw_nodes(ax, probs: np.ndarray, names: list[str], centers, taken: list) -> list:
+    """One circle per node with its most likely action and that action's probability; the
+    start node has a thicker rim. Returns the circles (edges end at them)."""
+    radius, circles = _NODE_R, []
+    for q in range(probs.shape[0]):
         a = int(np.argmax(probs[q]))
         longest = max(len(names[a]), 4)
         circle = Circle(
@@ -402,96 +398,89 @@ def _draw_graph(ax, probs: np.ndarray, edges: Sequence[Edge], names: list[str]) 
             f"q{q}\n{names[a]}\n{probs[q, a]:.2f}",
             ha="center",
             va="center",
-            fontsize=min(node_fs, node_fs * 7.0 / longest),
+            fontsize=min(_NODE_FS, _NODE_FS * 7.0 / longest),
             zorder=7,
             linespacing=1.1,
         )
         x, y = centers[q]
         taken.append((x - radius, x + radius, y - radius, y + radius))
+    return circles
 
-    # start marker: an incoming arrow to node 0, from its upper left
-    c0 = centers[0]
+
+def _draw_start(ax, c0, taken: list) -> None:
+    """The start marker: an incoming arrow to node 0, from its upper left."""
     direction = _unit(160.0)
-    tail = c0 + (radius + 0.65) * direction
+    tail = c0 + (_NODE_R + 0.65) * direction
+    style = dict(arrowstyle="-|>", mutation_scale=14, lw=1.6, shrinkA=0, shrinkB=1, zorder=2)
+    ax.add_patch(FancyArrowPatch(tail, c0 + _NODE_R * direction, color="black", **style))
+    start = tail + 0.05 * direction
+    ax.text(*start, "start", fontsize=_NODE_FS, ha="right", va="center")
+    taken.append(_text_box(start, "start", _NODE_FS, ha="right"))
+
+
+def _draw_self_loop(ax, c, out, text: str, color, taken: list) -> None:
+    """A loop on the node at ``c``, bulging in the direction ``out``, labelled ``text``."""
+    radius, loop = _NODE_R, _LOOP
+    theta = math.degrees(math.atan2(out[1], out[0]))
+    verts = [
+        c + radius * _unit(theta + 32),
+        c + (radius + loop) * _unit(theta + 42),
+        c + (radius + loop) * _unit(theta - 42),
+        c + radius * _unit(theta - 32),
+    ]
+    path = MplPath(verts, [MplPath.MOVETO, MplPath.CURVE4, MplPath.CURVE4, MplPath.CURVE4])
     ax.add_patch(
         FancyArrowPatch(
-            tail,
-            c0 + radius * direction,
-            arrowstyle="-|>",
-            mutation_scale=14,
-            color="black",
-            lw=1.6,
-            shrinkA=0,
-            shrinkB=1,
-            zorder=2,
+            path=path, arrowstyle="-|>", mutation_scale=12, color=color, lw=1.4, zorder=2
         )
     )
-    start = tail + 0.05 * direction
-    ax.text(*start, "start", fontsize=node_fs, ha="right", va="center")
-    taken.append(_text_box(start, "start", node_fs, ha="right"))
+    pos = c + (radius + 0.62 * loop) * out
+    ax.text(*pos, text, fontsize=_EDGE_FS, color=color, bbox=_LABEL_BOX, zorder=5, **_align(out))
+    taken.append(_text_box(pos, text, _EDGE_FS, **_align(out)))
 
+
+def _draw_arc(ax, c, end, patches, text: str, color, taken: list) -> None:
+    """An arc from the node at ``c`` to the node at ``end`` (``patches``: their circles)."""
+    style = dict(arrowstyle="-|>", mutation_scale=14, lw=1.4, shrinkA=1, shrinkB=1, zorder=2)
+    style.update(connectionstyle=f"arc3,rad={_RAD}", patchA=patches[0], patchB=patches[1])
+    ax.add_patch(FancyArrowPatch(c, end, color=color, **style))
+    # arc3 is a quadratic Bezier with this control point (in display space, which equals data
+    # space up to scale since the aspect is equal); the label goes to the point along it that
+    # overlaps least with what is already placed, preferring t = 0.4 (nearer the source)
+    d = end - c
+    ctrl = c + d / 2 + _RAD * np.array([d[1], -d[0]])
+    best = None
+    for t in _LABEL_TS:
+        pos = (1 - t) ** 2 * c + 2 * t * (1 - t) * ctrl + t**2 * end
+        tb = _text_box(pos, text, _EDGE_FS)
+        score = sum(_overlap(tb, other) for other in taken)
+        if best is None or score < best[0] - 1e-9:
+            best = (score, pos, tb)
+        if score == 0.0:
+            break
+    _, pos, tb = best
+    taken.append(tb)
+    label = dict(fontsize=_EDGE_FS, bbox=_LABEL_BOX, ha="center", va="center", zorder=5)
+    ax.text(*pos, text, color=color, **label)
+
+
+def _draw_graph(ax, probs: np.ndarray, edges: Sequence[Edge], names: list[str]) -> None:
+    nodes = probs.shape[0]
+    angles, centers, limits = _layout(nodes)
+    colors = _colors(nodes)
+    taken = []  # approximate boxes of what is drawn, to place edge labels where it is free
+    circles = _draw_nodes(ax, probs, names, centers, taken)
+    _draw_start(ax, centers[0], taken)
     # self-loops first (their labels have a fixed place), then the other edges
-    ordered = sorted(edges, key=lambda e: int(e[0]) != int(e[1]))
-    for src, dst, labels in ordered:
+    for src, dst, labels in sorted(edges, key=lambda e: int(e[0]) != int(e[1])):
         src, dst = int(src), int(dst)
-        color = colors[src]
         text = _edge_text(labels)
-        c = centers[src]
         if src == dst:
             out = _unit(angles[src]) if nodes > 1 else _unit(90.0)
-            theta = math.degrees(math.atan2(out[1], out[0]))
-            verts = [
-                c + radius * _unit(theta + 32),
-                c + (radius + loop) * _unit(theta + 42),
-                c + (radius + loop) * _unit(theta - 42),
-                c + radius * _unit(theta - 32),
-            ]
-            path = MplPath(verts, [MplPath.MOVETO, MplPath.CURVE4, MplPath.CURVE4, MplPath.CURVE4])
-            ax.add_patch(
-                FancyArrowPatch(
-                    path=path, arrowstyle="-|>", mutation_scale=12, color=color, lw=1.4, zorder=2
-                )
-            )
-            pos = c + (radius + 0.62 * loop) * out
-            ax.text(*pos, text, fontsize=edge_fs, color=color, bbox=box, zorder=5, **_align(out))
-            taken.append(_text_box(pos, text, edge_fs, **_align(out)))
-            continue
-        end = centers[dst]
-        ax.add_patch(
-            FancyArrowPatch(
-                c,
-                end,
-                patchA=circles[src],
-                patchB=circles[dst],
-                arrowstyle="-|>",
-                mutation_scale=14,
-                connectionstyle=f"arc3,rad={_RAD}",
-                color=color,
-                lw=1.4,
-                shrinkA=1,
-                shrinkB=1,
-                zorder=2,
-            )
-        )
-        # arc3 is a quadratic Bezier with this control point (in display space, which equals data
-        # space up to scale since the aspect is equal); the label goes to the point along it that
-        # overlaps least with what is already placed, preferring t = 0.4 (nearer the source)
-        d = end - c
-        ctrl = c + d / 2 + _RAD * np.array([d[1], -d[0]])
-        best = None
-        for t in _LABEL_TS:
-            pos = (1 - t) ** 2 * c + 2 * t * (1 - t) * ctrl + t**2 * end
-            tb = _text_box(pos, text, edge_fs)
-            score = sum(_overlap(tb, other) for other in taken)
-            if best is None or score < best[0] - 1e-9:
-                best = (score, pos, tb)
-            if score == 0.0:
-                break
-        _, pos, tb = best
-        taken.append(tb)
-        ax.text(
-            *pos, text, fontsize=edge_fs, color=color, bbox=box, ha="center", va="center", zorder=5
-        )
+            _draw_self_loop(ax, centers[src], out, text, colors[src], taken)
+        else:
+            pair = (circles[src], circles[dst])
+            _draw_arc(ax, centers[src], centers[dst], pair, text, colors[src], taken)
     ax.set_xlim(limits[0], limits[1])
     ax.set_ylim(limits[2], limits[3])
     ax.set_aspect("equal")
@@ -536,7 +525,33 @@ def plot_controller_graphs(
     for i, ax in enumerate(axes[0]):
         _draw_graph(ax, probs[i], edges_per_agent[i], names)
         ax.set_title(f"agent {i}")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
+    return _save(fig, path, dpi, title)
+
+
+def plot_sweep_values(result: dict, path, label) -> None:
+    """A sweep's in-loop value per iteration, mean over seeds +- s.e. per setting (``label``
+    names a setting's grid values)."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for index, values in enumerate(result["settings"]):
+        v = np.array([r["values_per_iteration"] for r in result["rows"] if r["setting"] == index])
+        mean = v.mean(0)
+        se = v.std(0, ddof=1) / np.sqrt(v.shape[0]) if v.shape[0] > 1 else np.zeros_like(mean)
+        x = np.arange(1, mean.size + 1)
+        (line,) = ax.plot(x, mean, label=label(values))
+        ax.fill_between(x, mean - se, mean + se, color=line.get_color(), alpha=0.2)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("in-loop value (mean over seeds +- s.e.)")
+    ax.set_title(f"{result['experiment']}: {len(result['seeds'])} seeds per setting")
+    ax.legend(fontsize=8)
+    _save(fig, path, 120)
+
+
+def plot_position_map(grid, low: int, high: int, path, title: str, label: str, dpi: int = 110):
+    """``grid [x, y]`` over the positions ``low..high`` in both coordinates, as an image."""
+    fig, ax = plt.subplots(figsize=(4.6, 3.8))
+    im = ax.imshow(grid, origin="lower", extent=(low - 0.5, high + 0.5, low - 0.5, high + 0.5))
+    ax.set_xlabel("y")
+    ax.set_ylabel("x")
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, label=label)
     return _save(fig, path, dpi)

@@ -120,14 +120,19 @@ def _threefry_fold_in(key: jax.Array, data: jax.Array) -> jax.Array:
     return jnp.concatenate([b1, b2])
 
 
-THREEFRY_IMPL = jax.extend.random.define_prng_impl(
-    key_shape=(2,),
-    seed=_threefry_seed,
-    split=_threefry_split,
-    random_bits=_threefry_bits,
-    fold_in=_threefry_fold_in,
-    name="threefry2x32_unrolled",
-    tag="fru",
+def _define(name: str, tag: str, seed, split, bits, fold_in):
+    """A JAX PRNG implementation of two 32-bit key words."""
+    functions = dict(seed=seed, split=split, random_bits=bits, fold_in=fold_in)
+    return jax.extend.random.define_prng_impl(key_shape=(2,), name=name, tag=tag, **functions)
+
+
+THREEFRY_IMPL = _define(
+    "threefry2x32_unrolled",
+    "fru",
+    _threefry_seed,
+    _threefry_split,
+    _threefry_bits,
+    _threefry_fold_in,
 )
 
 
@@ -178,15 +183,7 @@ def _fold_in(key: jax.Array, data: jax.Array) -> jax.Array:
     return _words(tweaked, jnp.stack([2 * d, 2 * d + 1]))
 
 
-HASH_IMPL = jax.extend.random.define_prng_impl(
-    key_shape=(2,),
-    seed=_seed,
-    split=_split,
-    random_bits=_bits,
-    fold_in=_fold_in,
-    name="hash",
-    tag="hsh",
-)
+HASH_IMPL = _define("hash", "hsh", _seed, _split, _bits, _fold_in)
 
 #: ``run.prng_impl`` values: JAX's own implementations by name, and this module's.
 IMPLS = {

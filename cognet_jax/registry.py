@@ -1,18 +1,29 @@
-"""Registries of simulators and search algorithms (gymnax style): a name -> how to build it.
+"""Registries of simulators and search algorithms (gymnax style), and reading a whole
+configuration through them.
 
 A simulator is one module: the environment (``cognet_jax.envs.base.Environment``), a dataclass
-for its ``[env]`` config section (every field a setting with its default; an optional
-``check(config)`` method raising ``ConfigError`` names bad values) and one call::
+for its ``[env]`` config section (every field a setting with its default; a ``check(config)``
+method raising ``ConfigError`` names bad values) and one call::
 
     register_env("my-sim", MySection, build=lambda section, config: (env, env_params))
 
-after which ``make_env("my-sim", **settings)``, ``make_algorithm(name, env, env_params)``,
-``load_config`` / TOML files with ``env.name = "my-sim"`` and ``sweep.run_sweep`` know it in
-the process that registered it (the ``cognet-jax`` command line knows the built-in ones). An
-algorithm is registered the same way with ``register_algorithm(name, section, build)``,
-``build(config, env, env_params) -> algorithm``. The built-in entries are registered by their
-own modules, imported on first lookup (``BUILTIN_ENVS`` / ``BUILTIN_ALGORITHMS``), so reading a
-config loads only what it names; they never replace an entry registered before them.
+An algorithm is one module too: its ``[algorithm]`` section (with ``check``) and::
+
+    register_algorithm("my-search", MySection, build, hyper)
+
+``build(config, env, env_params, memory) -> algorithm`` makes the immutable search object and
+``hyper(config) -> pytree`` reads its dynamic hyper-parameters (``cognet_jax.api``). After
+registration ``load_config`` / TOML files with ``env.name = "my-sim"`` or ``experiment.algorithm
+= "my-search"``, ``api.make_env``, ``api.make_algorithm``, ``cognet-jax train --import`` and
+sweeps know them; nothing in ``config.py`` or ``api.py`` names them. The built-in entries are
+registered by their own modules, imported on first lookup (``BUILTIN_ENVS`` /
+``BUILTIN_ALGORITHMS``), so reading a config loads only what it names; they never replace an
+entry registered before them.
+
+``load_config(name_or_path, overrides)``: read a built-in experiment or a TOML file, apply
+``--set`` overrides, pick the ``[env]`` and ``[algorithm]`` dataclasses from the entries, and
+validate (``validate``): every section's own ``check``, finite numbers, and no setting in a
+section that neither the simulator nor the algorithm reads (``reads``).
 """
 
 from __future__ import annotations
@@ -21,6 +32,20 @@ import dataclasses
 import importlib
 from collections.abc import Callable, Mapping
 from typing import Any
+
+from cognet_jax.config import (
+    OPTIONAL_SECTIONS,
+    Config,
+    ConfigError,
+    EvaluationSection,
+    ExperimentSection,
+    RunSection,
+    apply_overrides,
+    check_finite,
+    check_known_sections,
+    read_experiment,
+    section_from_dict,
+)
 
 #: built-in simulator name -> the module that registers it
 BUILTIN_ENVS = {
@@ -44,14 +69,16 @@ class EnvEntry:
     ``section``: the ``[env]`` dataclass (its ``name`` field defaults to the registered name).
     ``build(section, config) -> (env, env_params)``. ``dynamic``: section fields that only
     change the params pytree, so a sweep runs settings differing in them in one compiled
-    program. ``references``: known values shown in plots, ``{setting: {label: value}}`` with
-    the setting read from the section field ``reference_field``.
+    program. ``reads``: the optional config sections it reads (``"problem"``). ``references``:
+    known values shown in plots, ``{setting: {label: value}}`` with the setting read from the
+    section field ``reference_field``.
     """
 
     name: str
     section: type
     build: Callable[[Any, Any], tuple[Any, Any]]
     dynamic: tuple[str, ...] = ()
+    reads: tuple[str, ...] = ()
     references: Mapping[str, Mapping[str, float]] = dataclasses.field(default_factory=dict)
     reference_field: str = ""
 
@@ -59,20 +86,29 @@ class EnvEntry:
 @dataclasses.dataclass(frozen=True)
 class AlgorithmEntry:
     """A registered search algorithm: ``section`` is the ``[algorithm]`` dataclass,
-    ``build(config, env, env_params) -> algorithm``; ``dynamic``: dotted config fields
-    (``"algorithm.alpha"``, ``"network.learning_rate"``) that are hyper-parameters (sweepable
-    in one program); ``discrete``: the algorithm needs discrete observations (simulators that
-    can discretise, e.g. tagging, then return indices)."""
+    ``build(config, env, env_params, memory) -> algorithm`` (``memory``: bytes its rollouts in
+    flight may take, ``None`` for half the machine), ``hyper(config) -> pytree`` its dynamic
+    hyper-parameters; ``dynamic``: dotted config fields (``"algorithm.alpha"``,
+    ``"network.learning_rate"``) that are hyper-parameters (sweepable in one program);
+    ``discrete``: the algorithm needs discrete observations (simulators that can discretise,
+    e.g. tagging, then return indices); ``reads``: the optional sections it reads
+    (``"network"``)."""
 
     name: str
     section: type
-    build: Callable[[Any, Any, Any], Any]
+    build: Callable[[Any, Any, Any, Any], Any]
+    hyper: Callable[[Any], Any]
     dynamic: tuple[str, ...] = ()
     discrete: bool = False
+    reads: tuple[str, ...] = ()
 
 
 _ENVS: dict[str, EnvEntry] = {}
 _ALGORITHMS: dict[str, AlgorithmEntry] = {}
+
+
+def _no_hyper(config) -> None:
+    return None
 
 
 def register_env(
@@ -80,19 +116,22 @@ def register_env(
     section: type,
     build: Callable[[Any, Any], tuple[Any, Any]],
     dynamic: tuple[str, ...] = (),
+    reads: tuple[str, ...] = (),
     references: Mapping[str, Mapping[str, float]] | None = None,
     reference_field: str = "",
     overwrite: bool = True,
 ) -> EnvEntry:
     """Register (or, with ``overwrite``, replace) the simulator ``name``; returns its entry.
-    ``dynamic``: fields of ``section`` (bare names) that only change the params pytree. A
-    ``check(config)`` method of the section, if any, validates it (``ConfigError``)."""
+    ``dynamic``: fields of ``section`` (bare names) that only change the params pytree."""
     if not overwrite and name in _ENVS:
         return _ENVS[name]
     _check_section(section, name, "env")
     if "name" not in {f.name for f in dataclasses.fields(section)}:
         raise TypeError(f"register env {name!r}: section needs a field `name: str = {name!r}`")
-    entry = EnvEntry(name, section, build, tuple(dynamic), dict(references or {}), reference_field)
+    _check_reads(reads, name, "env")
+    entry = EnvEntry(
+        name, section, build, tuple(dynamic), tuple(reads), dict(references or {}), reference_field
+    )
     _ENVS[name] = entry
     return entry
 
@@ -100,22 +139,25 @@ def register_env(
 def register_algorithm(
     name: str,
     section: type,
-    build: Callable[[Any, Any, Any], Any],
+    build: Callable[[Any, Any, Any, Any], Any],
+    hyper: Callable[[Any], Any] = _no_hyper,
     dynamic: tuple[str, ...] = (),
     discrete: bool = False,
+    reads: tuple[str, ...] = (),
     overwrite: bool = True,
 ) -> AlgorithmEntry:
     """Register (or, with ``overwrite``, replace) the algorithm ``name``; returns its entry.
-    ``dynamic``: dotted config fields (``"algorithm.alpha"``)."""
+    ``dynamic``: dotted config fields (``"algorithm.alpha"``) read by ``hyper``."""
     if not overwrite and name in _ALGORITHMS:
         return _ALGORITHMS[name]
     _check_section(section, name, "algorithm")
+    _check_reads(reads, name, "algorithm")
     for field in dynamic:
         if field.count(".") != 1:
             raise TypeError(
                 f"register algorithm {name!r}: dynamic field {field!r} must be 'section.key'"
             )
-    entry = AlgorithmEntry(name, section, build, tuple(dynamic), discrete)
+    entry = AlgorithmEntry(name, section, build, hyper, tuple(dynamic), discrete, tuple(reads))
     _ALGORITHMS[name] = entry
     return entry
 
@@ -128,12 +170,19 @@ def _check_section(section: type, name: str, kind: str) -> None:
             raise TypeError(f"register {kind} {name!r}: section field {f.name!r} needs a default")
 
 
+def _check_reads(reads: tuple[str, ...], name: str, kind: str) -> None:
+    unknown = [r for r in reads if r not in OPTIONAL_SECTIONS]
+    if unknown:
+        raise TypeError(
+            f"register {kind} {name!r}: reads {unknown}; optional sections are "
+            f"{sorted(OPTIONAL_SECTIONS)}"
+        )
+
+
 def _lookup(name: str, table: dict, builtin: dict, kind: str):
     if name not in table and name in builtin:
         importlib.import_module(builtin[name])
     if name not in table:
-        from cognet_jax.config import ConfigError
-
         field = "env.name" if kind == "environment" else "experiment.algorithm"
         known = ", ".join(sorted(set(table) | set(builtin)))
         raise ConfigError(field, f"unknown {kind} {name!r} (known: {known})")
@@ -160,28 +209,13 @@ def list_algorithms() -> list[str]:
     return sorted(set(_ALGORITHMS) | set(BUILTIN_ALGORITHMS))
 
 
-def make_env(name: str, algorithm: str = "cognet-dice", **settings):
-    """``(env, env_params)`` of simulator ``name`` with ``settings`` (fields of its ``[env]``
-    section; for ``"dpomdp"`` also of ``[problem]``: ``path``, ``horizon``, ``discount``),
-    validated as a config file is, for the search ``algorithm`` (e.g. ``"gdice"`` makes
-    tagging with ``obs_division > 0`` return observation indices, as G-DICE needs)."""
-    from cognet_jax.api import build_env
-    from cognet_jax.config import ConfigError, ProblemSection, config_from_dict
-
-    entry = env_entry(name)
-    env_fields = {f.name for f in dataclasses.fields(entry.section)}
-    problem_fields = {f.name for f in dataclasses.fields(ProblemSection)}
-    data: dict = {"experiment": {"algorithm": algorithm}, "env": {"name": name}, "problem": {}}
-    for key, value in settings.items():
-        if key in env_fields and key != "name":
-            data["env"][key] = value
-        elif name == "dpomdp" and key in problem_fields:
-            data["problem"][key] = value
-        else:
-            extra = problem_fields if name == "dpomdp" else set()
-            known = sorted((env_fields - {"name"}) | extra)
-            raise ConfigError(f"env.{key}", f"unknown setting of {name!r} (known: {known})")
-    return build_env(config_from_dict(data))
+def dynamic_fields(config: Config) -> frozenset[str]:
+    """Dotted config fields that only change the hyper-parameters or the env params pytree
+    (the entries' ``dynamic``), so settings differing in them share one compiled program."""
+    env = env_entry(config.env.name).dynamic
+    return frozenset(algorithm_entry(config.experiment.algorithm).dynamic) | {
+        f"env.{name}" for name in env
+    }
 
 
 def fields_from(cls: type, *sources: Any, **given: Any):
@@ -203,34 +237,65 @@ def fields_from(cls: type, *sources: Any, **given: Any):
     return cls(**kwargs)
 
 
-@dataclasses.dataclass
-class ExternalEnvSection:
-    """The ``[env]`` of a config whose simulator is passed as an object (``make_algorithm``)."""
+# --------------------------------------------------------------------------------------------
+# a whole configuration
+# --------------------------------------------------------------------------------------------
+def validate(config: Config, env_reads: tuple[str, ...] | None = None) -> None:
+    """Range and consistency checks of every section; raises ``ConfigError`` naming the field.
+    Each section checks itself (``check(config)``); an optional section that neither the
+    simulator nor the algorithm reads must keep its defaults. ``env_reads``: the simulator's
+    ``reads`` when it is an object rather than a registered entry (``api.make_algorithm``)."""
+    check_finite(config)
+    for name in ("env", "algorithm", "evaluation", "run"):
+        check = getattr(getattr(config, name), "check", None)
+        if callable(check):
+            check(config)
+    if env_reads is None:
+        env_reads = env_entry(config.env.name).reads
+    reads = set(env_reads) | set(algorithm_entry(config.experiment.algorithm).reads)
+    for name, cls in OPTIONAL_SECTIONS.items():
+        if name in reads:
+            continue
+        given, default = getattr(config, name), cls()
+        for f in dataclasses.fields(cls):
+            if getattr(given, f.name) != getattr(default, f.name):
+                raise ConfigError(
+                    f"{name}.{f.name}",
+                    f"the simulator {config.env.name!r} and the algorithm "
+                    f"{config.experiment.algorithm!r} read no [{name}] section",
+                )
 
-    name: str = "external"
 
-
-def make_algorithm(name: str, env, env_params, network: dict | None = None, **settings):
-    """The search ``name`` on a simulator object ``env`` (any ``envs.base.Environment``, e.g.
-    your own) with ``settings`` (fields of its ``[algorithm]`` section) and ``network`` (fields
-    of ``[network]``), validated as a config file is: the object the CLI runs (``init(key)``,
-    ``step(key, state)``, ``best_policy(state)``, ``policy_returns``; ``ask`` / ``tell`` for
-    the searches of ``algorithms.engine``)."""
-    from cognet_jax.api import build_algorithm
-    from cognet_jax.config import (
-        Config,
-        ExperimentSection,
-        NetworkSection,
-        section_from_dict,
-        validate,
-    )
-
-    entry = algorithm_entry(name)
+def config_from_dict(data: dict) -> Config:
+    """Build and validate a ``Config`` from nested dicts (as read from TOML)."""
+    if not isinstance(data, dict):
+        raise ConfigError("", f"expected a table of sections, got {type(data).__name__}")
+    check_known_sections(data)
+    experiment = section_from_dict(ExperimentSection, data.get("experiment", {}), "experiment")
+    env_data = data.get("env", {})
+    if not isinstance(env_data, dict):
+        raise ConfigError("env", f"expected a table of settings, got {env_data!r}")
+    env_name = env_data.get("name", "tagging")
+    if not isinstance(env_name, str):
+        raise ConfigError("env.name", f"expected a simulator name, got {env_name!r}")
+    env_section = env_entry(env_name).section
+    algorithm_section = algorithm_entry(experiment.algorithm).section
+    optional = {
+        name: section_from_dict(cls, data.get(name, {}), name)
+        for name, cls in OPTIONAL_SECTIONS.items()
+    }
     config = Config(
-        experiment=ExperimentSection(name=name, algorithm=name),
-        env=ExternalEnvSection(),
-        algorithm=section_from_dict(entry.section, settings, "algorithm"),
-        network=section_from_dict(NetworkSection, network or {}, "network"),
+        experiment=experiment,
+        env=section_from_dict(env_section, env_data, "env"),
+        algorithm=section_from_dict(algorithm_section, data.get("algorithm", {}), "algorithm"),
+        evaluation=section_from_dict(EvaluationSection, data.get("evaluation", {}), "evaluation"),
+        run=section_from_dict(RunSection, data.get("run", {}), "run"),
+        **optional,
     )
     validate(config)
-    return build_algorithm(config, env, env_params)
+    return config
+
+
+def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config:
+    """Read an experiment (built-in name or TOML file), apply ``--set`` overrides, validate."""
+    return config_from_dict(apply_overrides(read_experiment(name_or_path), overrides or []))

@@ -19,13 +19,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from cognet_jax import plots
+from cognet_jax.controllers.regions import region_graph_edges
+from cognet_jax.envs.tabular import load_problem
+from cognet_jax.registry import env_entry
+from cognet_jax.vae import HIGH, LOW, reachable_patches
 
 
 def references_for(config) -> dict[str, float]:
     """Known values for the run's simulator and setting (its registry entry's
     ``references``; SPEC section 8 for the built-in ones)."""
-    from cognet_jax.registry import env_entry
-
     entry = env_entry(config.env.name)
     if not entry.reference_field:
         return {}
@@ -44,9 +46,7 @@ def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
 
 def _observation_names(config, env) -> list[list[str]]:
     if config.env.name == "dpomdp":
-        from cognet_jax.api import load_problem
-
-        return [list(n) for n in load_problem(config).observation_names]
+        return [list(n) for n in load_problem(config.problem).observation_names]
     values = getattr(env, "observation_values", None)
     if values is not None:  # discretised tagging: index k stands for a value
         return [[f"{v:g}" for v in values] for _ in range(env.num_agents)]
@@ -55,9 +55,7 @@ def _observation_names(config, env) -> list[list[str]]:
 
 def _action_names(config, env):
     if config.env.name == "dpomdp":
-        from cognet_jax.api import load_problem
-
-        names = load_problem(config).action_names
+        names = load_problem(config.problem).action_names
         return names[0] if len(set(names)) == 1 else tuple(str(a) for a in range(env.num_actions))
     return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
 
@@ -67,8 +65,6 @@ def _scalar_feature_grid(algorithm, env, points: int = 401):
     networks read a vector (e.g. raw heatmap patches)."""
     pipeline = getattr(algorithm, "pipeline", None)
     if pipeline is not None and pipeline.kind == "encoded" and pipeline.feature_shape == (1,):
-        from cognet_jax.vae import reachable_patches
-
         mu = np.asarray(pipeline.features(jnp.asarray(reachable_patches())))[:, 0]
         pad = 0.1 * (mu.max() - mu.min())
         return np.linspace(mu.min() - pad, mu.max() + pad, points), "VAE mean mu"
@@ -94,8 +90,6 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
         )
     ]
     if hasattr(policy, "points"):  # deterministic region controller (COG-DICE)
-        from cognet_jax.algorithms.cogdice import region_graph_edges
-
         edges = [
             region_graph_edges(np.asarray(policy.points[i]), np.asarray(policy.transitions[i]))
             for i in range(env.num_agents)
@@ -145,3 +139,12 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
             )
         )
     return [Path(p) for p in written]
+
+
+def plot_vae_mu(vae, path) -> Path:
+    """Thesis Fig. 5.10: the VAE mean mu of the clean patch seen from every reachable
+    position (x, y)."""
+    mu = np.asarray(vae.encode(jnp.asarray(reachable_patches()))[0])[:, 0]
+    grid = mu.reshape(HIGH - LOW + 1, HIGH - LOW + 1)
+    title = "VAE mean mu over reachable positions"
+    return Path(plots.plot_position_map(grid, LOW, HIGH, path, title, "mu"))

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from cognet_jax.memory import candidate_chunk
 from cognet_jax.prng import fast_key
 
 
@@ -129,9 +130,8 @@ def evaluate_candidates(
     time (``lax.map`` with ``batch_size``): every rollout's return is bit for bit the same as
     unchunked, and so is each mean up to its last bit (XLA sums a row in an order that depends
     on the batch shape). One candidate's ``num`` rollouts over the budget raise
-    ``memory.ResourceError`` while tracing, before anything compiles.
+    ``errors.ResourceError`` while tracing, before anything compiles.
     """
-    from cognet_jax.memory import candidate_chunk
 
     def one(k, policy):
         return rollouts(env, controller, k, num, env_params, policy).mean()
@@ -147,7 +147,13 @@ def evaluate_candidates(
     keys = key if common_random_numbers else jax.random.split(key, count)
     key_axis = None if common_random_numbers else 0
     chunk = candidate_chunk(
-        env, controller, env_params, candidate(lambda x: x[0]), count, num, memory
+        lambda k, p, n, e: rollouts(env, controller, k, n, e, p),
+        env_params,
+        candidate(lambda x: x[0]),
+        count,
+        num,
+        memory,
+        cache=(id(env), id(controller)),
     )
     if chunk >= count:
         return jax.vmap(one, in_axes=(key_axis, policy_axes))(keys, policies)
@@ -171,26 +177,6 @@ def many_returns(
         jnp.arange(chunks),
     )
     return out.reshape(-1)[:num]
-
-
-def iteration_best(
-    env, controller, key: jax.Array, env_params: Any, policies: Any, values: jax.Array, fresh: int
-):
-    """The iteration's best candidate and the value that best-policy tracking compares.
-
-    ``values [C]`` are the candidates' in-loop means. With ``fresh == 0`` (the SPEC rule) the
-    value is the winner's own in-loop mean, which is biased upwards: it is the maximum of C noisy
-    means. With ``fresh > 0`` the winner is re-evaluated with ``fresh`` new rollouts (``key``
-    unused by the search otherwise), an unbiased estimate of its value, so the anytime best is not
-    replaced by a lucky candidate. Returns ``(index [], policy, value [])``.
-    """
-    idx = jnp.argmax(values)
-    best = jax.tree.map(lambda x: x[idx], policies)
-    if fresh > 0:
-        value = rollouts(env, controller, key, fresh, env_params, best).mean()
-    else:
-        value = values[idx]
-    return idx, best, value
 
 
 def mean_and_stderr(returns: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -43,7 +43,10 @@ import numpy as np
 import optax
 from flax import serialization
 
-from cognet_jax.envs.heatmap import HIGH, LOW, all_patches, scene
+from cognet_jax.envs.heatmap import HIGH, LOW, PATCH, all_patches, scene
+
+#: numbers in one observed patch (the VAE's input)
+PATCH_FEATURES = PATCH * PATCH
 
 NOISE_MEANS = (-0.001, 0.001)
 NOISE_STDS = (0.001, 0.01)
@@ -55,7 +58,7 @@ class PatchVAE(nn.Module):
 
     latent: int = 1
     hidden: int = 8
-    features: int = 16
+    features: int = PATCH_FEATURES
 
     def setup(self):
         self.enc_hidden = nn.Dense(self.hidden)
@@ -268,24 +271,3 @@ def diagnostics(vae: TrainedVAE) -> dict:
         "recon_mae": float(err.mean()),
         "recon_max_abs": float(err.max()),
     }
-
-
-def plot_mu(vae: TrainedVAE, path: str | Path, dpi: int = 110) -> Path:
-    """Thesis Fig. 5.10: mu of the clean patch seen from every reachable position (x, y)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    mu = np.asarray(vae.encode(jnp.asarray(reachable_patches()))[0])[:, 0]
-    grid = mu.reshape(HIGH - LOW + 1, HIGH - LOW + 1)
-    fig, ax = plt.subplots(figsize=(4.6, 3.8))
-    im = ax.imshow(grid, origin="lower", extent=(LOW - 0.5, HIGH + 0.5, LOW - 0.5, HIGH + 0.5))
-    ax.set_xlabel("y")
-    ax.set_ylabel("x")
-    ax.set_title("VAE mean mu over reachable positions")
-    fig.colorbar(im, ax=ax, label="mu")
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)

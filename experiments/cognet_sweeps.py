@@ -118,7 +118,7 @@ def _settings(config: dict) -> str:
 
 def _agent_steps(config: dict) -> float:
     from cognet_jax.api import build_env
-    from cognet_jax.config import config_from_dict
+    from cognet_jax.registry import config_from_dict
 
     env, _ = build_env(config_from_dict(config))
     alg = config["algorithm"]

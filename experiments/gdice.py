@@ -5,7 +5,7 @@ experiments/README.md.
     python experiments/gdice.py dectiger-h4 --seeds 0 1 2 3
     python experiments/gdice.py --table-only            # rebuild the table from saved results
 
-Each run goes through ``cognet_jax.runner.run_training`` (the same path as ``cognet-jax train
+Each run goes through ``cognet_jax.driver.train`` (the same path as ``cognet-jax train
 gdice-dpomdp-spec``, SPEC's settings, which were the defaults of ``gdice-dpomdp`` when these
 runs were made; experiments/gdice_defaults.py has the new defaults) and writes
 ``experiments/results/gdice/<name>-seed<N>/``. The best policy is evaluated twice: honestly
@@ -238,8 +238,8 @@ def out_dir(run: GDiceRun, seed: int) -> Path:
 
 
 def run(names: list[str], seeds: list[int] | None) -> None:
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
 
     for name in names:
         spec = BY_NAME[name]
@@ -249,7 +249,7 @@ def run(names: list[str], seeds: list[int] | None) -> None:
             continue
         for seed in seeds if seeds is not None else [spec.seed]:
             config = load_config("gdice-dpomdp-spec", spec.overrides())
-            run_training(config, seed, out_dir(spec, seed))
+            train(config, seed, out_dir(spec, seed))
 
 
 def _fmt_settings(alg: dict) -> str:

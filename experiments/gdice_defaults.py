@@ -41,8 +41,8 @@ def folder(problem: str, horizon: int, seed: int) -> Path:
 
 
 def run(seeds: list[int], skip_done: bool = False) -> None:
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
 
     for problem in OPTIMA:
         path = DPOMDP_DIR / f"{problem}.dpomdp"
@@ -63,7 +63,7 @@ def run(seeds: list[int], skip_done: bool = False) -> None:
                         "run.plots=false",
                     ],
                 )
-                run_training(config, seed, folder(problem, horizon, seed))
+                train(config, seed, folder(problem, horizon, seed))
 
 
 def reached(value: float, optimum: float) -> bool:
@@ -108,7 +108,7 @@ def _with_best_responses() -> str:
 
 def settings_sentence() -> str:
     """The settings paragraph, read from the experiment file (nothing typed by hand)."""
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     # any path: the algorithm section does not depend on it, and the file is never read
     a = load_config("gdice-dpomdp", ['problem.path="model.dpomdp"']).algorithm

@@ -6,7 +6,7 @@ table and plot into experiments/README.md.
     python experiments/heatmap.py --set algorithm.iterations=20  # a short smoke run
     python experiments/heatmap.py --table-only                 # rebuild the table from results
 
-Runs (each through ``cognet_jax.runner.run_training``, the path of ``cognet-jax train``):
+Runs (each through ``cognet_jax.driver.train``, the path of ``cognet-jax train``):
 
 * Table 5.8: ``heatmap-2d-n4``, ``heatmap-2d-n5``, ``heatmap-encoded-n4``,
   ``heatmap-encoded-n5`` with the thesis start range and again with ``env.start=default``;
@@ -120,11 +120,11 @@ def _pure_action_share(name: str) -> float | None:
     """Median over (agent, node) of the largest action probability of a saved best policy."""
     import numpy as np
 
-    from cognet_jax.runner import load_policy
+    from cognet_jax.driver import load_run
 
     if _load(name, 0) is None:
         return None
-    _, _, policy = load_policy(run_dir(name, 0))
+    policy = load_run(run_dir(name, 0)).policy
     return float(np.median(np.asarray(policy.action_probs).max(-1)))
 
 
@@ -364,8 +364,8 @@ def run_dir(name: str, seed: int) -> Path:
 
 
 def train(names: list[str], seeds: list[int], extra: list[str]) -> None:
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
 
     for name in names:
         spec = BY_NAME[name]
@@ -378,7 +378,7 @@ def train(names: list[str], seeds: list[int], extra: list[str]) -> None:
         config = load_config(spec.experiment, overrides)
         for seed in seeds:
             out = run_dir(name, seed)
-            run_training(config, seed, out)
+            train(config, seed, out)
             (out / "checkpoint.msgpack").unlink(missing_ok=True)  # only needed to resume
 
 
@@ -404,7 +404,7 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
     "stderrs", "replaced": {name: [mean, stderr]}}, "stds": [...], ...}``."""
     import jax
 
-    from cognet_jax.runner import honest_evaluation, load_policy
+    from cognet_jax.driver import load_run, return_summary
 
     out = {"stds": list(NOISE_STDS), "rollouts": rollouts, "eval_seed": eval_seed, "seed": seed}
     for label, name in NOISE_VARIANTS.items():
@@ -414,9 +414,11 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
             continue
 
         def value(overrides, folder=folder):
-            config, algorithm, policy = load_policy(folder, overrides)
-            key = jax.random.key(eval_seed, impl=config.run.prng_impl)
-            return honest_evaluation(algorithm, key, policy, rollouts, config.evaluation.batch)
+            run = load_run(folder, overrides)
+            key = jax.random.key(eval_seed, impl=run.config.run.prng_impl)
+            batch = run.config.evaluation.batch
+            returns = jax.jit(lambda k, p: run.algorithm.returns(k, p, rollouts, run.params, batch))
+            return return_summary(returns(key, run.policy))
 
         means, stderrs = [], []
         for std in NOISE_STDS:

@@ -6,7 +6,7 @@ their generated table in experiments/README.md.
     python experiments/tagging.py --group paper          # only the COG-DICE paper setting
     python experiments/tagging.py --table-only           # rebuild the table from saved results
 
-Every run goes through ``cognet_jax.runner.run_training`` (exactly what ``cognet-jax train NAME
+Every run goes through ``cognet_jax.driver.train`` (exactly what ``cognet-jax train NAME
 --seed N`` does) and writes ``experiments/results/tagging/<name>-seed<N>/``. The table reads the
 results files only: honest value (fresh evaluation of the best policy, >= 10,000 rollouts, a key
 the search never saw), the search budget in simulated agent-steps, wall time, and the published
@@ -91,14 +91,14 @@ def out_dir(name: str, seed: int) -> Path:
 
 
 def run(names: list[str], seeds: list[int]) -> None:
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
 
     for name in names:
         experiment, overrides = VARIANTS.get(name, (name, []))
         sets = [f"experiment.name={json.dumps(name)}", *overrides, "run.progress=false"]
         for seed in seeds:
-            run_training(load_config(experiment, sets), seed, out_dir(name, seed))
+            train(load_config(experiment, sets), seed, out_dir(name, seed))
 
 
 def _settings(r: dict) -> str:
@@ -215,11 +215,12 @@ def _start_actions(name: str, seed: int = 0):
     probabilities ``[agents, actions]`` of its start node (``None`` three times if unsaved)."""
     import numpy as np
 
-    from cognet_jax.runner import load_policy
+    from cognet_jax.driver import load_run
 
     if _result(name, seed) is None:
         return None, None, None
-    _, algorithm, policy = load_policy(out_dir(name, seed))
+    run = load_run(out_dir(name, seed))
+    algorithm, policy = run.algorithm, run.policy
     return algorithm, policy, np.asarray(policy.action_probs)[:, 0]
 
 
@@ -240,7 +241,7 @@ def notes() -> str:
     computed from the configs and the simulator."""
     import numpy as np
 
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     out = [
         "Columns. Honest value: a fresh evaluation of the run's best policy (10,000 rollouts, a "

@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 
 from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
-from cognet_jax.config import ConfigError, load_config
-from cognet_jax.runner import resume_target, run_training
+from cognet_jax.config import ConfigError
+from cognet_jax.driver import resume_target
+from cognet_jax.driver import train as run_training
+from cognet_jax.registry import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 ITERATIONS = 400
@@ -42,12 +44,12 @@ def _env():
     return env
 
 
-def _start(out: Path, extra=()):
+def _start(out: Path, extra=("--checkpoint-every", "10")):
     args = [sys.executable, "-m", "cognet_jax", "train", "tagging-thesis-spec-n3"]
     args += ["--seed", "3", "--out", str(out)]
     for o in TINY:
         args += ["--set", o]
-    args += ["--checkpoint-every", "10", *extra]
+    args += [*extra]
     return subprocess.Popen(
         args, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -99,16 +101,19 @@ def test_sigint_writes_policy_and_checkpoint_then_resume_is_identical(reference,
     _same_results(ref, resumed, ref_dir, tmp_path)
 
 
-def test_sigterm_stops_like_sigint_then_resume_is_identical(reference, tmp_path):
-    """What ``timeout`` and job schedulers send: the run ends after its iteration with the
-    policy, results and checkpoint written, exit 128 + 15, and resumes to the same numbers."""
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_stop_like_sigint_then_resume_is_identical(reference, tmp_path, sig):
+    """What ``timeout`` and job schedulers send (SIGTERM), and what a closed terminal sends
+    (SIGHUP): the run ends after its iteration with the policy, results and checkpoint
+    written, exit 128 + the signal, and resumes to the same numbers."""
     ref, ref_dir = reference
     proc = _start(tmp_path)
     _wait_for_checkpoint(proc, tmp_path / CHECKPOINT_NAME)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, err
-    assert "interrupted at iteration" in err and "SIGTERM" in err and "--resume" in err
+    assert proc.returncode == 128 + sig, err
+    name = signal.Signals(sig).name
+    assert "interrupted at iteration" in err and name in err and "--resume" in err
     assert len(err.strip().splitlines()[-1]) > 0 and "Traceback" not in err
     assert (tmp_path / "policy.msgpack").exists()
     raw = read_checkpoint(tmp_path / CHECKPOINT_NAME)
@@ -155,6 +160,35 @@ def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, 
     assert f"at iteration {n}/{ITERATIONS}" in res.stdout
     resumed = json.loads((tmp_path / "results.json").read_text())
     _same_results(ref, resumed, ref_dir, tmp_path)
+
+
+def test_checkpoints_by_time_by_default_then_sigkill_and_resume_is_identical(tmp_path):
+    """No ``--checkpoint-every``: the state is still written every ``run.checkpoint_seconds``
+    (60 s by default; 0.2 s here), so a SIGKILL loses at most that much and the resumed run
+    gives the uninterrupted run's numbers."""
+    assert load_config("tagging-thesis-spec-n3").run.checkpoint_seconds == 60.0
+    long = [f"algorithm.iterations={10 * ITERATIONS}"]
+    config = load_config("tagging-thesis-spec-n3", TINY + long)
+    ref_dir = tmp_path / "ref"
+    ref = run_training(config, 3, ref_dir, log=lambda *_: None)
+    out = tmp_path / "cut"
+    sets = [x for o in long + ["run.checkpoint_seconds=0.2"] for x in ("--set", o)]
+    proc = _start(out, extra=sets)
+    ckpt = out / CHECKPOINT_NAME
+    _wait_for_checkpoint(proc, ckpt)
+    first = read_checkpoint(ckpt)["iteration"]
+    t0 = time.time()
+    while read_checkpoint(ckpt)["iteration"] == first and time.time() - t0 < 60:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.01)
+    proc.kill()
+    proc.wait(timeout=60)
+    n = read_checkpoint(ckpt)["iteration"]
+    assert 0 < first < n < 10 * ITERATIONS
+    config, seed = resume_target(out)
+    resumed = run_training(config, seed, out, resume=True, log=lambda *_: None)
+    assert resumed["resumed_from_iteration"] == n
+    _same_results(ref, resumed, ref_dir, out)
 
 
 def test_resume_refuses_changes_outside_run_section(tmp_path):

@@ -9,19 +9,19 @@ from scipy.special import digamma
 
 from cognet_jax.algorithms.cogdice import (
     CogDice,
-    CogDiceHyper,
     CogDiceSettings,
     RegionDistribution,
     RegionSample,
     beta_mle,
     points_from_unit,
     refit_betas,
-    region_graph_edges,
 )
+from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper
 from cognet_jax.controllers.regions import (
     DeterministicRegionPolicy,
     RegionController,
     reactive_tagging_policy,
+    region_graph_edges,
     region_of,
 )
 from cognet_jax.envs.tagging import make_tagging
@@ -166,7 +166,8 @@ def test_region_graph_edges_use_exact_points():
 
 
 def small_algorithm(**kw):
-    env, params = make_tagging("thesis")
+    """``(algorithm, params)``: COG-DICE on thesis tagging; ``kw``: sizes and hyper fields."""
+    env, env_params = make_tagging("thesis")
     settings = CogDiceSettings(
         nodes=kw.pop("nodes", 3),
         regions=kw.pop("regions", 3),
@@ -175,12 +176,12 @@ def small_algorithm(**kw):
         eval_rollouts=kw.pop("eval_rollouts", 100),
         iterations=kw.pop("iterations", 30),
     )
-    return CogDice(env, params, settings, CogDiceHyper(**kw))
+    return CogDice(env, settings), SearchParams(env_params, ThresholdHyper(**kw))
 
 
 def test_counts_match_hand_counts():
     alpha = 0.2
-    alg = small_algorithm(nodes=2, regions=2, alpha=alpha)
+    alg, params = small_algorithm(nodes=2, regions=2, alpha=alpha)
     rng = np.random.default_rng(3)
     old = RegionDistribution(
         action_probs=jnp.asarray(rng.dirichlet(np.ones(3), (2, 2)), jnp.float32),
@@ -214,7 +215,7 @@ def test_counts_match_hand_counts():
         unit_points=jnp.asarray(rng.uniform(size=(4, 2, 2, 1)), jnp.float32),
     )
     kept = jnp.array([True, True, True, False])
-    new = jax.jit(alg.update_distribution)(old, elites, kept, alg.hyper)
+    new = jax.jit(alg.update_distribution)(old, elites, kept, params.hyper)
     # counts over the 3 kept elites, written out by hand
     act_counts = np.array(
         [
@@ -237,9 +238,9 @@ def test_counts_match_hand_counts():
         rtol=1e-6,
     )
     # entropy injection mixes the categorical parts only; Betas are left as they are
-    injected = jax.jit(alg.inject)(new, jnp.bool_(True), alg.hyper)
+    injected = jax.jit(alg.inject)(new, jnp.bool_(True), params.hyper)
     np.testing.assert_array_equal(injected.beta_params, new.beta_params)
-    rate = float(alg.hyper.entropy.rate)
+    rate = float(params.hyper.entropy.rate)
     np.testing.assert_allclose(
         injected.action_probs, (1 - rate) * new.action_probs + rate / 3, rtol=1e-6
     )
@@ -248,7 +249,7 @@ def test_counts_match_hand_counts():
 def test_sampling_keeps_unsorted_slots_and_update_uses_them():
     """Slot 0 of every node is drawn near 1 and slot 1 near 0: the controller's points are
     sorted, the kept [0, 1] draws are not, and the refit follows each slot's own draws."""
-    alg = small_algorithm(samples=64, elites=8, alpha=0.5)
+    alg, params = small_algorithm(samples=64, elites=8, alpha=0.5)
     dist = alg.init_distribution()
     betas = jnp.broadcast_to(jnp.array([[40.0, 2.0], [2.0, 40.0]]), dist.beta_params.shape)
     dist = dist.replace(beta_params=betas)
@@ -264,7 +265,7 @@ def test_sampling_keeps_unsorted_slots_and_update_uses_them():
     idx = jnp.array([5, 17, 2, 40, 63, 9, 0, 33])
     kept = jnp.array([True] * 6 + [False] * 2)
     elites = jax.tree.map(lambda x: x[idx], draws)
-    new = jax.jit(alg.update_distribution)(dist, elites, kept, alg.hyper)
+    new = jax.jit(alg.update_distribution)(dist, elites, kept, params.hyper)
     sel = unit[np.asarray(idx)[:6]]
     for slot in np.ndindex(unit.shape[1:]):
         hat = np.array(nist_reference(sel[(slice(None),) + slot]))
@@ -274,13 +275,13 @@ def test_sampling_keeps_unsorted_slots_and_update_uses_them():
 
 
 def test_short_tagging_run_compiles_once_and_beats_random():
-    alg = small_algorithm(samples=200, elites=20, eval_rollouts=100)
+    alg, params = small_algorithm(samples=200, elites=20, eval_rollouts=100)
     k_init, k_run, k_eval = jax.random.split(jax.random.key(0, impl=KEY_IMPL), 3)
-    state = alg.init(k_init)
+    state = alg.init(k_init, params)
     step = jax.jit(chex.assert_max_traces(alg.step, n=1))
     best = []
     for i in range(30):
-        state, metrics = step(jax.random.fold_in(k_run, i), state)
+        state, metrics = step(jax.random.fold_in(k_run, i), state, params)
         best.append(float(metrics.best_value))
     assert int(state.progress.iteration) == 30
     assert np.all(np.diff(best) >= 0)  # anytime best never gets worse
@@ -288,7 +289,7 @@ def test_short_tagging_run_compiles_once_and_beats_random():
     np.testing.assert_allclose(d.action_probs.sum(-1), 1.0, atol=1e-5)
     np.testing.assert_allclose(d.transition_probs.sum(-1), 1.0, atol=1e-5)
     assert np.all(np.isfinite(d.beta_params)) and np.all(d.beta_params > 0)
-    returns = alg.policy_returns(k_eval, alg.best_policy(state), 10_000)
+    returns = alg.returns(k_eval, alg.best_policy(state), 10_000, params)
     mean = float(returns.mean())
     stderr = float(returns.std() / np.sqrt(returns.shape[0]))
     assert stderr < 1.0

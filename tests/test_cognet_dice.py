@@ -14,7 +14,7 @@ from cognet_jax.algorithms.cognet_dice import (
     training_pairs,
 )
 from cognet_jax.api import make_step, make_train, seed_key, split_seed_key
-from cognet_jax.config import load_config
+from cognet_jax.registry import load_config
 from cognet_jax.rollout import Trajectory
 
 SMALL = [
@@ -91,38 +91,36 @@ def test_network_training_fits_pairs_and_masks_idle_members():
     config = load_config(
         "tagging-thesis-spec-n3", SMALL + ["network.train_steps=200", "network.learning_rate=0.05"]
     )
-    algorithm, init, _ = make_step(config)
-    state = init(jax.random.key(0))
+    algorithm, params, _ = make_step(config)
+    state = algorithm.init(jax.random.key(0), params)
     # agent 0, node 1 sees z<0 -> 0 and z>0 -> 2; nothing else has data
     z = jnp.linspace(-5, 5, 20)
     obs = jnp.stack([z, z])
     src = jnp.stack([jnp.ones(20, jnp.int32), jnp.zeros(20, jnp.int32)])
     tgt = jnp.stack([jnp.where(z < 0, 0, 2), jnp.zeros(20, jnp.int32)])
     valid = jnp.stack([jnp.ones(20, bool), jnp.zeros(20, bool)])
-    params, _ = jax.jit(algorithm.train_networks)(
-        state.policy.net_params, state.opt_state, (obs, src, tgt, valid), algorithm.hyper
+    nets, _ = jax.jit(algorithm.train_networks)(
+        state.policy.net_params, state.opt_state, (obs, src, tgt, valid), params.hyper
     )
-    logits = algorithm.controller.all_node_logits(params, jnp.array([-3.0, 3.0]))
+    logits = algorithm.controller.all_node_logits(nets, jnp.array([-3.0, 3.0]))
     assert int(jnp.argmax(logits[0, 1])) == 0
-    logits2 = algorithm.controller.all_node_logits(params, jnp.array([3.0, 3.0]))
+    logits2 = algorithm.controller.all_node_logits(nets, jnp.array([3.0, 3.0]))
     assert int(jnp.argmax(logits2[0, 1])) == 2
     # members without pairs are bit-identical to before
-    for leaf_new, leaf_old in zip(
-        jax.tree.leaves(params), jax.tree.leaves(state.policy.net_params)
-    ):
+    for leaf_new, leaf_old in zip(jax.tree.leaves(nets), jax.tree.leaves(state.policy.net_params)):
         np.testing.assert_array_equal(leaf_new[1], leaf_old[1])
         np.testing.assert_array_equal(leaf_new[0, 0], leaf_old[0, 0])
 
 
 def test_step_compiles_once_and_keeps_distributions_valid():
     config = load_config("tagging-thesis-spec-n3", SMALL)
-    algorithm, init, step = make_step(config)
+    algorithm, params, step = make_step(config)
     k_init, k_run, _ = split_seed_key(seed_key(config, 0))
-    state = init(k_init)
+    state = algorithm.init(k_init, params)
     traced = chex.assert_max_traces(step, n=1)
     jitted = jax.jit(traced)
     for _ in range(4):
-        state, metrics = jitted(k_run, state)
+        state, metrics = jitted(k_run, state, params)
     probs = np.asarray(state.policy.action_probs)
     np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-5)
     assert probs.min() >= 0
@@ -131,10 +129,10 @@ def test_step_compiles_once_and_keeps_distributions_valid():
 
 def test_separate_training_keeps_one_hot_actions():
     config = load_config("tagging-separate-n3", SMALL)
-    algorithm, init, step = make_step(config)
-    state = init(jax.random.key(0))
+    algorithm, params, step = make_step(config)
+    state = algorithm.init(jax.random.key(0), params)
     for _ in range(3):
-        state, _ = jax.jit(step)(jax.random.key(1), state)
+        state, _ = jax.jit(step)(jax.random.key(1), state, params)
     expected = np.eye(3)[np.arange(3) % 3]
     np.testing.assert_array_equal(np.asarray(state.policy.action_probs[0]), expected)
 
@@ -153,14 +151,14 @@ def test_vmap_over_seeds_equals_separate_runs():
 
 
 def test_same_seed_same_results(tmp_path):
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
 
     config = load_config("tagging-thesis-spec-n3", SMALL)
-    a = run_training(config, 3, tmp_path / "a", log=lambda *_: None)
-    b = run_training(config, 3, tmp_path / "b", log=lambda *_: None)
+    a = train(config, 3, tmp_path / "a", log=lambda *_: None)
+    b = train(config, 3, tmp_path / "b", log=lambda *_: None)
     for field in ("final_value", "in_loop_best", "values_per_iteration", "best_per_iteration"):
         assert a[field] == b[field]
-    c = run_training(config, 4, tmp_path / "c", log=lambda *_: None)
+    c = train(config, 4, tmp_path / "c", log=lambda *_: None)
     assert c["values_per_iteration"] != a["values_per_iteration"]
     saved = json.loads((tmp_path / "a" / "results.json").read_text())
     for key in (
@@ -181,13 +179,17 @@ def test_same_seed_same_results(tmp_path):
 
 def test_best_rollouts_sets_the_step8_evaluation():
     """best_rollouts = N: the recorded value is the updated policy's mean over N rollouts with
-    the iteration's evaluation key (SPEC step 8 uses K_eval)."""
+    the iteration's ``best`` stream (SPEC step 8 uses K_eval)."""
+    from cognet_jax.algorithms.engine import streams
+    from cognet_jax.rollout import rollouts
+
     config = load_config("tagging-thesis-spec-n3", SMALL + ["algorithm.best_rollouts=700"])
-    algorithm, init, _ = make_step(config)
+    algorithm, params, _ = make_step(config)
     key = jax.random.key(5)
-    state, metrics = jax.jit(algorithm.step)(key, init(jax.random.key(4)))
-    k_eval = jax.random.split(key, 3)[2]
-    expected = algorithm.evaluate_policy(k_eval, state.policy, 700)
+    state, metrics = jax.jit(algorithm.step)(key, algorithm.init(jax.random.key(4), params), params)
+    expected = rollouts(
+        algorithm.env, algorithm.controller, streams(key).best, 700, params.env, state.policy
+    ).mean()
     np.testing.assert_allclose(float(metrics.value), float(expected), rtol=1e-6)
     assert algorithm.rollouts_per_iteration == 200 + 20 * 20 + 700
 
@@ -198,8 +200,10 @@ def test_train_on_top_trains_on_more_pairs_than_kept():
     out = {}
     for where in ("kept", "top"):
         config = load_config("tagging-thesis-spec-n3", SMALL + [f"algorithm.train_on={where}"])
-        algorithm, init, _ = make_step(config)
-        state, _ = jax.jit(algorithm.step)(jax.random.key(2), init(jax.random.key(1)))
+        algorithm, params, _ = make_step(config)
+        state, _ = jax.jit(algorithm.step)(
+            jax.random.key(2), algorithm.init(jax.random.key(1), params), params
+        )
         out[where] = state
     # same rollouts, same candidates, same action update ...
     np.testing.assert_array_equal(

@@ -7,20 +7,29 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cognet_jax.algorithms.cognet_weights import CognetWeights, WeightSample, WeightsSettings
+from cognet_jax.algorithms.cognet_weights import (
+    CognetWeights,
+    WeightSample,
+    WeightsHyper,
+    WeightsSettings,
+    input_statistics,
+)
+from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
-from cognet_jax.config import ConfigError, load_config
+from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
+from cognet_jax.registry import load_config
 
 
 def small_algorithm(**kw):
-    env, params = make_tagging("thesis")
+    """``(algorithm, params)``: the weight search on thesis tagging with small sizes."""
+    env, env_params = make_tagging("thesis")
     settings = WeightsSettings(**{"nodes": 3, "candidates": 8, "eval_rollouts": 16, **kw})
-    return CognetWeights(env, params, settings)
+    return CognetWeights(env, settings), SearchParams(env_params, WeightsHyper())
 
 
 def test_sampled_policy_is_an_ordinary_neural_policy():
-    alg = small_algorithm()
+    alg, _ = small_algorithm()
     template = alg.controller.init(jax.random.key(0))
     samples = alg.draw(jax.random.key(1), alg.init_distribution(), 5)
     policy = alg.to_policy(jax.tree.map(lambda x: x[0], samples))
@@ -34,11 +43,11 @@ def test_sampled_policy_is_an_ordinary_neural_policy():
 
 
 def test_refit_to_identical_elites_concentrates_up_to_the_floors():
-    alg = small_algorithm(elites=4)
+    alg, params = small_algorithm(elites=4)
     dist = alg.init_distribution()
     one = jax.tree.map(lambda x: x[0], alg.draw(jax.random.key(2), dist, 1))
     elites = jax.tree.map(lambda x: jnp.stack([x] * 4), one)
-    hyper = alg.hyper.replace(alpha=1.0, action_floor=0.1, category_floor=0.2)
+    hyper = params.hyper.replace(alpha=1.0, action_floor=0.1, category_floor=0.2)
     new = alg.update_distribution(dist, elites, hyper)
     chosen = np.take_along_axis(
         np.asarray(new.action_probs), np.asarray(one.actions)[..., None], -1
@@ -52,14 +61,14 @@ def test_refit_to_identical_elites_concentrates_up_to_the_floors():
 
 
 def test_common_random_numbers_give_equal_values_to_equal_candidates():
-    alg = small_algorithm()
+    alg, params = small_algorithm()
     one = jax.tree.map(lambda x: x[:1], alg.draw(jax.random.key(3), alg.init_distribution(), 1))
     twice = jax.tree.map(lambda x: jnp.concatenate([x, x]), one)
-    values = alg.evaluate_policies(jax.random.key(4), alg.to_policy(twice))
+    values = alg.evaluate(jax.random.key(4), alg.to_policy(twice), params)
     assert float(values[0]) == float(values[1])
 
 
-def best_open_loop_value(alg, key) -> float:
+def best_open_loop_value(alg, params, key) -> float:
     """Largest mean return of any open-loop joint controller of ``alg``'s 3 nodes (node q
     always moves to q + 1: actions fixed per time step, observations ignored), 2000 rollouts
     each with common random numbers (the maximum is biased upwards)."""
@@ -80,10 +89,8 @@ def best_open_loop_value(alg, key) -> float:
         default=jnp.broadcast_to(jnp.asarray(nxt, jnp.int32), (n, a, q)),
         bias=jnp.full((n, a, q), 50.0),
     )
-    blind = CognetWeights(
-        env, alg.env_params, WeightsSettings(nodes=q, hidden=h, eval_rollouts=2000)
-    )
-    return float(jnp.max(jax.jit(blind.evaluate_policies)(key, blind.to_policy(sample))))
+    blind = CognetWeights(env, WeightsSettings(nodes=q, hidden=h, eval_rollouts=2000))
+    return float(jnp.max(jax.jit(blind.evaluate)(key, blind.to_policy(sample), params)))
 
 
 def test_cognet_dice_learns_to_use_observations_on_tagging():
@@ -98,14 +105,14 @@ def test_cognet_dice_learns_to_use_observations_on_tagging():
         "algorithm.best_rollouts=500",
     ]
     config = load_config("tagging-thesis-n3", sets)
-    alg = build_algorithm(config)
+    alg, params = build_algorithm(config)
     key = jax.random.key(0)
     state, metrics = jax.jit(make_train(config))(key)
     _, _, k_eval = split_seed_key(key)
-    best = float(alg.policy_returns(k_eval, alg.best_policy(state), 10_000).mean())
+    best = float(alg.returns(k_eval, alg.best_policy(state), 10_000, params).mean())
     mode = alg.to_policy(alg.mode(state.distribution))
-    mode_value = float(alg.policy_returns(k_eval, mode, 10_000).mean())
-    blind = best_open_loop_value(alg, jax.random.key(5))
+    mode_value = float(alg.returns(k_eval, mode, 10_000, params).mean())
+    blind = best_open_loop_value(alg, params, jax.random.key(5))
     assert blind < 0.0
     assert best > blind + 16.0, (best, blind)
     assert mode_value > blind + 12.0, (mode_value, blind)
@@ -133,16 +140,22 @@ def test_bad_settings_name_the_field(field, value):
 def test_thesis_algorithm_keeps_its_own_name():
     config = load_config("tagging-thesis-spec-n3")
     assert config.experiment.algorithm == "cognet-dice-thesis"
-    assert type(build_algorithm(config)).__name__ == "CognetDice"
-    assert type(build_algorithm(load_config("tagging-thesis-n3"))).__name__ == "CognetWeights"
+    assert type(build_algorithm(config)[0]).__name__ == "CognetDice"
+    assert type(build_algorithm(load_config("tagging-thesis-n3"))[0]).__name__ == "CognetWeights"
 
 
 def heatmap_algorithm(**kw):
+    """The weight search on the heatmap; with ``standardize_inputs`` the input statistics of
+    the default params (as ``cognet_weights.build`` computes them)."""
     from cognet_jax.envs.heatmap import make_heatmap
 
-    env, params = make_heatmap("default")
+    env, env_params = make_heatmap("default")
     settings = WeightsSettings(**{"nodes": 3, "candidates": 4, "eval_rollouts": 16, **kw})
-    return CognetWeights(env, params, settings)
+    stats = None
+    if settings.standardize_inputs:
+        controller = CognetWeights(env, settings.__class__(**{**kw, "standardize_inputs": False}))
+        stats = input_statistics(env, controller.controller, controller.pipeline, env_params)
+    return CognetWeights(env, settings, input_stats=stats)
 
 
 def test_standardized_inputs_fold_into_the_first_layer():
@@ -153,7 +166,7 @@ def test_standardized_inputs_fold_into_the_first_layer():
     from cognet_jax.envs.heatmap import all_patches
 
     alg = heatmap_algorithm(standardize_inputs=True, hidden=5)
-    mean, scale = np.asarray(alg.input_mean), np.asarray(alg.input_scale)
+    mean, scale = (np.asarray(x) for x in alg.input_stats)
     assert mean.shape == scale.shape == (2, 16)
     assert ((mean > 0) & (mean < 1)).all() and (scale > 0.01).all()
     samples = alg.draw(jax.random.key(7), alg.init_distribution(), 3)
@@ -165,7 +178,9 @@ def test_standardized_inputs_fold_into_the_first_layer():
     want = jnp.einsum("capf,cagfh->cagph", z[None, 0], samples.w1) + samples.b1[:, :, :, None]
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-3)
     plain = heatmap_algorithm(hidden=5)
-    assert plain.input_mean is None
+    assert plain.input_stats is None
+    with pytest.raises(ValueError, match="input_stats"):
+        CognetWeights(plain.env, WeightsSettings(nodes=3, hidden=5, standardize_inputs=True))
     same = plain.to_policy(samples).net_params["params"]["Dense_0"]["kernel"]
     np.testing.assert_array_equal(np.asarray(same), np.asarray(samples.w1))
 
@@ -174,19 +189,19 @@ def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rol
     """A step whose candidates are all much worse than the best so far keeps the best policy
     (and reports its own paired estimate as the best value, no stale maximum); a best that a
     challenger beats is replaced."""
-    alg = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
-    state = alg.init(jax.random.key(0))
+    alg, params = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
+    state = alg.init(jax.random.key(0), params)
     assert alg.rollouts_per_iteration == 8 * 16 + 3 * 200
     # a known good reactive controller as the best so far
     good = reactive_tagging_policy(alg)
     kept = state.replace(best_policy=good, progress=state.progress.replace(best_value=1e9))
-    new, metrics = jax.jit(alg.step)(jax.random.key(1), kept)
+    new, metrics = jax.jit(alg.step)(jax.random.key(1), kept, params)
     chex_equal = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), new.best_policy, good)
     assert all(jax.tree.leaves(chex_equal))
     assert 10.0 < float(metrics.best_value) < 1e9  # the paired estimate, not the stale 1e9
     # the worst possible best (always tag: -40 per step) is replaced
     bad = good.replace(action_probs=jax.nn.one_hot(jnp.zeros((2, 3), jnp.int32), 3))
-    new, metrics = jax.jit(alg.step)(jax.random.key(1), state.replace(best_policy=bad))
+    new, metrics = jax.jit(alg.step)(jax.random.key(1), state.replace(best_policy=bad), params)
     assert not bool(jnp.all(new.best_policy.action_probs == bad.action_probs))
     assert float(metrics.best_value) > -120.0
 

@@ -5,7 +5,8 @@ import json
 import pytest
 
 from cognet_jax.cli import main
-from cognet_jax.config import ConfigError, builtin_experiments, config_from_dict, load_config
+from cognet_jax.config import ConfigError, builtin_experiments
+from cognet_jax.registry import config_from_dict, load_config
 
 
 @pytest.mark.parametrize(

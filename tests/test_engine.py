@@ -1,6 +1,7 @@
-"""The search engine's protocol (``algorithms.engine``): ``ask``, ``evaluate`` and ``tell`` with
-the iteration key are what ``step`` runs, for every algorithm; a
-fitness of one's own goes through ``tell``; ``fresh`` replaces the anytime best's rollouts."""
+"""The search protocol (``algorithms.engine``) for every algorithm: ``ask``, ``evaluate`` and
+``tell`` with the iteration key are what ``step`` runs; values and fresh values of one's own go
+through ``tell``; the iteration's random streams are independent, so a winner's fresh
+rollouts never reuse the rollouts it was selected on."""
 
 import jax
 import jax.numpy as jnp
@@ -8,8 +9,9 @@ import numpy as np
 import pytest
 from shared_files import dpomdp_file
 
+from cognet_jax.algorithms.engine import streams
 from cognet_jax.api import make_step
-from cognet_jax.config import load_config
+from cognet_jax.registry import load_config
 
 CASES = {
     "cogdice": (
@@ -34,11 +36,11 @@ CASES = {
 }
 
 
-def _config(name):
+def _config(name, extra=()):
     experiment, sets = CASES[name]
     if experiment == "gdice-dpomdp":
         sets = [f'problem.path="{dpomdp_file("dectiger")}"', *sets]
-    return load_config(experiment, sets)
+    return load_config(experiment, [*sets, *extra])
 
 
 def _same(a, b):
@@ -54,10 +56,10 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
         "gdice-dpomdp-spec",
         [f'problem.path="{dpomdp_file("dectiger")}"', "problem.horizon=2", "algorithm.nodes=2"],
     )
-    algorithm = build_algorithm(config)
+    algorithm, params = build_algorithm(config)
 
     def fitness(policies):  # the exact value, computed by the user
-        return jax.vmap(lambda p: exact_value(algorithm.env, algorithm.env_params, p, 2))(policies)
+        return jax.vmap(lambda p: exact_value(algorithm.env, params.env, p, 2))(policies)
 
     calls = []
 
@@ -67,10 +69,10 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
 
     @jax.jit
     def iteration(key, state):
-        samples, policies = algorithm.ask(key, state)
-        return algorithm.tell(key, state, samples, fitness(policies), fresh=fresh)
+        samples, policies = algorithm.ask(key, state, params)
+        return algorithm.tell(key, state, samples, fitness(policies), params, fresh_value=fresh)
 
-    state = algorithm.init(jax.random.key(0))
+    state = algorithm.init(jax.random.key(0), params)
     for i in range(30):
         state, metrics = iteration(jax.random.fold_in(jax.random.key(1), i), state)
     assert calls  # traced once: the anytime best was valued by `fresh`
@@ -81,54 +83,20 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
     assert jnp.isfinite(metrics.threshold)
 
 
-def test_make_train_takes_hyper_parameters_and_make_evaluate_is_honest(tmp_path):
-    from cognet_jax import build_algorithm, make_evaluate, make_train, seed_key
-    from cognet_jax.api import split_seed_key
-    from cognet_jax.controllers.regions import reactive_tagging_policy
-    from cognet_jax.runner import honest_evaluation, run_training
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_ask_evaluate_tell_is_step(name):
+    """A search driven by hand with one iteration key draws exactly what ``step`` draws."""
+    algorithm, params, _ = make_step(_config(name))
+    state = algorithm.init(jax.random.key(0), params)
+    key = jax.random.key(5)
 
-    config = load_config(
-        "tagging-thesis-cogdice-n3",
-        [
-            "algorithm.iterations=3",
-            "algorithm.samples=40",
-            "evaluation.rollouts=2000",
-            "env.motion_noise=0.5",
-            "env.obs_noise=0.5",
-        ],
-    )
-    train = jax.jit(make_train(config))
-    key = seed_key(config, 0)
-    default = build_algorithm(config).hyper
-    state_a, metrics_a = train(key)
-    state_b, metrics_b = train(key, default)
-    _same((state_a, metrics_a), (state_b, metrics_b))
-    # three smoothing rates in one program; alpha 0 never moves the distribution
-    alphas = jnp.array([0.0, 0.1, 0.5])
-    hypers = jax.vmap(lambda a: default.replace(alpha=a))(alphas)
-    states, _ = jax.jit(jax.vmap(train, in_axes=(None, 0)))(key, hypers)
-    start = build_algorithm(config).init_distribution()
-    np.testing.assert_array_equal(
-        np.asarray(states.distribution.action_probs[0]), np.asarray(start.action_probs)
-    )
-    # 0.1 is the experiment's alpha (the batched program may round a last bit differently)
-    for x, y in zip(
-        jax.tree.leaves(jax.tree.map(lambda x: x[1], states)), jax.tree.leaves(state_a)
-    ):
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-5)
-    # the honest value of make_evaluate is the one `cognet-jax train --seed 0` reports: the
-    # run's best policy here, and a policy whose returns vary (the reactive controller)
-    mean, _ = jax.jit(make_evaluate(config))(key, state_a.best_policy)
-    results = run_training(config, 0, tmp_path / "run", log=lambda *_: None)
-    assert float(mean) == pytest.approx(results["final_value"]["mean"], rel=1e-5, abs=1e-4)
-    _, reactive = reactive_tagging_policy()
-    mean, stderr = jax.jit(make_evaluate(config))(key, reactive)
-    e = config.evaluation
-    ref = honest_evaluation(
-        build_algorithm(config), split_seed_key(key)[2], reactive, e.rollouts, e.batch
-    )
-    assert float(mean) == pytest.approx(ref["mean"], rel=1e-5)
-    assert float(stderr) == pytest.approx(ref["stderr"], rel=1e-3) and ref["stderr"] > 0
+    @jax.jit
+    def by_hand(key, state):
+        asked, policies = algorithm.ask(key, state, params)
+        values = algorithm.evaluate(key, policies, params)
+        return algorithm.tell(key, state, asked, values, params)
+
+    _same(by_hand(key, state), jax.jit(algorithm.step)(key, state, params))
 
 
 #: iteration value each algorithm reports when every candidate is valued 0 and ``fresh`` gives 7:
@@ -145,21 +113,113 @@ OWN_VALUE = {
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_ask_evaluate_tell_with_own_values_and_fresh(name):
-    """Every algorithm speaks the protocol (``step`` is ``ask``, ``evaluate``, ``tell`` with
-    the same iteration key, so a search driven by hand draws what ``step`` draws); values of
-    one's own go through ``tell``: with every candidate valued 0 and ``fresh`` giving 7, the
-    anytime best value is 7."""
-    algorithm, init, _ = make_step(_config(name))
+    """Values of one's own go through ``tell``: with every candidate valued 0 and
+    ``fresh_value`` giving 7, the anytime best value is 7."""
+    algorithm, params, _ = make_step(_config(name))
     if name == "gdice-portfolio":
         assert len(algorithm.members) == 3  # independent, shared, exploring
-    state = init(jax.random.key(0))
+    state = algorithm.init(jax.random.key(0), params)
 
     @jax.jit
     def iteration(key, state):
-        asked, policies = algorithm.ask(key, state)
-        values = jax.tree.map(jnp.zeros_like, algorithm.evaluate(key, policies))
-        return algorithm.tell(key, state, asked, values, fresh=lambda k, p: jnp.float32(7.0))
+        asked, policies = algorithm.ask(key, state, params)
+        values = jax.tree.map(jnp.zeros_like, algorithm.evaluate(key, policies, params))
+        seven = lambda k, p: jnp.float32(7.0)  # noqa: E731
+        return algorithm.tell(key, state, asked, values, params, fresh_value=seven)
 
     state, metrics = iteration(jax.random.key(5), state)
     assert float(metrics.best_value) == 7.0
     assert float(metrics.value) == OWN_VALUE[name]
+
+
+def test_streams_are_one_split_into_independent_keys():
+    key = jax.random.key(11)
+    s = streams(key)
+    data = [tuple(np.asarray(jax.random.key_data(k)).tolist()) for k in s]
+    assert len(set(data)) == 4
+    # one split: the first two streams are those of a two-way split of the same key
+    two = jax.random.split(key)
+    for a, b in zip(s[:2], two):
+        np.testing.assert_array_equal(jax.random.key_data(a), jax.random.key_data(b))
+
+
+#: settings under which a winner's fresh mean would equal its in-loop mean exactly if both
+#: were drawn from the same key: noisy observations and motion, as many fresh rollouts as
+#: in-loop ones, common random numbers
+NOISY = ["env.motion_noise=0.5", "env.obs_noise=0.5"]
+
+
+THRESHOLD_CASES = {
+    # Dec-Tiger: every controller's return depends on where the tiger is
+    "gdice": (
+        "gdice-dpomdp-spec",
+        ["problem.horizon=3", "algorithm.nodes=2", "algorithm.samples=50"],
+    ),
+    "cogdice": ("tagging-thesis-cogdice-n3", ["algorithm.samples=60", *NOISY]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(THRESHOLD_CASES))
+def test_threshold_winner_is_revalued_on_rollouts_it_was_not_selected_on(name):
+    """The engine's anytime best: the winner of the candidates' rollouts (``evaluate``
+    stream) is valued on fresh rollouts (``best`` stream). Drawn from the same key, with as many
+    rollouts, the fresh mean would repeat the in-loop mean to the last bit."""
+    experiment, sets = THRESHOLD_CASES[name]
+    n = 20
+    sets = [*sets, f"algorithm.eval_rollouts={n}", f"algorithm.best_rollouts={n}"]
+    if experiment.startswith("gdice"):
+        sets.append(f'problem.path="{dpomdp_file("dectiger")}"')
+    algorithm, params, _ = make_step(load_config(experiment, sets))
+    state = algorithm.init(jax.random.key(0), params)
+    fresh_differs = 0
+    for i in range(6):
+        key = jax.random.key(30 + i)
+        samples, policies = algorithm.ask(key, state, params)
+        values = algorithm.evaluate(key, policies, params)
+        state, metrics = algorithm.tell(key, state, samples, values, params)
+        best = jnp.argmax(values)
+        winner = jax.tree.map(lambda x, best=best: x[best], policies)
+        recorded = float(state.progress.recent[-1])  # the value the anytime best compared
+        fresh = algorithm.fresh_value(streams(key).best, winner, params)
+        reused = algorithm.fresh_value(streams(key).evaluate, winner, params)
+        assert recorded == pytest.approx(float(fresh), rel=1e-6)
+        assert float(reused) == pytest.approx(float(values.max()), rel=1e-6)  # in-loop mean
+        fresh_differs += recorded != float(values.max())
+    assert fresh_differs >= 1, fresh_differs  # 0 when both come from one key
+
+
+def test_weight_search_values_winner_and_mode_on_their_own_streams():
+    """The default COGNet-DICE values its winner on the ``best`` stream and the distribution's
+    mode on the ``other`` one, neither of them the candidates' ``evaluate`` stream."""
+    n = 30
+    sets = [*NOISY, f"algorithm.eval_rollouts={n}", f"algorithm.best_rollouts={n}"]
+    algorithm, params, _ = make_step(_config("cognet-dice", sets))
+    state = algorithm.init(jax.random.key(0), params)
+    key = jax.random.key(3)
+    samples, policies = algorithm.ask(key, state, params)
+    values = algorithm.evaluate(key, policies, params)
+    new, metrics = algorithm.tell(key, state, samples, values, params)
+    winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
+    mode = algorithm.to_policy(algorithm.mode(new.distribution))
+    s = streams(key)
+    v_winner = algorithm.fresh_value(s.best, winner, params)
+    v_mode = algorithm.fresh_value(s.other, mode, params)
+    assert float(metrics.value) == pytest.approx(float(max(v_winner, v_mode)), rel=1e-6)
+    reused = algorithm.fresh_value(s.evaluate, winner, params)
+    assert float(reused) == pytest.approx(float(values.max()), rel=1e-6)
+    assert float(v_winner) != float(values.max())
+
+
+@pytest.mark.parametrize("name", ["cognet-dice-thesis", "cognet-dice-thesis-separate"])
+def test_thesis_step8_values_the_updated_policy_on_its_own_stream(name):
+    """Step 8 of the thesis algorithm values the updated policy on the ``best`` stream, not on
+    the rollouts that trained it (``sample``) or valued the candidates (``evaluate``)."""
+    algorithm, params, _ = make_step(_config(name, NOISY))
+    state = algorithm.init(jax.random.key(0), params)
+    key = jax.random.key(3)
+    new, metrics = jax.jit(algorithm.step)(key, state, params)
+    s = streams(key)
+    expected = algorithm.fresh_value(s.best, new.policy, params)
+    assert float(metrics.value) == pytest.approx(float(expected), rel=1e-6)
+    for other in (s.sample, s.evaluate):
+        assert float(algorithm.fresh_value(other, new.policy, params)) != float(metrics.value)

@@ -6,12 +6,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.exact import exact_values
-from cognet_jax.exact_jax import exact_values_numpy_layout
+from cognet_jax.exact_jax import exact_value as exact_value_jax
 
 DPOMDP_DIR = Path(__file__).resolve().parents[2] / "shared" / "dpomdp"
 CASES = [  # file, horizon, discount override, nodes
@@ -41,15 +43,19 @@ def test_matches_numpy_exact_values_on_random_controllers(name, horizon, discoun
     actions = rng.integers(0, 1 << 20, (batch, env.num_agents, nodes)) % counts
     transitions = rng.integers(0, nodes, (batch, env.num_agents, nodes, env.num_obs))
     expected = exact_values(model, actions, transitions, horizon, model.discount)
-    got = exact_values_numpy_layout(env, params, actions, transitions, nodes)
+    pol = DeterministicTabularPolicy(
+        actions=jnp.asarray(actions, jnp.int32), transitions=jnp.asarray(transitions, jnp.int32)
+    )
+    got = np.asarray(jax.vmap(lambda p: exact_value_jax(env, params, p, nodes))(pol))
     scale = max(1.0, float(np.abs(expected).max()))
     np.testing.assert_allclose(got, expected, rtol=0, atol=2e-6 * scale * horizon)
 
 
 def test_gdice_exact_evaluator_finds_dectiger_h2_optimum_and_in_loop_value_is_exact():
-    from cognet_jax.api import load_problem, make_train
-    from cognet_jax.config import load_config
+    from cognet_jax.api import make_train
+    from cognet_jax.envs.tabular import load_problem
     from cognet_jax.exact import exact_value
+    from cognet_jax.registry import load_config
 
     path = DPOMDP_DIR / "dectiger.dpomdp"
     if not path.is_file():
@@ -69,14 +75,16 @@ def test_gdice_exact_evaluator_finds_dectiger_h2_optimum_and_in_loop_value_is_ex
     )
     state, metrics = jax.jit(make_train(config))(jax.random.key(0))
     best = jax.device_get(state.best_policy)
-    value = exact_value(load_problem(config), best.actions, best.transitions, 2, 1.0)
+    value = exact_value(load_problem(config.problem), best.actions, best.transitions, 2, 1.0)
     assert value == pytest.approx(-4.0, abs=1e-9)
     # with exact values there is no winner's curse: the in-loop best is the true value
     assert float(metrics.best_value[-1]) == pytest.approx(value, abs=1e-4)
 
 
 def test_exact_evaluator_config_errors(tmp_path):
-    from cognet_jax.config import ConfigError, load_config
+    from cognet_jax.api import build_algorithm
+    from cognet_jax.config import ConfigError
+    from cognet_jax.registry import load_config
 
     with pytest.raises(ConfigError, match="algorithm.evaluator"):
         load_config("gdice-dpomdp", ["problem.path='x.dpomdp'", 'algorithm.evaluator="magic"'])
@@ -85,5 +93,5 @@ def test_exact_evaluator_config_errors(tmp_path):
         '[experiment]\nalgorithm = "gdice"\n[env]\nname = "tagging"\nobs_division = 1.0\n'
         '[algorithm]\nevaluator = "exact"\n'
     )
-    with pytest.raises(ConfigError, match="algorithm.evaluator"):
-        load_config(str(toml))
+    with pytest.raises(ConfigError, match="algorithm.evaluator"):  # no exact tagging model
+        build_algorithm(load_config(str(toml)))

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from cognet_jax.algorithms.cross_entropy import EntropyConfig
-from cognet_jax.algorithms.gdice import GDice, GDiceHyper, GDiceSettings
+from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper, streams
+from cognet_jax.algorithms.gdice import GDice, GDiceSettings
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import TabularEnv, TabularParams
 
@@ -78,10 +79,10 @@ def _elites():
 
 
 def test_count_mle_is_frequency_over_elite_tables():
-    env, params = small_env()
-    algo = GDice(env, params, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
+    env, _ = small_env()
+    algo = GDice(env, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
     dist = algo.controller.init_distribution()
-    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), GDiceHyper(alpha=1.0))
+    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), ThresholdHyper(alpha=1.0))
     act = np.asarray(new.action_probs)
     # hand counts over the three kept elites (alpha = 1: the MLE itself)
     expected_actions = np.array(
@@ -111,10 +112,10 @@ def test_count_mle_is_frequency_over_elite_tables():
 
 
 def test_smoothing_mixes_mle_with_old_distribution():
-    env, params = small_env()
-    algo = GDice(env, params, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
+    env, _ = small_env()
+    algo = GDice(env, GDiceSettings(nodes=3, samples=8, elites=4, eval_rollouts=4))
     dist = algo.controller.init_distribution()
-    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), GDiceHyper(alpha=0.25))
+    new = algo.update_distribution(dist, _elites(), jnp.asarray(KEPT), ThresholdHyper(alpha=0.25))
     act = np.asarray(new.action_probs)
     # agent 1, node 2: MLE [1, 0, 0], old uniform over its 2 actions [1/2, 1/2, 0]
     np.testing.assert_allclose(act[1, 2], [0.625, 0.375, 0.0], atol=1e-6)
@@ -123,24 +124,25 @@ def test_smoothing_mixes_mle_with_old_distribution():
     np.testing.assert_allclose(act.sum(-1), 1.0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(new.transition_probs).sum(-1), 1.0, atol=1e-6)
     # nothing kept: the distribution is returned unchanged
-    same = algo.update_distribution(dist, _elites(), jnp.zeros(4, bool), GDiceHyper(alpha=0.25))
+    same = algo.update_distribution(dist, _elites(), jnp.zeros(4, bool), ThresholdHyper(alpha=0.25))
     chex.assert_trees_all_equal(same, dist)
 
 
 def test_distributions_stay_normalised_through_smoothing_and_injection():
-    env, params = small_env(action_counts=(3, 2))
+    env, env_params = small_env(action_counts=(3, 2))
     rate = 0.05
-    hyper = GDiceHyper(
+    hyper = ThresholdHyper(
         alpha=0.6,
         # std threshold so large that a full window always triggers, patience 1: injections
         entropy=EntropyConfig(enabled=True, rate=rate, std_threshold=1e6, patience=1),
     )
-    algo = GDice(env, params, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8), hyper)
+    algo = GDice(env, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8))
+    params = SearchParams(env_params, hyper)
     step = jax.jit(algo.step)
-    state = algo.init(jax.random.key(0))
+    state = algo.init(jax.random.key(0), params)
     injections = 0
     for i in range(10):
-        state, m = step(jax.random.key(100 + i), state)
+        state, m = step(jax.random.key(100 + i), state, params)
         d = jax.device_get(state.distribution)
         np.testing.assert_allclose(d.action_probs.sum(-1), 1.0, atol=1e-5)
         np.testing.assert_allclose(d.transition_probs.sum(-1), 1.0, atol=1e-5)
@@ -163,30 +165,26 @@ def test_distributions_stay_normalised_through_smoothing_and_injection():
 class CountingGDice(GDice):
     """G-DICE on a deterministic objective: the number of action-0 entries of the tables."""
 
-    def evaluate_samples(self, key, policies):
+    def evaluate(self, key, policies, params):
         return (policies.actions == 0).sum(axis=(1, 2)).astype(jnp.float32)
 
 
 def test_elite_threshold_rises_and_freezes_updates():
-    env, params = small_env(action_counts=(3, 3))
+    env, env_params = small_env(action_counts=(3, 3))
     elites = 4
-    algo = CountingGDice(
-        env,
-        params,
-        GDiceSettings(nodes=4, samples=16, elites=elites, eval_rollouts=2),
-        GDiceHyper(alpha=0.5),
-    )
+    algo = CountingGDice(env, GDiceSettings(nodes=4, samples=16, elites=elites, eval_rollouts=2))
+    params = SearchParams(env_params, ThresholdHyper(alpha=0.5))
     step = jax.jit(algo.step)
     sample = jax.jit(algo.sample_policies)
-    state = algo.init(jax.random.key(1))
+    state = algo.init(jax.random.key(1), params)
     thresholds, kept_counts = [], []
     for i in range(15):
         key = jax.random.key(1000 + i)
-        k_sample, _ = jax.random.split(key)  # as GDice.step splits its key
-        values = np.asarray(algo.evaluate_samples(None, sample(k_sample, state.distribution)))
+        drawn = sample(streams(key).sample, state.distribution)  # what ask draws
+        values = np.asarray(algo.evaluate(None, drawn, params))
         prev_thr = float(state.progress.threshold)
         prev_dist = jax.device_get(state.distribution)
-        state, m = step(key, state)
+        state, m = step(key, state, params)
         above = np.sort(values[values > prev_thr])[::-1][:elites]
         assert int(m.kept) == len(above)
         if len(above):
@@ -205,7 +203,7 @@ def test_elite_threshold_rises_and_freezes_updates():
 
     # a threshold nobody can reach: no elite, no update, V_w unchanged
     high = state.replace(progress=state.progress.replace(threshold=jnp.float32(1e9)))
-    after, m = step(jax.random.key(7), high)
+    after, m = step(jax.random.key(7), high, params)
     assert int(m.kept) == 0 and float(m.threshold) == 1e9
     chex.assert_trees_all_equal(after.distribution, high.distribution)
 
@@ -215,18 +213,18 @@ def test_elite_threshold_rises_and_freezes_updates():
 
 
 def test_step_does_not_retrace_across_iterations_and_hyper_values():
-    env, params = small_env()
-    algo = GDice(env, params, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8))
+    env, env_params = small_env()
+    algo = GDice(env, GDiceSettings(nodes=3, samples=16, elites=4, eval_rollouts=8))
     chex.clear_trace_counter()
 
     @jax.jit
     @chex.assert_max_traces(n=1)
     def step(key, state, hyper):
-        return algo.step(key, state, hyper)
+        return algo.step(key, state, SearchParams(env_params, hyper))
 
-    state = algo.init(jax.random.key(0))
+    state = algo.init(jax.random.key(0), SearchParams(env_params, ThresholdHyper()))
     for i in range(8):
-        hyper = GDiceHyper(
+        hyper = ThresholdHyper(
             alpha=jnp.float32(0.1 + 0.05 * i),
             entropy=EntropyConfig(
                 enabled=jnp.asarray(i % 2 == 0),
@@ -242,26 +240,26 @@ def test_step_does_not_retrace_across_iterations_and_hyper_values():
 
 def test_best_rollouts_tracks_a_fresh_mean_of_the_winner():
     """best_rollouts = 0: the best value is the winner's in-loop mean (biased upwards: a maximum
-    of noisy means); best_rollouts = N: a fresh N-rollout mean of that same winner."""
+    of noisy means); best_rollouts = N: a fresh N-rollout mean of that same winner, drawn from
+    the iteration's ``best`` stream."""
     from cognet_jax.rollout import rollouts
 
-    env, params = small_env(horizon=4)
+    env, env_params = small_env(horizon=4)
+    params = SearchParams(env_params, ThresholdHyper())
     key, init_key = jax.random.key(3), jax.random.key(4)
     out = {}
     for fresh in (0, 2000):
         algo = GDice(
-            env,
-            params,
-            GDiceSettings(nodes=3, samples=64, elites=4, eval_rollouts=4, best_rollouts=fresh),
+            env, GDiceSettings(nodes=3, samples=64, elites=4, eval_rollouts=4, best_rollouts=fresh)
         )
-        state, metrics = jax.jit(algo.step)(key, algo.init(init_key))
+        state, metrics = jax.jit(algo.step)(key, algo.init(init_key, params), params)
         out[fresh] = (state, metrics)
     (s0, m0), (s1, m1) = out[0], out[2000]
     # same samples and in-loop values, same winner
     assert float(m0.value) == float(m1.value) == float(s0.progress.best_value)
     chex.assert_trees_all_equal(s0.best_policy, s1.best_policy)
     fresh_mean = rollouts(
-        env, algo.controller, jax.random.fold_in(key, 1), 2000, params, s1.best_policy
+        env, algo.controller, streams(key).best, 2000, env_params, s1.best_policy
     ).mean()
     np.testing.assert_allclose(float(s1.progress.best_value), float(fresh_mean), rtol=1e-6)
     # 4-rollout means maximised over 64 samples overstate the winner's value
@@ -285,9 +283,10 @@ def dectiger_path() -> Path:
 
 
 def test_gdice_reaches_dectiger_h2_optimum(dectiger_path):
-    from cognet_jax.api import load_problem, make_train
-    from cognet_jax.config import load_config
+    from cognet_jax.api import make_train
+    from cognet_jax.envs.tabular import load_problem
     from cognet_jax.exact import exact_value
+    from cognet_jax.registry import load_config
 
     config = load_config(
         "gdice-dpomdp-spec",
@@ -306,7 +305,7 @@ def test_gdice_reaches_dectiger_h2_optimum(dectiger_path):
     )
     state, metrics = jax.jit(make_train(config))(jax.random.key(0))
     best = jax.device_get(state.best_policy)
-    value = exact_value(load_problem(config), best.actions, best.transitions, 2, 1.0)
+    value = exact_value(load_problem(config.problem), best.actions, best.transitions, 2, 1.0)
     assert value == pytest.approx(-4.0, abs=1e-9)
 
 
@@ -337,19 +336,20 @@ def test_cli_names_missing_problem_path(tmp_path, capsys):
 
 
 def test_shared_controller_samples_one_controller_for_every_agent_and_keeps_rows_tied():
-    env, params = small_env(action_counts=(3, 3), obs_counts=(2, 2))
+    env, env_params = small_env(action_counts=(3, 3), obs_counts=(2, 2))
     settings = GDiceSettings(nodes=3, iterations=4, samples=40, elites=5, eval_rollouts=20)
-    hyper = GDiceHyper(alpha=0.3, entropy=EntropyConfig(enabled=True, rate=0.1, patience=1))
-    shared = GDice(env, params, dataclasses.replace(settings, shared_controller=True), hyper)
-    independent = GDice(env, params, settings, hyper)
+    hyper = ThresholdHyper(alpha=0.3, entropy=EntropyConfig(enabled=True, rate=0.1, patience=1))
+    params = SearchParams(env_params, hyper)
+    shared = GDice(env, dataclasses.replace(settings, shared_controller=True))
+    independent = GDice(env, settings)
 
-    state = shared.init(jax.random.key(0))
+    state = shared.init(jax.random.key(0), params)
     step = jax.jit(shared.step)
     for i in range(4):
         policies = shared.sample_policies(jax.random.key(10 + i), state.distribution)
         np.testing.assert_array_equal(policies.actions[:, 0], policies.actions[:, 1])
         np.testing.assert_array_equal(policies.transitions[:, 0], policies.transitions[:, 1])
-        state, _ = step(jax.random.key(i), state)
+        state, _ = step(jax.random.key(i), state, params)
         dist = state.distribution
         np.testing.assert_array_equal(dist.action_probs[0], dist.action_probs[1])
         np.testing.assert_array_equal(dist.transition_probs[0], dist.transition_probs[1])
@@ -363,12 +363,13 @@ def test_shared_controller_samples_one_controller_for_every_agent_and_keeps_rows
 
 
 def test_shared_controller_rejects_agents_with_different_counts(tmp_path):
-    env, params = small_env(action_counts=(3, 2))
+    env, _ = small_env(action_counts=(3, 2))
     with pytest.raises(ValueError, match="same numbers of actions and observations"):
-        GDice(env, params, GDiceSettings(nodes=2, shared_controller=True))
+        GDice(env, GDiceSettings(nodes=2, shared_controller=True))
 
     from cognet_jax.api import build_algorithm
-    from cognet_jax.config import ConfigError, load_config
+    from cognet_jax.config import ConfigError
+    from cognet_jax.registry import load_config
 
     path = tmp_path / "asym.dpomdp"
     path.write_text(
@@ -393,9 +394,10 @@ def recycling_path() -> Path:
 def test_shared_controller_gdice_beats_reactive_controller_on_recycling(recycling_path):
     """Recycling, gamma 0.9: G-DICE over symmetric controllers, with Monte Carlo values as in
     SPEC, finds a controller above the reactive one's 31.496063 (best known 31.93)."""
-    from cognet_jax.api import load_problem, make_train
-    from cognet_jax.config import load_config
+    from cognet_jax.api import make_train
+    from cognet_jax.envs.tabular import load_problem
     from cognet_jax.exact import exact_value
+    from cognet_jax.registry import load_config
 
     config = load_config(
         "gdice-dpomdp-spec",
@@ -414,5 +416,5 @@ def test_shared_controller_gdice_beats_reactive_controller_on_recycling(recyclin
     state, _ = jax.jit(make_train(config))(jax.random.key(0))
     best = jax.device_get(state.best_policy)
     np.testing.assert_array_equal(best.actions[0], best.actions[1])
-    value = exact_value(load_problem(config), best.actions, best.transitions, None, 0.9)
+    value = exact_value(load_problem(config.problem), best.actions, best.transitions, None, 0.9)
     assert value >= 31.5

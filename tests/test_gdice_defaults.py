@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from shared_files import dpomdp_file as _file
 
+from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper, streams
 from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
 from cognet_jax.controllers.tabular import TabularController
 from cognet_jax.envs.tabular import make_tabular, sparse_rows
@@ -97,25 +98,25 @@ def test_sparse_rows_exact_equals_dense():
 
 def _portfolio(path, horizon, **kw):
     model = parse_dpomdp(path, discount=1.0)
-    env, params = make_tabular(model, horizon)
+    env, env_params = make_tabular(model, horizon)
     settings = GDiceSettings(
         nodes=2, iterations=5, samples=64, elites=8, evaluator="exact", layered=True, **kw
     )
-    return env, params, settings
+    return env, SearchParams(env_params, ThresholdHyper()), settings
 
 
 def test_portfolio_keeps_the_best_member_and_is_anytime():
     env, params, settings = _portfolio(_file("dectiger"), 3, restarts=2)
-    algo = GDicePortfolio(env, params, settings, shared_restarts=1)
-    assert algo.restarts == [2, 1] and algo.members[1].settings.shared_controller
-    state = algo.init(jax.random.key(0))
+    algo = GDicePortfolio(env, settings, shared_restarts=1)
+    assert algo.restarts == (2, 1) and algo.members[1].settings.shared_controller
+    state = algo.init(jax.random.key(0), params)
     step = jax.jit(algo.step)
     for i in range(4):
-        state, metrics = step(jax.random.key(i), state)
+        state, metrics = step(jax.random.key(i), state, params)
         member_best = max(float(m.progress.best_value.max()) for m in state.members)
         assert float(metrics.best_value) == pytest.approx(member_best)
     best = jax.device_get(state.best_policy)
-    value = float(exact_value_layered(env, params, best, settings.nodes))
+    value = float(exact_value_layered(env, params.env, best, settings.nodes))
     assert value == pytest.approx(float(state.progress.best_value), abs=1e-4)
 
 
@@ -127,17 +128,18 @@ def test_portfolio_skips_shared_search_for_different_agents(tmp_path):
         "T: * :\nuniform\nO: * :\nuniform\nR: 1 2 : * : * : * : 1\n"
     )
     env, params, settings = _portfolio(path, 2)
-    algo = GDicePortfolio(env, params, settings, shared_restarts=1)
+    algo = GDicePortfolio(env, settings, shared_restarts=1)
     assert len(algo.members) == 1  # no shared search: the agents differ
-    state, _ = jax.jit(algo.step)(jax.random.key(0), algo.init(jax.random.key(1)))
+    state, _ = jax.jit(algo.step)(jax.random.key(0), algo.init(jax.random.key(1), params), params)
     assert float(state.progress.best_value) == pytest.approx(2.0)  # (1, 2) twice
 
 
 def test_default_gdice_reaches_dectiger_h4_optimum():
     """``gdice-dpomdp`` as shipped, with fewer iterations: Dec-Tiger h 4 (optimum 4.802755),
     where the earlier defaults (SPEC settings, ``gdice-dpomdp-spec``) ended at -3.40."""
-    from cognet_jax.api import build_algorithm, load_problem, make_train
-    from cognet_jax.config import load_config
+    from cognet_jax.api import build_algorithm, make_train
+    from cognet_jax.envs.tabular import load_problem
+    from cognet_jax.registry import load_config
 
     config = load_config(
         "gdice-dpomdp",
@@ -147,17 +149,17 @@ def test_default_gdice_reaches_dectiger_h4_optimum():
             "algorithm.iterations=60",
         ],
     )
-    algo = build_algorithm(config)
+    algo, _ = build_algorithm(config)
     assert isinstance(algo, GDicePortfolio) and algo.settings.evaluator == "exact"
     state, _ = jax.jit(make_train(config))(jax.random.key(0))
     best = jax.device_get(state.best_policy)
-    value = exact_numpy(load_problem(config), best.actions, best.transitions, 4, 1.0)
+    value = exact_numpy(load_problem(config.problem), best.actions, best.transitions, 4, 1.0)
     assert value == pytest.approx(4.802755, abs=1e-5)
 
 
 def test_auto_evaluator_picks_hybrid_then_rollouts_for_costly_models(tmp_path):
     from cognet_jax.api import build_algorithm
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     base = [
         f"problem.path={str(_file('GridSmall'))!r}",
@@ -165,9 +167,9 @@ def test_auto_evaluator_picks_hybrid_then_rollouts_for_costly_models(tmp_path):
         "algorithm.samples=100000",
         "algorithm.elites=10",
     ]
-    algo = build_algorithm(load_config("gdice-dpomdp", base))
+    algo, _ = build_algorithm(load_config("gdice-dpomdp", base))
     assert algo.settings.evaluator == "hybrid"  # exact for 50 of 100000 samples is cheap
-    algo = build_algorithm(load_config("gdice-dpomdp", [*base, "algorithm.exact_top=100000"]))
+    algo, _ = build_algorithm(load_config("gdice-dpomdp", [*base, "algorithm.exact_top=100000"]))
     assert algo.settings.evaluator == "rollouts"
     assert isinstance(algo.members[0], GDice)
 
@@ -179,21 +181,20 @@ def test_hybrid_ranks_the_best_samples_by_rollouts_with_exact_values():
 
     env, params, settings = _portfolio(_file("dectiger"), 3)
     settings = dataclasses.replace(settings, evaluator="hybrid", exact_top=10)
-    algo = GDice(env, params, settings)
-    state = algo.init(jax.random.key(0))
+    algo = GDice(env, settings)
+    state = algo.init(jax.random.key(0), params)
     pols = algo.sample_policies(jax.random.key(1), state.distribution)
-    values = np.asarray(algo.evaluate_samples(jax.random.key(2), pols))
-    means = np.asarray(
-        evaluate_candidates(env, algo.controller, jax.random.key(2), 100, params, pols)
-    )
+    values = np.asarray(algo.evaluate(jax.random.key(2), pols, params))
+    k_eval = streams(jax.random.key(2)).evaluate
+    means = np.asarray(evaluate_candidates(env, algo.controller, k_eval, 100, params.env, pols))
     top = np.argsort(-means, kind="stable")[:10]
     assert set(np.flatnonzero(np.isfinite(values))) == set(top.tolist())
-    exact = np.asarray(algo.exact_values(pols))
+    exact = np.asarray(algo.exact_values(pols, params))
     np.testing.assert_array_equal(values[top], exact[top])
     # a step keeps an exact best value, with no fresh rollouts
-    state, metrics = jax.jit(algo.step)(jax.random.key(3), state)
+    state, metrics = jax.jit(algo.step)(jax.random.key(3), state, params)
     best = jax.device_get(state.best_policy)
-    value = float(exact_value_layered(env, params, best, settings.nodes))
+    value = float(exact_value_layered(env, params.env, best, settings.nodes))
     assert float(state.progress.best_value) == pytest.approx(value, abs=1e-5)
     assert np.isfinite(float(metrics.mean_value))
     assert algo.rollouts_per_iteration == settings.samples * settings.eval_rollouts
@@ -203,23 +204,26 @@ def test_explore_search_leaves_the_others_unchanged_and_uses_its_rate():
     """The portfolio's explore member is a plain independent search with entropy rate
     ``explore_rate``; adding it changes no number of the other members."""
     from cognet_jax.algorithms.cross_entropy import EntropyConfig
-    from cognet_jax.algorithms.gdice import GDiceHyper
 
     env, params, settings = _portfolio(_file("dectiger"), 3)
-    hyper = GDiceHyper(alpha=0.3, entropy=EntropyConfig(enabled=True, rate=0.02, patience=1))
-    plain = GDicePortfolio(env, params, settings, hyper, shared_restarts=1)
-    both = GDicePortfolio(env, params, settings, hyper, 1, explore_restarts=1, explore_rate=0.5)
-    assert both.rates == [None, None, 0.5] and len(both.members) == 3
+    hyper = ThresholdHyper(alpha=0.3, entropy=EntropyConfig(enabled=True, rate=0.02, patience=1))
+    params = params.replace(hyper=hyper)
+    plain = GDicePortfolio(env, settings, shared_restarts=1)
+    both = GDicePortfolio(env, settings, None, 1, explore_restarts=1, explore_rate=0.5)
+    assert both.rates == (None, None, 0.5) and len(both.members) == 3
     key = jax.random.key(4)
-    s_plain, s_both = plain.init(key), both.init(key)
-    alone = GDice(env, params, settings, hyper.replace(entropy=hyper.entropy.replace(rate=0.5)))
-    s_alone = jax.vmap(alone.init)(jax.random.split(jax.random.fold_in(key, 2), 1))
+    s_plain, s_both = plain.init(key, params), both.init(key, params)
+    alone = GDice(env, settings)
+    p_alone = params.replace(hyper=hyper.replace(entropy=hyper.entropy.replace(rate=0.5)))
+    s_alone = jax.vmap(alone.init, (0, None))(
+        jax.random.split(jax.random.fold_in(key, 2), 1), p_alone
+    )
     for i in range(4):
         k = jax.random.key(10 + i)
-        s_plain, _ = jax.jit(plain.step)(k, s_plain)
-        s_both, _ = jax.jit(both.step)(k, s_both)
+        s_plain, _ = jax.jit(plain.step)(k, s_plain, params)
+        s_both, _ = jax.jit(both.step)(k, s_both, params)
         keys = jax.random.split(jax.random.fold_in(k, 2), 1)
-        s_alone, _ = jax.jit(jax.vmap(alone.step))(keys, s_alone)
+        s_alone, _ = jax.jit(jax.vmap(alone.step, (0, 0, None)))(keys, s_alone, p_alone)
     for a, b in zip(jax.tree.leaves(s_plain.members), jax.tree.leaves(s_both.members[:2])):
         np.testing.assert_array_equal(a, b)
     for a, b in zip(jax.tree.leaves(s_alone), jax.tree.leaves(s_both.members[2])):
@@ -227,13 +231,18 @@ def test_explore_search_leaves_the_others_unchanged_and_uses_its_rate():
     assert int(s_both.members[2].progress.injections.sum()) > 0  # the rate was used
 
 
-def test_portfolio_follows_swept_env_params():
-    """``sweep.with_env_params`` (a grid over e.g. ``env.discount``) reaches every member."""
-    from cognet_jax.sweep import with_env_params
-
+def test_portfolio_is_a_pure_function_of_the_env_params():
+    """The env params are an argument of every member search: a step ``vmap``-ed over two
+    discounts equals the two steps run one at a time, and the discount changes the values."""
     env, params, settings = _portfolio(_file("dectiger"), 2)
-    algo = GDicePortfolio(env, params, settings, shared_restarts=1)
-    other = params.replace(discount=jnp.float32(0.5))
-    copy_ = with_env_params(algo, other)
-    assert all(m.env_params is other for m in copy_.members)
-    assert all(m.env_params is params for m in algo.members)
+    algo = GDicePortfolio(env, settings, shared_restarts=1)
+    other = params.replace(env=params.env.replace(discount=jnp.float32(0.5)))
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), params, other)
+    state = algo.init(jax.random.key(0), params)
+    key = jax.random.key(1)
+    batched, m = jax.jit(jax.vmap(algo.step, (None, None, 0)))(key, state, both)
+    for r, p in enumerate((params, other)):
+        alone, m_alone = jax.jit(algo.step)(key, state, p)
+        for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(batched)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b)[r], rtol=1e-6)
+    assert float(m.best_value[0]) != float(m.best_value[1])

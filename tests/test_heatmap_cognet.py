@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from cognet_jax.api import build_algorithm, build_env, make_train, seed_key
-from cognet_jax.config import ConfigError, config_from_dict
+from cognet_jax.config import ConfigError
 from cognet_jax.envs.heatmap import START_RANGES
 from cognet_jax.observations import ObservationPipeline, trained_vae
+from cognet_jax.registry import config_from_dict
 
 
 def heatmap_config(env=None, network=None, algorithm=None, **sections):
@@ -106,10 +107,10 @@ def test_vae_pipelines_need_the_heatmap():
 
 
 def test_encoded_controller_reads_the_encoder_mean():
-    algorithm = build_algorithm(encoded_config())
+    algorithm, params = build_algorithm(encoded_config())
     ctrl, pipe = algorithm.controller, algorithm.pipeline
     assert ctrl.obs_shape == (1,) and ctrl.in_features == 1
-    policy = algorithm.init(jax.random.key(0)).policy
+    policy = algorithm.init(jax.random.key(0), params).policy
     rng = np.random.default_rng(0)
     obs = jnp.asarray(rng.uniform(0, 1, (2, 16)), jnp.float32)
     mu = pipe.vae.encode(obs)[0]
@@ -139,10 +140,11 @@ def test_encoded_controller_reads_the_encoder_mean():
 
 
 def test_raw_pipeline_keeps_patches_and_hidden_size():
-    algorithm = build_algorithm(heatmap_config(network={"hidden": 12}))
+    algorithm, params = build_algorithm(heatmap_config(network={"hidden": 12}))
     assert algorithm.pipeline.is_identity and algorithm.pipeline.vae is None
     assert algorithm.controller.obs_shape == (16,) and algorithm.controller.features is None
-    kernel = algorithm.init(jax.random.key(0)).policy.net_params["params"]["Dense_0"]["kernel"]
+    state = algorithm.init(jax.random.key(0), params)
+    kernel = state.policy.net_params["params"]["Dense_0"]["kernel"]
     assert kernel.shape == (2, 4, 16, 12)
 
 
@@ -217,8 +219,8 @@ def test_augmentation_changes_training_not_rollouts():
         network={**FAST_VAE, "observation": "encoded", "augment": True, "augment_samples": 2},
         algorithm=one,
     )
-    assert build_algorithm(aug).pipeline.augment_samples == 2
-    assert build_algorithm(plain).pipeline.augment_samples == 0
+    assert build_algorithm(aug)[0].pipeline.augment_samples == 2
+    assert build_algorithm(plain)[0].pipeline.augment_samples == 0
     (s0, m0), (s1, m1) = (jax.jit(make_train(c))(seed_key(c, 0)) for c in (plain, aug))
     # same rollouts and selection in iteration 1 -> same action distributions ...
     np.testing.assert_array_equal(
@@ -244,7 +246,7 @@ def test_augmentation_changes_training_not_rollouts():
     ],
 )
 def test_builtin_heatmap_experiments(name, nodes, observation, hidden):
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
 
     c = load_config(name)
     assert (c.env.name, c.env.start, c.env.horizon) == ("heatmap", "thesis", 4)
@@ -270,7 +272,7 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     import json
 
     from cognet_jax.cli import main
-    from cognet_jax.runner import load_policy
+    from cognet_jax.driver import load_run
 
     out = tmp_path / "run"
     small = [
@@ -297,8 +299,9 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     assert "env.obs_noise_std=0.2" in capsys.readouterr().out
     # same evaluation seed: the noise is the only difference, and it changes the value
     assert values[0.0]["mean"] != values[0.2]["mean"]
-    config, algorithm, _ = load_policy(out, ["env.obs_noise_std=0.2", "network.vae_seed=9"])
-    assert float(algorithm.env_params.obs_noise_std) == pytest.approx(0.2)
+    run = load_run(out, ["env.obs_noise_std=0.2", "network.vae_seed=9"])
+    algorithm = run.algorithm
+    assert float(run.params.env.obs_noise_std) == pytest.approx(0.2)
     # the run's own VAE file is used, whatever the VAE settings say
     saved = trained_vae(0, 8)
     for a, b in zip(jax.tree.leaves(algorithm.pipeline.vae.params), jax.tree.leaves(saved.params)):

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper
 from cognet_jax.algorithms.gdice import GDice, GDiceSettings
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.exact import exact_value
@@ -108,21 +109,23 @@ def test_large_file_parses_quickly_and_exactly(large):
 def test_large_model_builds_and_short_gdice_run_is_finite(large):
     _, model, _, _ = large
     horizon = 6
-    env, params = make_tabular(model, horizon)
-    assert params.transition.shape == (S, JA, S) and params.observation.shape == (JA, S, JO)
+    env, env_params = make_tabular(model, horizon)
+    assert env_params.transition.shape == (S, JA, S)
+    assert env_params.observation.shape == (JA, S, JO)
     settings = GDiceSettings(nodes=3, iterations=3, samples=16, elites=4, eval_rollouts=16)
-    algo = GDice(env, params, settings)
+    algo = GDice(env, settings)
+    params = SearchParams(env_params, ThresholdHyper())
     step = jax.jit(algo.step)
-    state = algo.init(jax.random.key(0))
+    state = algo.init(jax.random.key(0), params)
     for i in range(settings.iterations):
-        state, m = step(jax.random.key(10 + i), state)
+        state, m = step(jax.random.key(10 + i), state, params)
         assert np.isfinite(float(m.value)) and np.isfinite(float(m.mean_value))
         # the first iteration keeps N_b elites (V_w = -inf); later ones may keep none
         assert int(m.kept) == settings.elites if i == 0 else 0 <= int(m.kept) <= settings.elites
     assert np.isfinite(float(state.progress.best_value))
     best = jax.device_get(state.best_policy)
-    returns = jax.jit(algo.policy_returns, static_argnums=(2, 3))(
-        jax.random.key(99), state.best_policy, 4000, 4000
+    returns = jax.jit(lambda k, p: algo.returns(k, p, 4000, params, 4000))(
+        jax.random.key(99), state.best_policy
     )
     mean = float(jnp.mean(returns))
     stderr = float(jnp.std(returns) / np.sqrt(returns.size))

@@ -14,28 +14,33 @@ from cognet_jax import memory
 from cognet_jax.algorithms.cognet_dice import NeuralPolicy
 from cognet_jax.api import build_algorithm
 from cognet_jax.cli import main
-from cognet_jax.config import load_config
+from cognet_jax.registry import load_config
 from cognet_jax.rollout import evaluate_candidates, rollouts
 from tests.test_cli_errors import one_line_error, sets
 
 
 def candidates_of(name, overrides=(), count=13):
-    alg = build_algorithm(load_config(name, list(overrides)))
-    state = alg.init(jax.random.key(0))
+    alg, params = build_algorithm(load_config(name, list(overrides)))
+    state = alg.init(jax.random.key(0), params)
     policies = alg.sample_policies(jax.random.key(1), state.distribution)
     policies = getattr(policies, "policy", policies)  # COG-DICE: the sample's policy
-    return alg, jax.tree.map(lambda x: x[:count], policies)
+    return alg, params.env, jax.tree.map(lambda x: x[:count], policies)
+
+
+def run_of(env, ctrl):
+    """The rollout function ``memory`` measures (as ``rollout.evaluate_candidates`` passes)."""
+    return lambda k, p, n, e: rollouts(env, ctrl, k, n, e, p)
 
 
 @pytest.mark.parametrize("crn", [True, False])
 def test_chunked_candidates_equal_unchunked(crn):
-    alg, policies = candidates_of("tagging-thesis-cogdice-n3")
-    env, ctrl, params, num = alg.env, alg.controller, alg.env_params, 200
+    alg, params, policies = candidates_of("tagging-thesis-cogdice-n3")
+    env, ctrl, num = alg.env, alg.controller, 200
     one = jax.tree.map(lambda x: x[0], policies)
-    per_rollout = memory.rollout_bytes(env, ctrl, params, one)
+    per_rollout = memory.rollout_bytes(run_of(env, ctrl), params, one)
     budget = int(3.5 * num * per_rollout)  # three candidates at once: chunks 3,3,3,3 + 1
 
-    assert memory.candidate_chunk(env, ctrl, params, one, 13, num, budget) == 3
+    assert memory.candidate_chunk(run_of(env, ctrl), params, one, 13, num, budget) == 3
 
     def values(mem):
         fn = lambda k, p: evaluate_candidates(  # noqa: E731
@@ -61,8 +66,8 @@ def test_chunked_candidates_equal_unchunked(crn):
 
 def test_shared_network_candidates_are_chunked_too():
     """COGNet-DICE's candidates batch only the action tables (``policy_axes``)."""
-    alg = build_algorithm(load_config("tagging-thesis-spec-n3"))
-    policy = alg.init(jax.random.key(0)).policy
+    alg, search_params = build_algorithm(load_config("tagging-thesis-spec-n3"))
+    policy = alg.init(jax.random.key(0), search_params).policy
     probs = jax.random.dirichlet(
         jax.random.key(2),
         jnp.ones(policy.action_probs.shape[-1]),
@@ -70,9 +75,9 @@ def test_shared_network_candidates_are_chunked_too():
     )
     cands = policy.replace(action_probs=probs)
     axes = NeuralPolicy(action_probs=0, net_params=None)
-    env, ctrl, params = alg.env, alg.controller, alg.env_params
+    env, ctrl, params = alg.env, alg.controller, search_params.env
     one = policy.replace(action_probs=probs[0])
-    budget = int(2.5 * 100 * memory.rollout_bytes(env, ctrl, params, one))
+    budget = int(2.5 * 100 * memory.rollout_bytes(run_of(env, ctrl), params, one))
 
     def values(mem):
         return evaluate_candidates(
@@ -83,10 +88,10 @@ def test_shared_network_candidates_are_chunked_too():
 
 
 def test_one_candidate_over_the_budget_is_refused_with_the_numbers():
-    alg, policies = candidates_of("tagging-thesis-cogdice-n3")
+    alg, params, policies = candidates_of("tagging-thesis-cogdice-n3")
     with pytest.raises(memory.ResourceError) as err:
         evaluate_candidates(
-            alg.env, alg.controller, jax.random.key(0), 10_000, alg.env_params, policies, memory=1e5
+            alg.env, alg.controller, jax.random.key(0), 10_000, params, policies, memory=1e5
         )
     line = str(err.value)
     assert "algorithm.eval_rollouts: 10000 rollouts" in line and "run.memory_gb" in line

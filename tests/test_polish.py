@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from shared_files import dpomdp_file as _file
 
+from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper
 from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
 from cognet_jax.algorithms.polish import apply_move, neighbour_moves
 from cognet_jax.controllers.tabular import TabularController
@@ -46,20 +47,20 @@ def test_apply_move_changes_exactly_one_entry_or_every_agents():
 
 def _search(name: str, horizon: int, **kw):
     model = parse_dpomdp(_file(name), discount=1.0)
-    env, params = make_tabular(model, horizon)
+    env, env_params = make_tabular(model, horizon)
     settings = GDiceSettings(
         nodes=2, iterations=3, samples=32, elites=4, evaluator="exact", layered=True, **kw
     )
-    return model, env, params, settings
+    return model, env, SearchParams(env_params, ThresholdHyper()), settings
 
 
 def test_polish_reaches_a_local_optimum_and_reports_its_exact_value():
     """From a poor controller, polish climbs to one that no single move improves; the value
     it reports is the float64 exact value of the policy it returns."""
     model, env, params, settings = _search("dectiger", 3, polish_sweeps=50)
-    algo = GDice(env, params, settings)
-    state = algo.init(jax.random.key(1))  # a random controller, never searched
-    state, info = jax.jit(algo.finish)(state)
+    algo = GDice(env, settings)
+    state = algo.init(jax.random.key(1), params)  # a random controller, never searched
+    state, info = jax.jit(algo.finish)(state, params)
     best = jax.device_get(state.best_policy)
     value = exact_numpy(model, best.actions, best.transitions, 3, 1.0)
     assert float(info.after) == pytest.approx(value, abs=1e-4)
@@ -67,44 +68,48 @@ def test_polish_reaches_a_local_optimum_and_reports_its_exact_value():
     assert int(info.moves_applied) < 50  # stopped because nothing improves, not by the limit
     moves = neighbour_moves(algo.controller, env.action_counts, env.obs_counts, True)
     neighbours = jax.vmap(lambda m: apply_move(state.best_policy, m))(moves)
-    assert float(np.max(algo.exact_values(neighbours))) <= value + 1e-4
+    assert float(np.max(algo.exact_values(neighbours, params))) <= value + 1e-4
 
 
 def test_polish_off_by_default_and_with_rollout_values():
     _, env, params, settings = _search("dectiger", 3)
-    assert not GDice(env, params, settings).polishes
+    assert not GDice(env, settings).polishes
     rollouts = dataclasses.replace(settings, polish_sweeps=5, evaluator="rollouts")
-    algo = GDice(env, params, rollouts)
-    state = algo.init(jax.random.key(0))
-    assert algo.finish(state) == (state, None)
+    algo = GDice(env, rollouts)
+    state = algo.init(jax.random.key(0), params)
+    assert algo.finish(state, params) == (state, None)
 
 
 def test_portfolio_polish_never_lowers_the_best_value():
     _, env, params, settings = _search("dectiger", 3, polish_sweeps=3)
-    algo = GDicePortfolio(env, params, settings, shared_restarts=1)
-    state = algo.init(jax.random.key(2))
-    state, _ = jax.jit(algo.step)(jax.random.key(3), state)
+    algo = GDicePortfolio(env, settings, shared_restarts=1)
+    state = algo.init(jax.random.key(2), params)
+    state, _ = jax.jit(algo.step)(jax.random.key(3), state, params)
     before = float(state.progress.best_value)
     # what each member search's best polishes to on its own
     search = algo.members[0]
     alone = [
-        float(search.polish_best(jax.tree.map(lambda x, i=i: x[i], m.best_policy), -jnp.inf)[1])
+        float(
+            search.polish_best(jax.tree.map(lambda x, i=i: x[i], m.best_policy), -jnp.inf, params)[
+                1
+            ]
+        )
         for m in state.members
         for i in range(m.progress.best_value.shape[0])
     ]
-    finished, info = jax.jit(algo.finish)(state)
+    finished, info = jax.jit(algo.finish)(state, params)
     value = float(finished.progress.best_value)
     assert value >= before - 1e-6
     assert int(info.moves_applied) <= 3 and info.moves_per_sweep == len(search.polish_moves())
     # the kept policy is the best polished one, and its exact value is the reported one
     assert value == pytest.approx(max(max(alone), before), abs=1e-5)
-    exact = float(search.exact_values(jax.tree.map(lambda x: x[None], finished.best_policy))[0])
+    exact = float(search.exact_value_of(finished.best_policy, params))
     assert exact == pytest.approx(value, abs=1e-5)
 
 
 def test_train_and_sweep_record_the_polish(tmp_path):
-    from cognet_jax.config import load_config
-    from cognet_jax.runner import run_training
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
     from cognet_jax.sweep import run_sweep
 
     sets = [
@@ -117,7 +122,7 @@ def test_train_and_sweep_record_the_polish(tmp_path):
         "run.plots=false",
         "evaluation.rollouts=1000",
     ]
-    run_training(load_config("gdice-dpomdp", sets), 0, tmp_path / "train", log=lambda *_: None)
+    train(load_config("gdice-dpomdp", sets), 0, tmp_path / "train", log=lambda *_: None)
     results = json.loads((tmp_path / "train" / "results.json").read_text())
     polish = results["polish"]
     assert polish["value_after"] >= polish["value_before"] - 1e-6

@@ -8,9 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cognet_jax.config import ConfigError, load_config
+from cognet_jax.config import ConfigError
+from cognet_jax.driver import train
 from cognet_jax.prng import THREEFRY_IMPL, fast_key, make_key
-from cognet_jax.runner import run_training
+from cognet_jax.registry import load_config
 
 N = 1_000_000
 
@@ -101,7 +102,7 @@ def test_search_with_hash_is_deterministic_and_as_good(tmp_path):
     for impl in ("threefry2x32", "hash", "hash"):
         config = load_config("tagging-paper-gdice-d2", [*sets, f'run.prng_impl="{impl}"'])
         out = tmp_path / f"{impl}-{len(finals)}"
-        result = run_training(config, 0, out, log=lambda *_: None)
+        result = train(config, 0, out, log=lambda *_: None)
         finals.setdefault(impl, []).append(result)
     a, b = finals["hash"]
     assert a["final_value"] == b["final_value"]

@@ -13,7 +13,8 @@ import pytest
 from shared_files import dpomdp_file
 
 import cognet_jax
-from cognet_jax.config import ConfigError, config_from_dict
+from cognet_jax.config import ConfigError
+from cognet_jax.registry import config_from_dict
 
 
 def test_builtin_names():
@@ -38,8 +39,9 @@ def test_make_env_validates_like_a_config_file():
 
 def test_make_algorithm_settings_and_errors():
     env, params = cognet_jax.make_env("tagging")
-    algo = cognet_jax.make_algorithm("cogdice", env, params, samples=50, elites=5)
+    algo, search_params = cognet_jax.make_algorithm("cogdice", env, params, samples=50, elites=5)
     assert (algo.settings.samples, algo.settings.elites) == (50, 5)
+    assert search_params.env is params and float(search_params.hyper.alpha) == 0.1
     with pytest.raises(ConfigError, match=r"algorithm.elites"):
         cognet_jax.make_algorithm("cogdice", env, params, samples=5, elites=50)
     # G-DICE on a continuous simulator object: refused on env.name, not deep inside JAX
@@ -81,14 +83,14 @@ def seek():
 def test_readme_user_simulator_is_planned(seek):
     from cognet_jax.controllers.regions import DeterministicRegionPolicy
 
-    algo, env, params = seek["algo"], seek["env"], seek["params"]
+    algo, env, params, search = seek["algo"], seek["env"], seek["params"], seek["search"]
     # baseline: every agent stays where it starts (only a start near the goal pays)
     stay = DeterministicRegionPolicy(
         actions=jnp.ones((2, 3), jnp.int32),
         points=jnp.tile(jnp.array([-1.0, 1.0]), (2, 3, 1)),
         transitions=jnp.zeros((2, 3, 3), jnp.int32),
     )
-    stay_value = float(algo.policy_returns(jax.random.key(2), stay, 10_000).mean())
+    stay_value = float(algo.returns(jax.random.key(2), stay, 10_000, search).mean())
     value = float(seek["value"])
     assert value > stay_value + 2.0 and value > 0, (value, stay_value)
     # the found controller runs through controller_step on the simulator's observations
@@ -109,9 +111,10 @@ def test_registered_simulator_in_a_config_file(seek, tmp_path):
             "algorithm": {"samples": 20, "elites": 2, "eval_rollouts": 5, "iterations": 2},
         }
     )
-    algo = cognet_jax.build_algorithm(config)
-    assert float(algo.env_params.noise) == 0.0
-    state, metrics = jax.jit(algo.step)(jax.random.key(0), algo.init(jax.random.key(1)))
+    algo, params = cognet_jax.build_algorithm(config)
+    assert float(params.env.noise) == 0.0
+    state = algo.init(jax.random.key(1), params)
+    state, metrics = jax.jit(algo.step)(jax.random.key(0), state, params)
     assert np.isfinite(float(metrics.value))
     with pytest.raises(ConfigError, match=r"env.noise"):
         config_from_dict({"env": {"name": "seek", "noise": "loud"}})
@@ -120,7 +123,7 @@ def test_registered_simulator_in_a_config_file(seek, tmp_path):
 def test_make_env_for_gdice_and_tabular_files():
     env, _ = cognet_jax.make_env("tagging", algorithm="gdice", obs_division=2.0)
     assert env.obs_index and env.num_obs == 11
-    algo = cognet_jax.make_algorithm("gdice", env, _, samples=20, elites=2, nodes=3)
+    algo, _ = cognet_jax.make_algorithm("gdice", env, _, samples=20, elites=2, nodes=3)
     assert algo.controller.num_obs == 11
     dpomdp = dpomdp_file("dectiger")
     env, params = cognet_jax.make_env("dpomdp", path=str(dpomdp), horizon=4)
@@ -130,7 +133,7 @@ def test_make_env_for_gdice_and_tabular_files():
 
 
 def test_references_come_from_the_registry():
-    from cognet_jax.config import load_config
+    from cognet_jax.registry import load_config
     from cognet_jax.reporting import references_for
 
     assert references_for(load_config("heatmap-2d-spec-n4", ['env.start="thesis"']))[
@@ -153,7 +156,13 @@ def test_builtin_registration_does_not_replace_a_user_entry():
         registry.register_env("heatmap", Mine, lambda s, c: None)
         import cognet_jax.envs.heatmap as heatmap_module
 
-        heatmap_module._register()  # what importing the module runs
+        # what importing the module runs
+        registry.register_env(
+            "heatmap",
+            heatmap_module.HeatmapSection,
+            heatmap_module.build_from_section,
+            overwrite=False,
+        )
         assert registry.env_entry("heatmap").section is Mine
     finally:
         registry._ENVS.clear()
@@ -238,3 +247,134 @@ def test_readme_states_the_user_simulator_module_size():
     block = _readme_block("### Your own simulator")
     upto = block[: block.index("\n", block.index("register_env("))]
     assert stated == len(upto.splitlines())
+
+
+TOY_ALGORITHM = '''
+"""A toy search, registered by a user: keep the best of uniformly random region controllers.
+One module and one register call; nothing in cognet_jax is edited."""
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import cognet_jax
+from cognet_jax.algorithms.cross_entropy import Progress, select_tree
+from cognet_jax.algorithms.engine import Search, SearchMetrics, streams
+from cognet_jax.config import require, require_positive
+from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
+
+
+@dataclasses.dataclass
+class RandomSection:
+    nodes: int = 2
+    iterations: int = 4
+    samples: int = 20
+    eval_rollouts: int = 8
+    best_rollouts: int = 0
+    common_random_numbers: bool = True
+
+    def check(self, config):
+        require_positive(self, "algorithm", "nodes", "iterations", "samples", "eval_rollouts")
+        require(self.samples <= 10_000, "algorithm.samples", "a toy: at most 10000")
+
+
+@struct.dataclass
+class RandomState:
+    best_policy: DeterministicRegionPolicy
+    progress: Progress
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RandomRegions(Search):
+    def __post_init__(self):
+        env = self.env
+        self._set(controller=RegionController(env.num_agents, self.settings.nodes, 2))
+
+    def _draw(self, key, num):
+        a, n = self.env.num_agents, self.settings.nodes
+        k_a, k_p, k_t = jax.random.split(key, 3)
+        low, high = self.env.obs_range
+        return DeterministicRegionPolicy(
+            actions=jax.random.randint(k_a, (num, a, n), 0, self.env.num_actions),
+            points=jax.random.uniform(k_p, (num, a, n, 1), minval=low, maxval=high),
+            transitions=jax.random.randint(k_t, (num, a, n, 2), 0, n),
+        )
+
+    def init(self, key, params):
+        first = jax.tree.map(lambda x: x[0], self._draw(key, 1))
+        return RandomState(first, Progress.create())
+
+    @property
+    def rollouts_per_iteration(self):
+        return self.settings.samples * self.settings.eval_rollouts
+
+    def ask(self, key, state, params):
+        policies = self._draw(streams(key).sample, self.settings.samples)
+        return policies, policies
+
+    def tell(self, key, state, samples, values, params, *, fresh_value=None):
+        i = jnp.argmax(values)
+        progress, improved = state.progress.record(values[i])
+        winner = jax.tree.map(lambda x: x[i], samples)
+        best = select_tree(improved, winner, state.best_policy)
+        metrics = SearchMetrics(
+            value=values[i],
+            best_value=progress.best_value,
+            mean_value=values.mean(),
+            threshold=values[i],
+            kept=jnp.int32(1),
+            injected=jnp.bool_(False),
+        )
+        return RandomState(best, progress), metrics
+
+
+def build(config, env, env_params, memory):
+    return RandomRegions(env, config.algorithm, memory)
+
+
+cognet_jax.register_algorithm("random-regions", RandomSection, build)
+'''
+
+
+def test_a_toy_algorithm_is_one_module_and_one_register_call(tmp_path, capsys):
+    """A user's algorithm, registered from its own module: its section validates itself, the
+    command line trains it through the driver, ``evaluate`` reproduces its value, and
+    ``make_train`` returns the policy the command line wrote."""
+    import json
+
+    from cognet_jax.cli import main
+
+    module = tmp_path / "toy_search.py"
+    module.write_text(TOY_ALGORITHM)
+    toml = tmp_path / "toy.toml"
+    toml.write_text(
+        '[experiment]\nalgorithm = "random-regions"\n[algorithm]\nsamples = 40\n'
+        "[evaluation]\nrollouts = 300\n[run]\nplots = false\n"
+    )
+    out = tmp_path / "run"
+    args = ["train", str(toml), "--import", str(module), "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["algorithm"] == "random-regions" and results["iterations"] == 4
+    assert results["final_value"]["mean"] > -30  # better than always tagging (-40 per step)
+    assert main(["evaluate", str(out), "--import", str(module)]) == 0
+    logged = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
+    assert logged["mean"] == results["final_value"]["mean"]
+    # the section checks itself, naming the field (the module is imported in this process)
+    assert main(["train", str(toml), "--import", str(module), "--set", "algorithm.samples=0"]) == 2
+    assert "algorithm.samples" in capsys.readouterr().err
+    config = cognet_jax.load_config(str(toml), ["run.progress=false"])
+    state, _ = jax.jit(cognet_jax.make_train(config))(cognet_jax.seed_key(config, 0))
+    saved = json.loads((out / "results.json").read_text())["seed"]
+    assert saved == 0
+    from flax.serialization import msgpack_restore
+
+    raw = msgpack_restore((out / "policy.msgpack").read_bytes())
+    leaves = jax.tree.leaves(msgpack_restore(raw["policy"]))
+    for a, b in zip(jax.tree.leaves(state.best_policy), leaves, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # nothing in config.py or api.py names it
+    package = Path(cognet_jax.__file__).parent
+    for name in ("config.py", "api.py"):
+        assert "random-regions" not in (package / name).read_text()

@@ -24,20 +24,20 @@ SMALL = [
 SCRIPT = """
 import json, sys
 import jax
-from cognet_jax.config import load_config
-from cognet_jax.runner import run_training
+from cognet_jax.driver import rollout_mesh, train
+from cognet_jax.registry import load_config
 assert jax.local_device_count() == 2, jax.local_devices()
 out, sets = sys.argv[1], sys.argv[2:]
 for shard in ("false", "true"):
     config = load_config("tagging-thesis-spec-n3", sets + [f"run.shard_rollouts={shard}"])
-    run_training(config, 0, f"{out}/{shard}", log=lambda *_: None)
+    train(config, 0, f"{out}/{shard}", log=lambda *_: None)
 # the sharded step really is partitioned over both devices
 from cognet_jax.api import make_step, seed_key, split_seed_key
-from cognet_jax.runner import rollout_mesh
 k_init, k_run, _ = split_seed_key(seed_key(config, 0))
 with rollout_mesh(config):
-    _, init, step = make_step(config)
-    text = jax.jit(step).lower(k_run, init(k_init)).compile().as_text()
+    algorithm, params, step = make_step(config)
+    state = algorithm.init(k_init, params)
+    text = jax.jit(lambda k, s: step(k, s, params)).lower(k_run, state).compile().as_text()
 assert "num_partitions=2" in text, "step not partitioned"
 """
 

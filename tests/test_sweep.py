@@ -18,8 +18,9 @@ from flax.serialization import msgpack_restore
 
 from cognet_jax.checkpoint import read_checkpoint
 from cognet_jax.cli import main
-from cognet_jax.config import ConfigError, load_config
-from cognet_jax.runner import run_training
+from cognet_jax.config import ConfigError
+from cognet_jax.driver import train as run_training
+from cognet_jax.registry import load_config
 from cognet_jax.sweep import assign_runs, parse_grid, plan
 
 ROOT = Path(__file__).parents[1]
@@ -253,14 +254,16 @@ def _start_until_checkpoint(out, every):
     return proc, ckpt
 
 
-def test_sigint_then_resume_is_identical(tiny_reference, tmp_path):
-    """Ctrl-C mid-sweep leaves a checkpoint of every run's state; --resume finishes the sweep
-    with exactly the numbers of an uninterrupted sweep."""
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_then_resume_is_identical(tiny_reference, tmp_path, sig):
+    """Ctrl-C (or SIGTERM) mid-sweep leaves a checkpoint of every run's state and exits with
+    128 + the signal, as ``train`` does; --resume finishes the sweep with exactly the numbers
+    of an uninterrupted sweep."""
     out, reference = tmp_path / "cut", tiny_reference
     proc, ckpt = _start_until_checkpoint(out, 10)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + sig, err
     assert "interrupted at iteration" in err and f"--resume {out}" in err
     raw = read_checkpoint(ckpt)
     assert 10 <= raw["iteration"] < 300

@@ -216,8 +216,8 @@ def test_network_training_matches_jax_and_loop():
     from cognet_jax.rollout import Trajectory
 
     nodes, hidden, steps, lr, kept = 4, 5, 3, 0.05, 3
-    env, params = jax_make_tagging("thesis")
-    jalgo = CognetDice(env, params, JaxSettings(nodes=nodes, hidden=hidden, train_steps=steps))
+    env, _ = jax_make_tagging("thesis")
+    jalgo = CognetDice(env, JaxSettings(nodes=nodes, hidden=hidden, train_steps=steps))
     settings = CognetSettings(nodes=nodes, hidden=hidden, train_steps=steps)
     vec, loop = TorchCognetVectorized(settings, seed=3), TorchCognetLoop(settings)
     with torch.no_grad():  # the loop modules get the vectorised reference's weights

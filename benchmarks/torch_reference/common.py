@@ -3,7 +3,9 @@
 Field names follow ``cognet_jax.algorithms.cognet_dice.CognetSettings`` / ``CognetHyper`` and
 ``cognet_jax.algorithms.cross_entropy.EntropyConfig`` / ``Progress``, so a cognet_jax settings
 object can be passed as is (``as_settings`` / ``as_hyper`` copy the fields by name); the
-settings are read from cognet_jax's config declarations (``cognet_jax.config``, no JAX).
+settings are read from cognet_jax's config declarations (the algorithm's section in
+``cognet_jax.algorithms.cognet_dice``; importing it loads JAX's Python modules, but no torch
+code calls JAX).
 """
 
 from __future__ import annotations
@@ -12,12 +14,9 @@ import dataclasses
 import math
 import statistics
 
-from cognet_jax.config import (
-    ENTROPY_SECTION_FIELDS,
-    CognetAlgorithmSection,
-    NetworkSection,
-    settings_class,
-)
+from cognet_jax.algorithms.cognet_dice import CognetThesisSection
+from cognet_jax.algorithms.cross_entropy import ENTROPY_SECTION_FIELDS
+from cognet_jax.config import NetworkSection, settings_class
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,11 +39,11 @@ class CognetHyper:
 
 
 #: Structural settings: the fields and defaults of cognet_jax's ``CognetSettings`` (declared in
-#: ``cognet_jax.config.CognetAlgorithmSection`` and ``NetworkSection``) that this reference
-#: implements; it has no ``train_on="top"`` and no fresh re-evaluation (``best_rollouts``).
+#: ``cognet_dice.CognetThesisSection`` and ``NetworkSection``) that this reference implements;
+#: it has no ``train_on="top"`` and no fresh re-evaluation (``best_rollouts``).
 CognetSettings = settings_class(
     "CognetSettings",
-    CognetAlgorithmSection,
+    CognetThesisSection,
     exclude=("alpha", *ENTROPY_SECTION_FIELDS, "train_on", "best_rollouts"),
     extra=tuple(
         (NetworkSection, name) for name in ("hidden", "train_steps", "optimizer", "momentum")

@@ -138,29 +138,17 @@ def _merge_layer(acts, children, reach, width: int):
     return jax.lax.fori_loop(0, u_count, assign, start)
 
 
-def best_response(
-    env: TabularEnv,
-    params: TabularParams,
-    policy: DeterministicTabularPolicy,
-    width: int,
-    agent: int,
-) -> tuple[DeterministicTabularPolicy, jax.Array, jax.Array]:
-    """``agent``'s exact best response to the others' rows of the layered ``policy``
-    (``actions [agents, horizon * width]``, ``transitions [agents, horizon * width, obs]``),
-    written into its rows. Returns ``(policy, value, fits)``: ``value`` ``[]`` is the best
-    tree's exact return (float32); when ``fits`` is False the response needs more than
-    ``width`` nodes in some layer and ``policy`` is returned unchanged. jit-able."""
-    h = env.horizon
+def _path_expansion(env: TabularEnv, params: TabularParams, tables, agent: int):
+    """``expand(t, belief)``: one history's ``belief [S, r]`` at step t -> its immediate
+    rewards ``[A]`` and its children's beliefs ``[A, Z, S, r]`` (``None`` at the last step)."""
+    ja, nxt, own_obs, r_count = tables
+    h, s_count = env.horizon, env.num_states
     a_count, z_count = env.action_counts[agent], env.obs_counts[agent]
-    ja, nxt, own_obs, r_count = _other_tables(env, policy, width, agent)
     gamma = jnp.asarray(params.discount, jnp.float32)
-    s_count = env.num_states
     # joint observation -> the agent's child slot z * r + r' (per others' node r)
     slot = own_obs * r_count + nxt  # [h, r, JO]
 
     def expand(t, belief):
-        """One path's ``belief [S, r]`` -> immediate rewards ``[A]`` and children
-        ``[A, Z, S, r]``."""
         ja_t = ja[t]  # [r, A]
         rew = params.reward[:, ja_t]  # [S, r, A]
         imm = jnp.einsum("sr,sra->a", belief, rew) * gamma**t
@@ -178,6 +166,17 @@ def best_response(
         child = child.at[:, :, seg].add(joint)
         child = child.reshape(a_count, s_count, z_count, r_count)
         return imm, jnp.moveaxis(child, 2, 1)  # [A, Z, S, r]
+
+    return expand
+
+
+def _forward(env: TabularEnv, params: TabularParams, tables, agent: int):
+    """Step 1 of the module docstring: ``(immediate, masses)``, per step t the immediate
+    rewards ``[P_t, A]`` and the probabilities ``[P_t]`` of the agent's ``P_t`` histories (the
+    last step's beliefs are reduced as they are made)."""
+    h, s_count, r_count = env.horizon, env.num_states, tables[3]
+    a_count = env.action_counts[agent]
+    expand = _path_expansion(env, params, tables, agent)
 
     def expand_last(t, belief):
         """Step ``h - 2``: immediate rewards ``[A]``, the children's ``[A, Z, A]`` and the
@@ -204,8 +203,14 @@ def best_response(
         imm, kids = jax.lax.map(lambda b, t=t: expand(t, b), beliefs, batch_size=PATH_BATCH)
         immediate.append(imm)  # [P, A]
         beliefs = kids.reshape(-1, s_count, r_count)  # [P * A * Z, S, r]
+    return immediate, masses
 
-    # backward: best action per path
+
+def _best_tree(immediate, masses, a_count: int, z_count: int):
+    """Step 2: ``(value [], acts, reach)`` -- the best tree's value and, per layer t, the action
+    ``[Z^t]`` and whether it is reached ``[Z^t]`` for each of the agent's observation
+    histories."""
+    h = len(immediate)
     best_action = [None] * h
     value = None
     for t in reversed(range(h)):
@@ -214,9 +219,6 @@ def best_response(
             q = q + value.reshape(q.shape[0], a_count, z_count).sum(-1)
         best_action[t] = jnp.argmax(q, axis=1).astype(jnp.int32)
         value = jnp.max(q, axis=1)
-    best_value = value[0]
-
-    # the best tree: per layer, the path and action of every observation history
     paths = [jnp.zeros((1,), jnp.int32)]
     for t in range(h - 1):
         p = paths[-1]
@@ -224,7 +226,12 @@ def best_response(
         paths.append(nxt_p.reshape(-1))
     acts = [best_action[t][paths[t]] for t in range(h)]
     reach = [masses[t][paths[t]] > 0 for t in range(h)]
+    return value[0], acts, reach
 
+
+def _compress(policy, agent: int, acts, reach, width: int, z_count: int):
+    """Step 3: the best tree written into ``agent``'s layers; ``(policy, fits)``."""
+    h = len(acts)
     rows_a, rows_t = policy.actions[agent], policy.transitions[agent]
     fits = jnp.bool_(True)
     child_cls = None
@@ -252,5 +259,25 @@ def best_response(
         actions=policy.actions.at[agent].set(rows_a.astype(policy.actions.dtype)),
         transitions=policy.transitions.at[agent].set(rows_t.astype(policy.transitions.dtype)),
     )
+    return new, fits
+
+
+def best_response(
+    env: TabularEnv,
+    params: TabularParams,
+    policy: DeterministicTabularPolicy,
+    width: int,
+    agent: int,
+) -> tuple[DeterministicTabularPolicy, jax.Array, jax.Array]:
+    """``agent``'s exact best response to the others' rows of the layered ``policy``
+    (``actions [agents, horizon * width]``, ``transitions [agents, horizon * width, obs]``),
+    written into its rows. Returns ``(policy, value, fits)``: ``value`` ``[]`` is the best
+    tree's exact return (float32); when ``fits`` is False the response needs more than
+    ``width`` nodes in some layer and ``policy`` is returned unchanged. jit-able."""
+    a_count, z_count = env.action_counts[agent], env.obs_counts[agent]
+    tables = _other_tables(env, policy, width, agent)
+    immediate, masses = _forward(env, params, tables, agent)
+    best_value, acts, reach = _best_tree(immediate, masses, a_count, z_count)
+    new, fits = _compress(policy, agent, acts, reach, width, z_count)
     out = jax.tree.map(lambda x, y: jnp.where(fits, x, y), new, policy)
     return out, best_value, fits

@@ -15,7 +15,8 @@ Search distribution per agent (``RegionDistribution``), all agents stacked:
   point *slot* l of node q (``[..., 0]`` = alpha, ``[..., 1]`` = beta), Beta(1, 1) at the start.
   A draw x is mapped affinely to the observation range: ``low + (high - low) * x``.
 
-One iteration (``CogDice.step``, compiled once), values are discounted returns to **maximise**:
+One iteration (``CogDice.step``, compiled once; the protocol of ``algorithms.engine``), values
+are discounted returns to **maximise**:
 
 1. draw ``samples`` deterministic joint controllers in one block: one action per node,
    one next node per (node, region), every division point from its own Beta
@@ -73,25 +74,31 @@ Choices (**[choice]**):
 
 from __future__ import annotations
 
-import math
+import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
     ENTROPY_FIELDS,
+    ENTROPY_SECTION_FIELDS,
     Progress,
     count_table,
-    entropy_config,
     inject_entropy,
     smooth,
 )
-from cognet_jax.algorithms.engine import SearchMetrics, ThresholdHyper, ThresholdSearch
-from cognet_jax.config import ENTROPY_SECTION_FIELDS, CogDiceAlgorithmSection, settings_class
+from cognet_jax.algorithms.engine import (
+    SearchParams,
+    ThresholdHyper,
+    ThresholdSearch,
+    ThresholdSection,
+    threshold_hyper,
+)
+from cognet_jax.config import ConfigError, require, settings_class
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
+from cognet_jax.registry import fields_from, register_algorithm
 
 
 # --------------------------------------------------------------------------------------------
@@ -115,14 +122,44 @@ class RegionSample:
     unit_points: jax.Array  # [agents, nodes, regions - 1] float32 in [0, 1], unsorted
 
 
-#: dynamic (sweepable) hyper-parameters: the engine's, shared with G-DICE
-CogDiceHyper = ThresholdHyper
+@dataclasses.dataclass
+class CogDiceSection(ThresholdSection):
+    """``[algorithm]`` of COG-DICE (SPEC 4): the shared fields of ``ThresholdSection`` with the
+    paper's defaults, N_t ``regions``, the Beta fit clamp ``beta_eps`` and denominator floor
+    ``min_denominator``."""
+
+    nodes: int = 3
+    iterations: int = 500
+    samples: int = 2000
+    elites: int = 50
+    eval_rollouts: int = 1000
+    regions: int = 3
+    beta_eps: float = 1e-6
+    min_denominator: float = 1e-6
+
+    def check(self, config) -> None:
+        super().check(config)
+        require(
+            self.regions >= 2,
+            "algorithm.regions",
+            f"needs >= 2 regions (at least one division point), got {self.regions}",
+        )
+        require(
+            0.0 < self.beta_eps < 0.5,
+            "algorithm.beta_eps",
+            f"must be in (0, 0.5), got {self.beta_eps}",
+        )
+        require(
+            0.0 < self.min_denominator < 1.0,
+            "algorithm.min_denominator",
+            f"must be in (0, 1), got {self.min_denominator}",
+        )
 
 
-#: static settings: the fields of ``config.CogDiceAlgorithmSection`` (documented there) without
-#: the hyper-parameters (``CogDiceHyper``)
+#: static settings: the fields of ``CogDiceSection`` without the hyper-parameters
+#: (``ThresholdHyper``)
 CogDiceSettings = settings_class(
-    "CogDiceSettings", CogDiceAlgorithmSection, exclude=("alpha", *ENTROPY_SECTION_FIELDS)
+    "CogDiceSettings", CogDiceSection, exclude=("alpha", *ENTROPY_SECTION_FIELDS)
 )
 
 
@@ -131,10 +168,6 @@ class CogDiceState:
     distribution: RegionDistribution
     best_policy: DeterministicRegionPolicy
     progress: Progress
-
-
-#: an iteration's figures (the engine's, shared with G-DICE)
-CogDiceMetrics = SearchMetrics
 
 
 # --------------------------------------------------------------------------------------------
@@ -220,58 +253,28 @@ def refit_betas(
     return jnp.where(refit, alpha * fitted + (1.0 - alpha) * beta_params, beta_params)
 
 
-def region_graph_edges(points, transitions) -> list[tuple[int, int, list[tuple[float, float]]]]:
-    """Edges of one agent's deterministic region controller, for ``plots.plot_controller_graphs``.
-
-    ``points [nodes, regions - 1]`` sorted, ``transitions [nodes, regions]`` (plain numpy or JAX
-    arrays). Returns ``(src, dst, [(lo, hi), ...])`` sorted by ``(src, dst)``: the observation
-    intervals ``(lo, hi]`` (``-inf`` / ``inf`` at the ends) leading from ``src`` to ``dst``,
-    adjacent regions with the same ``dst`` merged, empty regions (equal points) left out -- the
-    same format as ``plots.controller_graph_edges`` but with the exact division points.
-    """
-    pts = np.asarray(points, dtype=float)
-    trans = np.asarray(transitions)
-    edges = []
-    for src in range(trans.shape[0]):
-        bounds = [-math.inf, *pts[src].tolist(), math.inf]
-        by_dst: dict[int, list[tuple[float, float]]] = {}
-        for r, dst in enumerate(trans[src].tolist()):
-            lo, hi = bounds[r], bounds[r + 1]
-            if not lo < hi:
-                continue
-            intervals = by_dst.setdefault(int(dst), [])
-            if intervals and intervals[-1][1] == lo:
-                intervals[-1] = (intervals[-1][0], hi)
-            else:
-                intervals.append((lo, hi))
-        edges.extend((src, dst, by_dst[dst]) for dst in sorted(by_dst))
-    return edges
-
-
 # --------------------------------------------------------------------------------------------
 # algorithm
 # --------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, eq=False)
 class CogDice(ThresholdSearch):
     """COG-DICE on an environment with a scalar continuous observation; ``init`` / ``ask`` /
-    ``tell`` / ``step`` are pure (``algorithms.engine``; see the module docstring)."""
+    ``evaluate`` / ``tell`` / ``step`` are pure (``algorithms.engine``; see the module
+    docstring)."""
 
-    def __init__(
-        self, env, env_params, settings: CogDiceSettings, hyper: CogDiceHyper | None = None
-    ):
+    def __post_init__(self):
+        env, settings = self.env, self.settings
         if tuple(env.obs_shape) != () or env.obs_range is None:
-            raise ValueError(
+            raise ConfigError(
+                "env.name",
                 "COG-DICE needs a scalar continuous observation with a range "
-                f"(env.obs_shape={env.obs_shape!r}, env.obs_range={env.obs_range!r})"
+                f"(this simulator has obs_shape {env.obs_shape!r}, obs_range {env.obs_range!r})",
             )
-        if settings.regions < 1:
-            raise ValueError(f"COG-DICE needs regions >= 1, got {settings.regions}")
-        self.env = env
-        self.env_params = env_params
-        self.settings = settings
-        self.hyper = hyper if hyper is not None else CogDiceHyper()
-        self.obs_range = (float(env.obs_range[0]), float(env.obs_range[1]))
-        self.controller = RegionController(
-            num_agents=env.num_agents, num_nodes=settings.nodes, num_regions=settings.regions
+        self._set(
+            obs_range=(float(env.obs_range[0]), float(env.obs_range[1])),
+            controller=RegionController(
+                num_agents=env.num_agents, num_nodes=settings.nodes, num_regions=settings.regions
+            ),
         )
 
     # ---------------------------------------------------------------- distribution / sampling
@@ -307,10 +310,6 @@ class CogDice(ThresholdSearch):
         )
         return RegionSample(policy=policy, unit_points=unit)
 
-    def sample(self, key: jax.Array, dist: RegionDistribution) -> RegionSample:
-        """One deterministic joint controller (no leading axis)."""
-        return jax.tree.map(lambda x: x[0], self.draw(key, dist, 1))
-
     @staticmethod
     def policies_of(samples: RegionSample) -> DeterministicRegionPolicy:
         return samples.policy
@@ -319,13 +318,9 @@ class CogDice(ThresholdSearch):
         """``samples`` controllers (leaves with a leading ``[samples]`` axis)."""
         return self.draw(key, dist, self.settings.samples)
 
-    def evaluate_samples(self, key: jax.Array, policies: DeterministicRegionPolicy) -> jax.Array:
-        """Mean return ``[samples]`` of each sampled controller."""
-        return self.mean_returns(key, policies)
-
     # ---------------------------------------------------------------- update
     def update_distribution(
-        self, dist: RegionDistribution, elites: RegionSample, kept, hyper: CogDiceHyper
+        self, dist: RegionDistribution, elites: RegionSample, kept, hyper: ThresholdHyper
     ) -> RegionDistribution:
         """Count MLE + smoothing of actions and region transitions over the kept elites' tables,
         Beta refit per slot (>= 2 kept elites). ``elites``: leading ``[elites]`` axis; ``kept
@@ -347,7 +342,7 @@ class CogDice(ThresholdSearch):
             ),
         )
 
-    def inject(self, dist: RegionDistribution, injected, hyper: CogDiceHyper):
+    def inject(self, dist: RegionDistribution, injected, hyper: ThresholdHyper):
         """Entropy injection into the categorical parts where ``injected``; Betas unchanged."""
         rate = hyper.entropy.rate
         return dist.replace(
@@ -362,7 +357,7 @@ class CogDice(ThresholdSearch):
         )
 
     # ---------------------------------------------------------------- public
-    def init(self, key: jax.Array) -> CogDiceState:
+    def init(self, key: jax.Array, params: SearchParams) -> CogDiceState:
         """Initial state; its ``best_policy`` is one draw from the initial distribution (the
         first ``step`` replaces it). The initial Betas are Beta(1, 1) = U(0, 1), so the points are
         drawn with ``jax.random.uniform`` -- the same distribution, without compiling the Beta
@@ -383,42 +378,20 @@ class CogDice(ThresholdSearch):
         s = self.settings
         return s.samples * s.eval_rollouts + s.best_rollouts
 
-    @staticmethod
-    def best_policy(state: CogDiceState) -> DeterministicRegionPolicy:
-        return state.best_policy
-
 
 # ---------------------------------------------------------------------------------------------
-# registration (cognet_jax.registry): config -> algorithm
+# the registry entry: config -> algorithm, hyper-parameters
 # ---------------------------------------------------------------------------------------------
-def build_from_config(config, env, env_params) -> CogDice:
+def build(config, env, env_params, memory: int | None = None) -> CogDice:
     """The search of ``config`` (``experiment.algorithm = "cogdice"``)."""
-    from cognet_jax.config import ConfigError
-    from cognet_jax.registry import fields_from
-
-    a = config.algorithm
-    settings = fields_from(CogDiceSettings, a)
-    hyper = fields_from(CogDiceHyper, a, entropy=entropy_config(a))
-    if tuple(env.obs_shape) != () or env.obs_range is None:
-        raise ConfigError(
-            "env.name",
-            f"COG-DICE needs a scalar continuous observation with a range; {config.env.name!r} "
-            f"has obs_shape {env.obs_shape!r} and obs_range {env.obs_range!r}",
-        )
-    return CogDice(env, env_params, settings, hyper)
+    return CogDice(env, fields_from(CogDiceSettings, config.algorithm), memory)
 
 
-def _register() -> None:
-    from cognet_jax.config import CogDiceAlgorithmSection
-    from cognet_jax.registry import register_algorithm
-
-    register_algorithm(
-        "cogdice",
-        CogDiceAlgorithmSection,
-        build_from_config,
-        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
-        overwrite=False,
-    )
-
-
-_register()
+register_algorithm(
+    "cogdice",
+    CogDiceSection,
+    build,
+    threshold_hyper,
+    dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
+    overwrite=False,
+)

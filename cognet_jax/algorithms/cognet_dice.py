@@ -31,7 +31,8 @@ hyper-parameters; ``"sgd"`` gives SGD with momentum as in the thesis code.
 
 from __future__ import annotations
 
-from typing import Any
+import dataclasses
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
@@ -40,7 +41,9 @@ from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
     ENTROPY_FIELDS,
+    ENTROPY_SECTION_FIELDS,
     EntropyConfig,
+    EntropySection,
     Progress,
     elite_selection,
     entropy_config,
@@ -48,33 +51,85 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
-from cognet_jax.algorithms.engine import RolloutValues
+from cognet_jax.algorithms.engine import Search, SearchParams, streams
 from cognet_jax.config import (
-    ENTROPY_SECTION_FIELDS,
-    CognetAlgorithmSection,
     NetworkSection,
+    require,
+    require_positive,
+    require_probability,
     settings_class,
 )
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
-from cognet_jax.observations import ObservationPipeline, neural_controller
-from cognet_jax.rollout import evaluate_candidates, rollouts
+from cognet_jax.observations import (
+    ObservationPipeline,
+    build_pipeline,
+    check_network,
+    neural_controller,
+)
+from cognet_jax.registry import fields_from, register_algorithm
+from cognet_jax.rollout import rollouts
+
+
+@dataclasses.dataclass
+class CognetThesisSection(EntropySection):
+    """``[algorithm]`` of COGNet-DICE as the thesis specifies it (SPEC 5), algorithm
+    ``cognet-dice-thesis``; names follow the thesis: K_roll ``rollouts``, K_top ``top``,
+    K_keep ``keep``, K_eval ``eval_rollouts``; entropy injection on (``EntropySection``)."""
+
+    entropy_injection: bool = True
+    nodes: int = 3
+    iterations: int = 500
+    rollouts: int = 1000
+    top: int = 100
+    keep: int = 10
+    eval_rollouts: int = 100
+    alpha: float = 0.2
+    threshold_rule: Literal["elite", "best"] = "elite"
+    separate: bool = False
+    common_random_numbers: bool = True
+    train_last_transition: bool = True
+    #: "kept" (SPEC) or "top": train the node networks on the pairs of all K_top pre-selected
+    #: rollouts instead of the K_keep kept ones
+    train_on: Literal["kept", "top"] = "kept"
+    #: 0 (SPEC): step 8 evaluates the updated policy with eval_rollouts; N > 0: with N
+    best_rollouts: int = 0
+
+    def check(self, config) -> None:
+        names = ("nodes", "iterations", "rollouts", "top", "keep", "eval_rollouts")
+        require_positive(self, "algorithm", *names)
+        require(
+            self.top <= self.rollouts,
+            "algorithm.top",
+            f"pre-selected rollouts ({self.top}) cannot exceed algorithm.rollouts "
+            f"({self.rollouts})",
+        )
+        limit = self.rollouts if self.separate else self.top
+        require(
+            self.keep <= limit,
+            "algorithm.keep",
+            f"kept elites ({self.keep}) cannot exceed the candidates ({limit})",
+        )
+        require_probability(self, "algorithm", "alpha")
+        self.check_entropy()
+        require(self.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+        check_network(config, training=True)
 
 
 @struct.dataclass
 class CognetHyper:
     """Dynamic (sweepable) hyper-parameters of COGNet-DICE; defaults those of the config."""
 
-    alpha: jax.Array | float = CognetAlgorithmSection.alpha
+    alpha: jax.Array | float = CognetThesisSection.alpha
     learning_rate: jax.Array | float = NetworkSection.learning_rate
     entropy: EntropyConfig = EntropyConfig()
 
 
-#: static settings: the fields of ``config.CognetAlgorithmSection`` (documented there) without
-#: the hyper-parameters (``CognetHyper``), and the networks' fields of ``[network]``
+#: static settings: the fields of ``CognetThesisSection`` without the hyper-parameters
+#: (``CognetHyper``), and the networks' fields of ``[network]``
 CognetSettings = settings_class(
     "CognetSettings",
-    CognetAlgorithmSection,
+    CognetThesisSection,
     exclude=("alpha", *ENTROPY_SECTION_FIELDS),
     extra=tuple(
         (NetworkSection, name) for name in ("hidden", "train_steps", "optimizer", "momentum")
@@ -175,32 +230,26 @@ def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
     return flat(obs), flat(nodes), flat(nxt), flat(valid)
 
 
-class CognetDice(RolloutValues):
-    """COGNet-DICE on one environment; ``init`` / ``step`` are pure and jit-able.
+@dataclasses.dataclass(frozen=True, eq=False)
+class CognetDice(Search):
+    """COGNet-DICE on one environment; ``init`` / ``ask`` / ``evaluate`` / ``tell`` / ``step``
+    are pure and jit-able (the protocol of ``algorithms.engine``).
 
     ``pipeline`` maps the environment's observations to the node networks' input (default: the
     identity); see ``cognet_jax.observations``.
     """
 
-    def __init__(
-        self,
-        env,
-        env_params,
-        settings: CognetSettings,
-        hyper: CognetHyper | None = None,
-        pipeline: ObservationPipeline | None = None,
-    ):
-        self.env = env
-        self.env_params = env_params
-        self.settings = settings
-        self.hyper = hyper if hyper is not None else CognetHyper()
-        self.pipeline, self.controller = neural_controller(
-            env, settings.nodes, settings.hidden, pipeline
-        )
-        self.optimizer = make_optimizer(settings)
+    pipeline: ObservationPipeline | None = None
+    #: the candidates share the current networks: only their action tables are batched
+    candidate_axes = NeuralPolicy(action_probs=0, net_params=None)
+
+    def __post_init__(self):
+        s = self.settings
+        pipeline, controller = neural_controller(self.env, s.nodes, s.hidden, self.pipeline)
+        self._set(pipeline=pipeline, controller=controller, optimizer=make_optimizer(s))
 
     # -- state ---------------------------------------------------------------------------
-    def init(self, key: jax.Array) -> CognetState:
+    def init(self, key: jax.Array, params: SearchParams) -> CognetState:
         policy = self.controller.init(key)
         if self.settings.separate:
             policy = policy.replace(action_probs=fixed_one_hot_actions(self.controller))
@@ -255,15 +304,12 @@ class CognetDice(RolloutValues):
         )
         return net_params, opt_state
 
-    def evaluate_policy(self, key: jax.Array, policy: NeuralPolicy, num_rollouts: int) -> jax.Array:
-        """Mean return of ``policy`` over ``num_rollouts`` rollouts."""
-        return rollouts(
-            self.env, self.controller, key, num_rollouts, self.env_params, policy
-        ).mean()
-
-    @staticmethod
-    def best_policy(state: CognetState) -> NeuralPolicy:
-        return state.best_policy
+    def fresh_value(self, key: jax.Array, policy: NeuralPolicy, params: SearchParams):
+        """Step 8: the mean return ``[]`` of ``policy`` over ``best_rollouts`` (or, when 0,
+        ``eval_rollouts``) fresh rollouts."""
+        s = self.settings
+        n = s.best_rollouts or s.eval_rollouts
+        return rollouts(self.env, self.controller, key, n, params.env, policy).mean()
 
     # -- one iteration -------------------------------------------------------------------------
     @property
@@ -275,19 +321,18 @@ class CognetDice(RolloutValues):
         return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + step8
 
     # -- one iteration: ask / evaluate / tell (algorithms.engine's protocol) ------------------
-    def ask(self, key: jax.Array, state: CognetState) -> tuple[CognetAsked, NeuralPolicy | None]:
+    def ask(self, key: jax.Array, state: CognetState, params: SearchParams):
         """Steps 1-3: the current policy's recorded rollouts (the algorithm's simulator), the
         ``top`` of them and their candidates. Returns ``(asked, candidates)``: ``candidates``
         is the current policy with ``action_probs [top, agents, nodes, actions]`` (one per
         pre-selected rollout; the networks are shared), ``None`` in separate training."""
         s = self.settings
-        k_roll, _, _ = jax.random.split(key, 3)
         traj = rollouts(
             self.env,
             self.controller,
-            k_roll,
+            streams(key).sample,
             s.rollouts,
-            self.env_params,
+            params.env,
             state.policy,
             record=True,
         )
@@ -302,24 +347,13 @@ class CognetDice(RolloutValues):
         )
         return CognetAsked(traj=traj, top_idx=top_idx, counts=counts), candidates
 
-    def evaluate(self, key: jax.Array, candidates: NeuralPolicy | None) -> jax.Array | None:
+    def evaluate(self, key: jax.Array, candidates: NeuralPolicy | None, params: SearchParams):
         """Step 4: mean returns ``[top]`` of the candidates over ``eval_rollouts`` rollouts
-        (common random numbers by default); ``None`` in separate training."""
+        (common random numbers by default; the ``evaluate`` stream); ``None`` in separate
+        training."""
         if candidates is None:
             return None
-        s = self.settings
-        _, k_cand, _ = jax.random.split(key, 3)
-        return evaluate_candidates(
-            self.env,
-            self.controller,
-            k_cand,
-            s.eval_rollouts,
-            self.env_params,
-            candidates,
-            policy_axes=NeuralPolicy(action_probs=0, net_params=None),
-            memory=self.memory,
-            common_random_numbers=s.common_random_numbers,
-        )
+        return super().evaluate(key, candidates, params)
 
     def tell(
         self,
@@ -327,16 +361,16 @@ class CognetDice(RolloutValues):
         state: CognetState,
         asked: CognetAsked,
         values: jax.Array | None,
+        params: SearchParams,
         *,
-        hyper: CognetHyper | None = None,
-        fresh=None,
+        fresh_value=None,
     ):
         """Steps 5-8 with the candidates' ``values [top]``; returns ``(state, CognetMetrics)``.
-        ``fresh(key, policy) -> value`` values the updated policy in step 8 (default: the
-        mean of ``best_rollouts`` (or ``eval_rollouts``) rollouts of the simulator)."""
-        hyper = self.hyper if hyper is None else hyper
+        Step 8 values the updated policy on the ``best`` stream (``fresh_value``; yours with
+        ``fresh_value(key, policy)``); augmentation draws from the ``other`` stream."""
+        hyper = params.hyper
         s = self.settings
-        _, _, k_eval = jax.random.split(key, 3)
+        k = streams(key)
         policy, progress, traj = state.policy, state.progress, asked.traj
         if s.separate:
             _, kept_idx = jax.lax.top_k(traj.ret, s.keep)
@@ -371,18 +405,17 @@ class CognetDice(RolloutValues):
             )
         else:
             pairs = training_pairs(traj, kept_idx, kept_mask, s.train_last_transition)
-        # fold_in (not a 4th split) keeps the random streams of runs without augmentation
-        pairs = self.pipeline.training_pairs(jax.random.fold_in(key, 3), *pairs)
+        pairs = self.pipeline.training_pairs(k.other, *pairs)
         net_params, opt_state = self.train_networks(
             policy.net_params, state.opt_state, pairs, hyper
         )
         policy = NeuralPolicy(action_probs=action_probs, net_params=net_params)
 
         # 8: evaluate, record, keep the best
-        if fresh is None:
-            value = self.evaluate_policy(k_eval, policy, s.best_rollouts or s.eval_rollouts)
+        if fresh_value is None:
+            value = self.fresh_value(k.best, policy, params)
         else:
-            value = fresh(k_eval, policy)
+            value = fresh_value(k.best, policy)
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, policy, state.best_policy)
         metrics = CognetMetrics(
@@ -399,38 +432,28 @@ class CognetDice(RolloutValues):
         )
         return new_state, metrics
 
-    def step(self, key: jax.Array, state: CognetState, hyper: CognetHyper | None = None):
-        """One COGNet-DICE iteration (``ask``, ``evaluate``, ``tell``); returns
-        ``(state, CognetMetrics)``."""
-        asked, candidates = self.ask(key, state)
-        return self.tell(key, state, asked, self.evaluate(key, candidates), hyper=hyper)
-
 
 # ---------------------------------------------------------------------------------------------
-# registration (cognet_jax.registry): config -> algorithm
+# the registry entry: config -> algorithm, hyper-parameters
 # ---------------------------------------------------------------------------------------------
-def build_from_config(config, env, env_params) -> CognetDice:
+def build(config, env, env_params, memory: int | None = None) -> CognetDice:
     """The search of ``config`` (``experiment.algorithm = "cognet-dice-thesis"``)."""
-    from cognet_jax.api import build_pipeline
-    from cognet_jax.registry import fields_from
-
-    a, net = config.algorithm, config.network
-    settings = fields_from(CognetSettings, a, net)
-    hyper = fields_from(CognetHyper, a, net, entropy=entropy_config(a))
-    return CognetDice(env, env_params, settings, hyper, build_pipeline(config, env))
+    settings = fields_from(CognetSettings, config.algorithm, config.network)
+    return CognetDice(env, settings, memory, build_pipeline(config, env))
 
 
-def _register() -> None:
-    from cognet_jax.config import CognetAlgorithmSection
-    from cognet_jax.registry import register_algorithm
-
-    register_algorithm(
-        "cognet-dice-thesis",
-        CognetAlgorithmSection,
-        build_from_config,
-        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha", "network.learning_rate"),
-        overwrite=False,
-    )
+def hyper(config) -> CognetHyper:
+    """The dynamic hyper-parameters: ``alpha``, ``network.learning_rate``, entropy."""
+    a = config.algorithm
+    return fields_from(CognetHyper, a, config.network, entropy=entropy_config(a))
 
 
-_register()
+register_algorithm(
+    "cognet-dice-thesis",
+    CognetThesisSection,
+    build,
+    hyper,
+    dynamic=(*ENTROPY_FIELDS, "algorithm.alpha", "network.learning_rate"),
+    reads=("network",),
+    overwrite=False,
+)

@@ -68,6 +68,7 @@ One iteration (``step``), values are returns to **maximise**:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -81,12 +82,24 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
-from cognet_jax.algorithms.engine import RolloutValues
-from cognet_jax.config import CognetWeightsAlgorithmSection, NetworkSection, settings_class
+from cognet_jax.algorithms.engine import Search, SearchParams, streams
+from cognet_jax.config import (
+    NetworkSection,
+    require,
+    require_positive,
+    require_probability,
+    settings_class,
+)
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
-from cognet_jax.observations import ObservationPipeline, neural_controller
+from cognet_jax.observations import (
+    ObservationPipeline,
+    build_pipeline,
+    check_network,
+    neural_controller,
+)
 from cognet_jax.prng import fast_key
+from cognet_jax.registry import fields_from, register_algorithm
 from cognet_jax.rollout import rollouts
 
 
@@ -120,20 +133,82 @@ class WeightSample:
     bias: jax.Array  # [agents, Q]
 
 
+@dataclasses.dataclass
+class CognetWeightsSection:
+    """``[algorithm]`` of the default ``cognet-dice`` (this module). Per iteration
+    ``candidates`` joint controllers, each evaluated with ``eval_rollouts`` rollouts (common
+    random numbers), the best ``elites`` refit the distribution with smoothing ``alpha``;
+    ``action_floor`` / ``category_floor`` mix the categoricals with the uniform distribution
+    every iteration; the winner and the distribution's mode are re-evaluated on
+    ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
+    hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
+    ``vote_std``: initial Gaussian of the output votes; ``standardize_inputs``: search over a
+    network that reads each input feature standardised by its mean and standard deviation under
+    the random controller; ``paired_best``: the best policy so far is re-evaluated on the
+    challengers' fresh rollouts and replaced only when a challenger beats it there. The hidden
+    width is ``network.hidden``."""
+
+    nodes: int = 3
+    iterations: int = 600
+    candidates: int = 200
+    eval_rollouts: int = 500
+    elites: int = 10
+    alpha: float = 0.3
+    action_floor: float = 0.02
+    category_floor: float = 0.02
+    best_rollouts: int = 1000
+    common_random_numbers: bool = True
+    init_scale: float = 10.0
+    vote_mean: float = 5.0
+    vote_std: float = 5.0
+    standardize_inputs: bool = False
+    paired_best: bool = False
+
+    def check(self, config) -> None:
+        names = ("nodes", "iterations", "candidates", "eval_rollouts", "elites", "best_rollouts")
+        require_positive(self, "algorithm", *names)
+        require(
+            self.elites <= self.candidates,
+            "algorithm.elites",
+            f"elites ({self.elites}) cannot exceed algorithm.candidates ({self.candidates})",
+        )
+        require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
+        require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
+        for name in ("init_scale", "vote_mean", "vote_std"):
+            v = getattr(self, name)
+            require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
+        require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        defaults = NetworkSection()
+        for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
+            require(
+                getattr(config.network, name) == getattr(defaults, name),
+                f"network.{name}",
+                "trains the node networks of cognet-dice-thesis; the default cognet-dice "
+                "samples network weights and has no optimiser",
+            )
+        check_network(config, training=False)
+        require(
+            not config.network.augment,
+            "network.augment",
+            "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
+            "network (use experiment.algorithm = 'cognet-dice-thesis')",
+        )
+
+
 @struct.dataclass
 class WeightsHyper:
     """Dynamic (sweepable) hyper-parameters; defaults those of the config section."""
 
-    alpha: jax.Array | float = CognetWeightsAlgorithmSection.alpha
-    action_floor: jax.Array | float = CognetWeightsAlgorithmSection.action_floor
-    category_floor: jax.Array | float = CognetWeightsAlgorithmSection.category_floor
+    alpha: jax.Array | float = CognetWeightsSection.alpha
+    action_floor: jax.Array | float = CognetWeightsSection.action_floor
+    category_floor: jax.Array | float = CognetWeightsSection.category_floor
 
 
-#: static settings: the fields of ``config.CognetWeightsAlgorithmSection`` (documented there)
-#: without the hyper-parameters (``WeightsHyper``), and the hidden width ``network.hidden``
+#: static settings: the fields of ``CognetWeightsSection`` without the hyper-parameters
+#: (``WeightsHyper``), and the hidden width ``network.hidden``
 WeightsSettings = settings_class(
     "WeightsSettings",
-    CognetWeightsAlgorithmSection,
+    CognetWeightsSection,
     exclude=("alpha", "action_floor", "category_floor"),
     extra=((NetworkSection, "hidden"),),
 )
@@ -169,49 +244,43 @@ def _gaussian_refit(mean, std, elite_draws, alpha):
     )
 
 
-class CognetWeights(RolloutValues):
+def input_statistics(env, controller, pipeline, env_params) -> tuple[jax.Array, jax.Array]:
+    """``(mean, scale) [agents, F]`` of the networks' input features over the observations
+    of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
+    ``env_params``; a feature that never varies gets scale 1."""
+    template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
+    uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+    traj = jax.jit(
+        lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
+    )(jax.random.key(0))
+    feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
+    feats = feats.reshape(feats.shape[:3] + (-1,))
+    mean, std = feats.mean((0, 1)), feats.std((0, 1))
+    return mean, jnp.where(std > 1e-6, std, 1.0)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CognetWeights(Search):
     """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``ask`` /
     ``evaluate`` / ``tell`` / ``step`` are pure (the protocol of ``algorithms.engine``).
 
     ``pipeline`` maps the environment's observations to the networks' input (identity, or the
-    patch VAE's encoder mean; ``cognet_jax.observations``).
+    patch VAE's encoder mean; ``cognet_jax.observations``). ``input_stats``: ``(mean, scale)
+    [agents, F]`` of the input features (``input_statistics``), needed with
+    ``standardize_inputs`` -- a fixed reparametrisation of the search space, computed once
+    under the config's env params (``build``), not a function of the params a search runs
+    with.
     """
 
-    def __init__(
-        self,
-        env,
-        env_params,
-        settings: WeightsSettings,
-        hyper: WeightsHyper | None = None,
-        pipeline: ObservationPipeline | None = None,
-    ):
-        self.env = env
-        self.env_params = env_params
-        self.settings = settings
-        self.hyper = hyper if hyper is not None else WeightsHyper()
-        self.pipeline, self.controller = neural_controller(
-            env, settings.nodes, settings.hidden, pipeline
-        )
-        self.input_mean = self.input_scale = None
-        if settings.standardize_inputs:
-            self.input_mean, self.input_scale = self.input_statistics()
+    pipeline: ObservationPipeline | None = None
+    input_stats: tuple | None = None
 
-    def input_statistics(self) -> tuple[jax.Array, jax.Array]:
-        """``(mean, scale) [agents, F]`` of the networks' input features over the observations
-        of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0); a feature
-        that never varies gets scale 1."""
-        c = self.controller
-        template = c.init(jax.random.key(0))  # uniform actions; zero nets: uniform next nodes
-        uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
-        traj = jax.jit(
-            lambda k: rollouts(
-                self.env, c, k, STATS_ROLLOUTS, self.env_params, uniform, record=True
-            )
-        )(jax.random.key(0))
-        feats = self.pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
-        feats = feats.reshape(feats.shape[:3] + (-1,))
-        mean, std = feats.mean((0, 1)), feats.std((0, 1))
-        return mean, jnp.where(std > 1e-6, std, 1.0)
+    def __post_init__(self):
+        s = self.settings
+        pipeline, controller = neural_controller(self.env, s.nodes, s.hidden, self.pipeline)
+        if s.standardize_inputs and self.input_stats is None:
+            raise ValueError("standardize_inputs needs input_stats (input_statistics)")
+        self._set(pipeline=pipeline, controller=controller)
 
     # ---------------------------------------------------------------- distribution
     def init_distribution(self) -> WeightDistribution:
@@ -271,10 +340,11 @@ class CognetWeights(RolloutValues):
         actions, ``W2 = m * onehot(unit_targets)``, ``b2 = bias * onehot(default)``."""
         q, na = self.settings.nodes, self.env.num_actions
         w1, b1 = sample.w1, sample.b1
-        if self.input_mean is not None:  # fold (x - mean) / scale into the first layer
+        if self.settings.standardize_inputs:  # fold (x - mean) / scale into the first layer
+            input_mean, input_scale = self.input_stats
             lead = w1.ndim - 4  # a candidate axis or none; w1 [..., agents, Q, F, H]
-            scale = self.input_scale.reshape((1,) * lead + self.input_scale.shape[:1] + (1, -1, 1))
-            shift = (self.input_mean / self.input_scale).reshape(scale.shape)
+            scale = input_scale.reshape((1,) * lead + input_scale.shape[:1] + (1, -1, 1))
+            shift = (input_mean / input_scale).reshape(scale.shape)
             b1 = b1 - jnp.sum(shift * w1, axis=-2)
             w1 = w1 / scale
         w2 = sample.m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
@@ -326,18 +396,8 @@ class CognetWeights(RolloutValues):
             bias_std=bias_std,
         )
 
-    # ---------------------------------------------------------------- evaluation
-    def evaluate_policies(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
-        """Mean return ``[C]`` of candidate policies (leading ``[C]`` axis)."""
-        return self.mean_returns(key, policies)
-
-    def fresh_value(self, key: jax.Array, policy: NeuralPolicy) -> jax.Array:
-        """Mean return of one policy over ``best_rollouts`` fresh rollouts."""
-        n = self.settings.best_rollouts
-        return rollouts(self.env, self.controller, key, n, self.env_params, policy).mean()
-
-    # ---------------------------------------------------------------- public
-    def init(self, key: jax.Array) -> WeightsState:
+    # ---------------------------------------------------------------- protocol
+    def init(self, key: jax.Array, params: SearchParams) -> WeightsState:
         """Initial state; its ``best_policy`` is one draw of the initial distribution."""
         dist = self.init_distribution()
         first = jax.tree.map(lambda x: x[0], self.draw(key, dist, 1))
@@ -352,23 +412,11 @@ class CognetWeights(RolloutValues):
         s = self.settings
         return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
 
-    def ask(self, key: jax.Array, state: WeightsState) -> tuple[WeightSample, NeuralPolicy]:
+    def ask(self, key: jax.Array, state: WeightsState, params: SearchParams):
         """``(samples, policies)``: ``candidates`` joint controllers drawn from the state's
-        distribution (leading ``[candidates]`` axis); the protocol of ``algorithms.engine``,
-        with the same iteration key for ``ask``, ``evaluate`` and ``tell``."""
-        samples = self.draw(
-            jax.random.split(key, 4)[0], state.distribution, self.settings.candidates
-        )
+        distribution (leading ``[candidates]`` axis), from the ``sample`` stream."""
+        samples = self.draw(streams(key).sample, state.distribution, self.settings.candidates)
         return samples, self.to_policy(samples)
-
-    def evaluate(self, key: jax.Array, policies: NeuralPolicy) -> jax.Array:
-        """Mean returns ``[candidates]`` of the asked policies (common random numbers)."""
-        return self.evaluate_policies(jax.random.split(key, 4)[1], policies)
-
-    def step(self, key: jax.Array, state: WeightsState, hyper: WeightsHyper | None = None):
-        """One iteration (``ask``, ``evaluate``, ``tell``); returns ``(state, WeightsMetrics)``."""
-        samples, policies = self.ask(key, state)
-        return self.tell(key, state, samples, self.evaluate(key, policies), hyper=hyper)
 
     def tell(
         self,
@@ -376,17 +424,19 @@ class CognetWeights(RolloutValues):
         state: WeightsState,
         samples: WeightSample,
         values: jax.Array,
+        params: SearchParams,
         *,
-        hyper: WeightsHyper | None = None,
-        fresh=None,
+        fresh_value=None,
     ):
         """The state after ``values [candidates]`` of ``samples``; returns ``(state,
-        WeightsMetrics)``. ``fresh(key, policy) -> value`` values the winner and the mode for
-        the anytime best (default: ``best_rollouts`` fresh rollouts of the simulator)."""
-        hyper = self.hyper if hyper is None else hyper
-        fresh_value = self.fresh_value if fresh is None else fresh
+        WeightsMetrics)``. The winner is valued on the ``best`` stream, the mode on the
+        ``other`` one; ``fresh_value(key, policy) -> value`` replaces their ``best_rollouts``
+        fresh rollouts of the simulator."""
+        hyper = params.hyper
+        if fresh_value is None:
+            fresh_value = lambda k, p: self.fresh_value(k, p, params)  # noqa: E731
         s = self.settings
-        _, _, k_win, k_mode = jax.random.split(key, 4)
+        k = streams(key)
         elite_values, elite_idx = jax.lax.top_k(values, s.elites)
         elites = jax.tree.map(lambda x: x[elite_idx], samples)
         dist = self.update_distribution(state.distribution, elites, hyper)
@@ -396,11 +446,11 @@ class CognetWeights(RolloutValues):
         stack = lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
         if s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
             v_winner, v_mode, v_best = jax.vmap(fresh_value, (None, 0))(
-                k_win, stack(winner, mode, state.best_policy)
+                k.best, stack(winner, mode, state.best_policy)
             )
         else:  # one batched program for both (vmap over keys draws what two calls would draw)
             v_winner, v_mode = jax.vmap(fresh_value)(
-                jnp.stack([k_win, k_mode]), stack(winner, mode)
+                jnp.stack([k.best, k.other]), stack(winner, mode)
             )
         mode_better = v_mode > v_winner
         candidate = select_tree(mode_better, mode, winner)
@@ -422,37 +472,35 @@ class CognetWeights(RolloutValues):
         )
         return WeightsState(distribution=dist, best_policy=best_policy, progress=progress), metrics
 
-    @staticmethod
-    def best_policy(state: WeightsState) -> NeuralPolicy:
-        return state.best_policy
-
 
 # ---------------------------------------------------------------------------------------------
-# registration (cognet_jax.registry): config -> algorithm
+# the registry entry: config -> algorithm, hyper-parameters
 # ---------------------------------------------------------------------------------------------
-def build_from_config(config, env, env_params) -> CognetWeights:
+def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
-    ``[network]``) on ``env``."""
-    from cognet_jax.api import build_pipeline
-    from cognet_jax.registry import fields_from
-
-    a = config.algorithm
-    settings = fields_from(WeightsSettings, a, config.network)
-    hyper = fields_from(WeightsHyper, a)
-    return CognetWeights(env, env_params, settings, hyper, build_pipeline(config, env))
-
-
-def _register() -> None:
-    from cognet_jax.config import CognetWeightsAlgorithmSection
-    from cognet_jax.registry import register_algorithm
-
-    register_algorithm(
-        "cognet-dice",
-        CognetWeightsAlgorithmSection,
-        build_from_config,
-        dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
-        overwrite=False,
+    ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics are those of
+    ``env_params`` (``input_statistics``)."""
+    settings = fields_from(WeightsSettings, config.algorithm, config.network)
+    pipeline, controller = neural_controller(
+        env, settings.nodes, settings.hidden, build_pipeline(config, env)
     )
+    stats = None
+    if settings.standardize_inputs:
+        stats = input_statistics(env, controller, pipeline, env_params)
+    return CognetWeights(env, settings, memory, pipeline, stats)
 
 
-_register()
+def hyper(config) -> WeightsHyper:
+    """The dynamic hyper-parameters of ``config.algorithm``."""
+    return fields_from(WeightsHyper, config.algorithm)
+
+
+register_algorithm(
+    "cognet-dice",
+    CognetWeightsSection,
+    build,
+    hyper,
+    dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
+    reads=("network",),
+    overwrite=False,
+)

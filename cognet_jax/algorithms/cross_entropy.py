@@ -6,9 +6,13 @@ static, so these compile once inside an algorithm's ``step``.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 from flax import struct
+
+from cognet_jax.config import require, require_positive, require_probability
 
 
 def elite_selection(values: jax.Array, threshold: jax.Array, num_elites: int):
@@ -158,10 +162,31 @@ def entropy_config(section) -> EntropyConfig:
     )
 
 
+#: the entropy-injection fields of a config section (dynamic: ``EntropyConfig``)
+ENTROPY_SECTION_FIELDS = ("entropy_injection", "entropy_rate", "entropy_std", "entropy_patience")
 #: the config fields of ``entropy_config``, as sweepable dotted names
-ENTROPY_FIELDS = (
-    "algorithm.entropy_injection",
-    "algorithm.entropy_rate",
-    "algorithm.entropy_std",
-    "algorithm.entropy_patience",
-)
+ENTROPY_FIELDS = tuple(f"algorithm.{name}" for name in ENTROPY_SECTION_FIELDS)
+
+
+@dataclasses.dataclass
+class EntropySection:
+    """The entropy-injection fields of an ``[algorithm]`` section (SPEC section 2; ``Progress``
+    has the triggers): on or off, the ``rate`` of uniform mixed in, the flat-window trigger
+    (population std of the last ``entropy_window`` iteration values below ``entropy_std``) and
+    the stale trigger (no improvement for ``entropy_patience`` iterations)."""
+
+    entropy_injection: bool = False
+    entropy_rate: float = 0.02
+    entropy_std: float = 0.5
+    entropy_window: int = 4
+    entropy_patience: int = 5
+
+    def check_entropy(self) -> None:
+        """``ConfigError`` naming the field of a bad entropy setting."""
+        require_positive(self, "algorithm", "entropy_window", "entropy_patience")
+        require_probability(self, "algorithm", "entropy_rate")
+        require(
+            self.entropy_std >= 0,
+            "algorithm.entropy_std",
+            f"must be >= 0 (the flat-window trigger's threshold), got {self.entropy_std}",
+        )

@@ -1,58 +1,140 @@
-"""The cross-entropy search engine of G-DICE and COG-DICE (SPEC sections 2-4): ``init / ask /
-tell`` on explicit state pytrees, the iteration skeleton written once.
+"""The search protocol every algorithm speaks, and the cross-entropy engine of G-DICE and
+COG-DICE (SPEC sections 2-4).
 
-One iteration with the iteration key ``key`` (values are returns to **maximise**)::
+**Protocol** (evosax style; values are returns to **maximise**). An algorithm object is
+immutable configuration: the simulator's static description, the controller kind, static
+settings and a memory budget. Everything numeric that one may ``vmap`` over -- the simulator's
+params pytree and the algorithm's hyper-parameters -- is one :class:`SearchParams` argument::
 
-    samples, policies = search.ask(key, state)        # draw `samples` controllers
-    values = search.evaluate(key, policies)           # [samples]: mean returns (or your own)
-    state, metrics = search.tell(key, state, samples, values)
+    state = search.init(key, params)
+    samples, policies = search.ask(key, state, params)         # draw the candidates
+    values = search.evaluate(key, policies, params)            # [candidates] (or your own)
+    state, metrics = search.tell(key, state, samples, values, params)
+    state, info = search.finish(state, params)                 # after the last iteration
+    policy = search.best_policy(state)
 
-``step(key, state)`` is exactly these three calls. ``tell`` keeps the elites above the rising
-threshold V_w (``cross_entropy.elite_selection``), refits the distribution (the algorithm's
-``update_distribution``: count MLE + smoothing, Beta refits), injects entropy when a trigger
-fires (``Progress.should_inject`` and the algorithm's ``inject``), and tracks the anytime best:
-the iteration's winner replaces the best policy when its value -- its in-loop value, or with
-``best_rollouts > 0`` a fresh mean (``rollout.iteration_best``), or ``fresh(key, policy)`` when
-given -- beats the best so far. Pass the same iteration key to all three calls: each derives its
-own sub-keys from it (``ask`` and ``evaluate`` the two halves of ``split(key)``, ``tell``
-``fold_in(key, 1)``), so a search driven by hand draws exactly what ``step`` draws.
+``step(key, state, params)`` is exactly ``ask``, ``evaluate`` and ``tell`` with one iteration
+key. **Random streams**: each of the three derives what it draws from that key through
+:func:`streams`, which splits it once into independent named keys -- ``sample`` (the
+candidates; the thesis COGNet-DICE's rollouts of its current policy), ``evaluate`` (the
+candidates' rollouts), ``best`` (the fresh rollouts that value the iteration's winner for the
+anytime best) and ``other`` (anything else: the default COGNet-DICE's mode, the thesis
+algorithm's augmentation). So a search driven by hand draws exactly what ``step`` draws, and
+the winner's fresh rollouts never reuse the rollouts it was selected on.
 
-Your own fitness function: evaluate ``policies`` (leading ``[samples]`` axis; e.g. ``vmap`` a
-JAX simulation that runs ``cognet_jax.controller_step``) and pass the values to ``tell``.
+**Evaluation**, one name per concept:
 
-A subclass provides ``settings`` (``samples``, ``elites``), ``hyper`` (``alpha``, ``entropy``),
-``sample_policies(key, dist)``, ``evaluate_samples(key, policies)``,
-``update_distribution(dist, elites, kept, hyper)`` and ``inject(dist, injected, hyper)``; and
+* ``evaluate(key, policies, params) -> [C]``: the algorithm's fitness of asked candidates;
+* ``fresh_value(key, policy, params) -> []``: one policy's mean return over ``best_rollouts``
+  fresh rollouts (the anytime best); ``tell(..., fresh_value=fn)`` replaces it by your
+  ``fn(key, policy)``;
+* ``returns(key, policy, num, params, batch) -> [num]``: the returns of ``num`` rollouts of
+  one policy (the honest evaluation, ``api.honest_returns``, draws these from the seed's
+  evaluation key).
+
+**The threshold engine** (``ThresholdSearch``, G-DICE and COG-DICE): ``tell`` keeps the elites
+above the rising threshold V_w (``cross_entropy.elite_selection``), refits the distribution
+(the subclass's ``update_distribution``: count MLE + smoothing, Beta refits), injects entropy
+when a trigger fires (``Progress.should_inject`` and the subclass's ``inject``), and tracks the
+anytime best: the iteration's winner replaces the best policy when its value -- its in-loop
+value, or with ``fresh_rollouts > 0`` a fresh mean, or ``fresh_value(key, policy)`` when given
+-- beats the best so far. A subclass provides ``sample_policies(key, dist)``,
+``update_distribution(dist, elites, kept, hyper)``, ``inject(dist, injected, hyper)``, and
 ``policies_of(samples)`` when a sample carries more than its policy (COG-DICE's unit points).
-
-The other searches speak the same protocol with the same iteration key: the default
-COGNet-DICE (``cognet_weights.CognetWeights``), a G-DICE portfolio (``gdice.GDicePortfolio``:
-one entry per member search, leading axes ``[restarts, samples]``) and the thesis COGNet-DICE
-(``cognet_dice.CognetDice``: ``ask`` rolls out the current policy on the algorithm's simulator
-and returns the trajectories with the ``[top]`` candidates; ``tell`` takes the candidates'
-values and trains the networks on those trajectories).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.algorithms.cross_entropy import EntropyConfig, elite_selection, select_tree
-from cognet_jax.config import CogDiceAlgorithmSection
-from cognet_jax.rollout import evaluate_candidates, iteration_best, many_returns
+from cognet_jax.algorithms.cross_entropy import (
+    EntropyConfig,
+    EntropySection,
+    elite_selection,
+    entropy_config,
+    select_tree,
+)
+from cognet_jax.config import require, require_positive, require_probability
+from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
+
+
+@struct.dataclass
+class SearchParams:
+    """The numbers a search runs with, as one pytree: ``env`` the simulator's params
+    (``env_params``), ``hyper`` the algorithm's dynamic hyper-parameters. Every leaf may be
+    batched under ``vmap`` (several noise levels, several ``alpha``) with no recompilation."""
+
+    env: Any
+    hyper: Any
+
+
+class Streams(NamedTuple):
+    """The independent random streams of one iteration (``streams(key)``)."""
+
+    sample: jax.Array
+    evaluate: jax.Array
+    best: jax.Array
+    other: jax.Array
+
+
+def streams(key: jax.Array) -> Streams:
+    """``key`` split once into the iteration's named streams. (The split is prefix-stable
+    under JAX's partitionable threefry: ``split(key, 4)[:2] == split(key, 2)``, so the
+    ``sample`` and ``evaluate`` streams are those of a two-way split.)"""
+    return Streams(*jax.random.split(key, 4))
+
+
+@dataclasses.dataclass
+class ThresholdSection(EntropySection):
+    """The ``[algorithm]`` fields G-DICE and COG-DICE share (SPEC sections 2-4): entropy
+    injection (``EntropySection``; off as in SPEC), N_n ``nodes``, ``iterations``, N_s
+    ``samples``, N_b ``elites``, N_sim ``eval_rollouts``, smoothing ``alpha``, common random
+    numbers and ``best_rollouts`` (0: best tracking compares the iteration winner's in-loop
+    mean, SPEC; N > 0: a fresh mean over N rollouts, free of the winner's selection bias).
+    Each algorithm's section extends it (and may change the defaults)."""
+
+    nodes: int = 3
+    iterations: int = 100
+    samples: int = 100
+    elites: int = 10
+    eval_rollouts: int = 100
+    alpha: float = 0.1
+    common_random_numbers: bool = True
+    best_rollouts: int = 0
+
+    def check(self, config) -> None:
+        require_positive(self, "algorithm", "nodes", "iterations", "samples", "elites")
+        require_positive(self, "algorithm", "eval_rollouts")
+        require(
+            self.elites <= self.samples,
+            "algorithm.elites",
+            f"elites ({self.elites}) cannot exceed algorithm.samples ({self.samples})",
+        )
+        require_probability(self, "algorithm", "alpha")
+        require(self.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
+        self.check_entropy()
 
 
 @struct.dataclass
 class ThresholdHyper:
     """Dynamic (sweepable) hyper-parameters of G-DICE and COG-DICE: the smoothing rate and the
-    entropy injection (defaults of their config sections; injection off as in SPEC)."""
+    entropy injection (injection off by default, as in SPEC)."""
 
-    alpha: jax.Array | float = CogDiceAlgorithmSection.alpha  # = G-DICE's
+    alpha: jax.Array | float = 0.1
     entropy: EntropyConfig = EntropyConfig(enabled=False)
+
+
+def threshold_hyper(config) -> ThresholdHyper:
+    """The dynamic hyper-parameters of a G-DICE or COG-DICE ``config.algorithm``: ``alpha``
+    and entropy injection (the registry entries' ``hyper``)."""
+    a = config.algorithm
+    return ThresholdHyper(alpha=a.alpha, entropy=entropy_config(a))
 
 
 @struct.dataclass
@@ -67,38 +149,72 @@ class SearchMetrics:
     injected: jax.Array  # [] bool: entropy injected this iteration
 
 
-class RolloutValues:
-    """Values by rollouts of the algorithm's simulator (``env``, ``env_params``,
-    ``controller``, ``settings.eval_rollouts``, ``settings.common_random_numbers``), shared by
-    every search."""
+@dataclasses.dataclass(frozen=True, eq=False)
+class Search:
+    """What every built-in search shares: values by rollouts of its simulator.
 
-    #: bytes one search may hold in rollouts in flight (``memory.budget_bytes``; None: half
-    #: the machine); candidates are evaluated in chunks when they do not fit
+    ``env``: the simulator's static description; ``settings``: the algorithm's static settings
+    (with ``eval_rollouts``, ``common_random_numbers``, ``best_rollouts`` where it uses them);
+    ``memory``: bytes its rollouts in flight may take (``memory.budget_bytes``; ``None``: half
+    the machine), candidates are evaluated in chunks when they do not fit. A subclass sets
+    ``controller`` (the controller kind) in ``__post_init__``.
+    """
+
+    env: Any
+    settings: Any
     memory: int | None = None
 
-    def mean_returns(self, key: jax.Array, policies) -> jax.Array:
-        """Mean return ``[C]`` of candidate policies (leading ``[C]`` axis), each over
-        ``eval_rollouts`` rollouts, all with the same key (common random numbers) unless
-        ``common_random_numbers`` is off."""
+    def _set(self, **fields) -> None:
+        """Set derived fields of this frozen object (``__post_init__`` only)."""
+        for name, value in fields.items():
+            object.__setattr__(self, name, value)
+
+    #: the ``vmap`` axes of the asked candidates' policy pytree (0: every leaf has the leading
+    #: ``[C]`` axis; the thesis COGNet-DICE batches only the action tables)
+    candidate_axes: ClassVar[Any] = 0
+
+    def evaluate(self, key, policies, params: SearchParams) -> jax.Array:
+        """Mean return ``[C]`` of the asked candidates (leading ``[C]`` axis, ``candidate_axes``),
+        each over ``eval_rollouts`` rollouts from the iteration's ``evaluate`` stream, all with
+        the same key (common random numbers) unless ``common_random_numbers`` is off."""
         s = self.settings
         return evaluate_candidates(
             self.env,
             self.controller,
-            key,
+            streams(key).evaluate,
             s.eval_rollouts,
-            self.env_params,
+            params.env,
             policies,
+            policy_axes=self.candidate_axes,
             memory=self.memory,
             common_random_numbers=s.common_random_numbers,
         )
 
-    def policy_returns(self, key: jax.Array, policy, num: int, batch: int = 10_000):
-        """Returns ``[num]`` of one ``policy`` (honest evaluation: pass a fresh key)."""
-        return many_returns(self.env, self.controller, key, self.env_params, policy, num, batch)
+    def returns(self, key, policy, num: int, params: SearchParams, batch: int = 10_000):
+        """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time)."""
+        return many_returns(self.env, self.controller, key, params.env, policy, num, batch)
+
+    def fresh_value(self, key, policy, params: SearchParams) -> jax.Array:
+        """Mean return ``[]`` of one policy over ``best_rollouts`` fresh rollouts."""
+        n = self.settings.best_rollouts
+        return rollouts(self.env, self.controller, key, n, params.env, policy).mean()
+
+    def step(self, key, state, params: SearchParams):
+        """One iteration: ``ask``, the algorithm's ``evaluate``, ``tell``."""
+        samples, policies = self.ask(key, state, params)
+        return self.tell(key, state, samples, self.evaluate(key, policies, params), params)
+
+    def finish(self, state, params: SearchParams):
+        """After the last iteration: ``(state, info)``; nothing to do here (``info`` None)."""
+        return state, None
+
+    @staticmethod
+    def best_policy(state):
+        return state.best_policy
 
 
-class ThresholdSearch(RolloutValues):
-    """The shared ``ask`` / ``evaluate`` / ``tell`` / ``step`` of G-DICE and COG-DICE."""
+class ThresholdSearch(Search):
+    """The shared ``ask`` / ``evaluate`` / ``tell`` of G-DICE and COG-DICE."""
 
     @staticmethod
     def policies_of(samples):
@@ -113,33 +229,35 @@ class ThresholdSearch(RolloutValues):
     def mean_value(self, values: jax.Array) -> jax.Array:
         return values.mean()
 
-    def ask(self, key: jax.Array, state):
+    def ask(self, key, state, params: SearchParams):
         """``(samples, policies)``: ``settings.samples`` controllers drawn from the state's
-        distribution (leading ``[samples]`` axis)."""
-        k_sample, _ = jax.random.split(key)
-        samples = self.sample_policies(k_sample, state.distribution)
+        distribution (leading ``[samples]`` axis), from the ``sample`` stream."""
+        samples = self.sample_policies(streams(key).sample, state.distribution)
         return samples, self.policies_of(samples)
 
-    def evaluate(self, key: jax.Array, policies) -> jax.Array:
-        """Values ``[samples]`` of the asked policies (the algorithm's own evaluator)."""
-        _, k_eval = jax.random.split(key)
-        return self.evaluate_samples(k_eval, policies)
+    def winner_value(self, key, winner, in_loop, params, fresh_value=None) -> jax.Array:
+        """The value the anytime best compares for the iteration's ``winner``: ``fresh_value``
+        (yours), else the mean of ``fresh_rollouts`` fresh rollouts, else its ``in_loop``
+        value; ``key`` is the iteration's ``best`` stream."""
+        if fresh_value is not None:
+            return fresh_value(key, winner)
+        if self.fresh_rollouts > 0:
+            return self.fresh_value(key, winner, params)
+        return in_loop
 
     def tell(
         self,
-        key: jax.Array,
+        key,
         state,
         samples,
         values: jax.Array,
+        params: SearchParams,
         *,
-        hyper=None,
-        fresh: Callable[[jax.Array, object], jax.Array] | None = None,
+        fresh_value: Callable[[jax.Array, Any], jax.Array] | None = None,
     ):
         """The state after ``values [samples]`` of ``samples`` (as ``ask`` returned them);
-        returns ``(state, SearchMetrics)``. ``fresh(key, policy) -> value``: how to value the
-        iteration's winner for the anytime best (default: ``fresh_rollouts`` rollouts of the
-        algorithm's simulator, or the in-loop value when that is 0)."""
-        hyper = self.hyper if hyper is None else hyper
+        returns ``(state, SearchMetrics)``."""
+        hyper = params.hyper
         progress = state.progress
         idx, kept, threshold = elite_selection(values, progress.threshold, self.settings.elites)
         elites = jax.tree.map(lambda x: x[idx], samples)
@@ -147,23 +265,10 @@ class ThresholdSearch(RolloutValues):
         injected = progress.should_inject(hyper.entropy)
         dist = self.inject(dist, injected, hyper)
         progress = progress.replace(threshold=threshold).after_injection(injected)
-        policies = self.policies_of(samples)
-        k_best = jax.random.fold_in(key, 1)
-        if fresh is None:
-            best_idx, winner, winner_value = iteration_best(
-                self.env,
-                self.controller,
-                k_best,
-                self.env_params,
-                policies,
-                values,
-                self.fresh_rollouts,
-            )
-        else:
-            best_idx = jnp.argmax(values)
-            winner = jax.tree.map(lambda x: x[best_idx], policies)
-            winner_value = fresh(k_best, winner)
-        progress, improved = progress.record(winner_value)
+        best_idx = jnp.argmax(values)
+        winner = jax.tree.map(lambda x: x[best_idx], self.policies_of(samples))
+        value = self.winner_value(streams(key).best, winner, values[best_idx], params, fresh_value)
+        progress, improved = progress.record(value)
         best_policy = select_tree(improved, winner, state.best_policy)
         metrics = SearchMetrics(
             value=values[best_idx],
@@ -174,8 +279,3 @@ class ThresholdSearch(RolloutValues):
             injected=injected,
         )
         return state.replace(distribution=dist, best_policy=best_policy, progress=progress), metrics
-
-    def step(self, key: jax.Array, state, hyper=None):
-        """One iteration: ``ask``, the algorithm's ``evaluate``, ``tell``."""
-        samples, policies = self.ask(key, state)
-        return self.tell(key, state, samples, self.evaluate(key, policies), hyper=hyper)

@@ -3,7 +3,8 @@ with discrete observations.
 
 Search distribution per agent: ``action_probs [agents, nodes, actions]`` (theta) and
 ``transition_probs [agents, nodes, obs, nodes]`` (phi), uniform at the start. One iteration
-(``GDice.step``, compiled once), values are returns to **maximise**:
+(``GDice.step``, compiled once; the protocol of ``algorithms.engine``), values are returns to
+**maximise**:
 
 1. draw ``samples`` deterministic joint controllers (one action per node, one next node per
    (node, observation)) in one block;
@@ -57,7 +58,7 @@ the layers and improves the exact value) with the single-entry polish. A best re
 changes a node's action and its transitions together, which single-entry moves cannot (box
 pushing h 4: the polish alone stops at 97.28 on most seeds, the best responses lift them to
 97.69); its cost grows as ``(actions * observations)^(horizon - 1)``, so
-``build_from_config`` drops it above ``api.POLISH_SWEEP_LIMIT``.
+``build`` drops it above ``POLISH_SWEEP_LIMIT``.
 
 **[choice]** The value an iteration records for the entropy-injection triggers and the best-value
 curve is its best sample's value (the in-loop, optimistic estimate).
@@ -65,8 +66,8 @@ curve is its best sample's value (the in-loop, optimistic estimate).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -75,19 +76,27 @@ from flax import struct
 from cognet_jax.algorithms.best_response import best_response, best_response_cost
 from cognet_jax.algorithms.cross_entropy import (
     ENTROPY_FIELDS,
+    ENTROPY_SECTION_FIELDS,
     Progress,
     count_table,
-    entropy_config,
     inject_entropy,
     select_tree,
     smooth,
 )
-from cognet_jax.algorithms.engine import SearchMetrics, ThresholdHyper, ThresholdSearch
+from cognet_jax.algorithms.engine import (
+    Search,
+    SearchMetrics,
+    SearchParams,
+    ThresholdSearch,
+    ThresholdSection,
+    threshold_hyper,
+)
 from cognet_jax.algorithms.polish import RELATIVE_TOLERANCE, neighbour_moves, polish
 from cognet_jax.config import (
-    ENTROPY_SECTION_FIELDS,
     ConfigError,
-    GDiceAlgorithmSection,
+    require,
+    require_positive,
+    require_probability,
     settings_class,
 )
 from cognet_jax.controllers.base import action_support
@@ -97,17 +106,74 @@ from cognet_jax.controllers.tabular import (
     TabularDistribution,
 )
 from cognet_jax.envs.tabular import TabularEnv
-from cognet_jax.exact_jax import exact_value, exact_value_layered
+from cognet_jax.exact_jax import exact_cost, exact_value, exact_value_layered
+from cognet_jax.memory import budget_bytes
+from cognet_jax.registry import fields_from, register_algorithm
 
-#: dynamic (sweepable) hyper-parameters: the engine's, shared with COG-DICE
-GDiceHyper = ThresholdHyper
+#: Largest exact evaluation one G-DICE iteration may do (multiply-adds over all samples).
+EXACT_EVALUATOR_LIMIT = 2_000_000_000
+#: ``evaluator = "auto"`` ranks samples exactly up to this many multiply-adds per iteration
+#: (about 0.1-0.3 s on two cores), by rollouts above it.
+EXACT_AUTO_LIMIT = 300_000_000
+#: Largest exact cost of one polish sweep (every single-entry change of the best controller,
+#: ``GDice.polish_moves``); above it the polish is skipped.
+POLISH_SWEEP_LIMIT = 3_000_000_000
+#: Largest working set (float32 numbers) of one agent's best response in the polish
+#: (``algorithms.best_response.best_response_cost``); above it, or above
+#: ``POLISH_SWEEP_LIMIT`` multiply-adds, the best responses are skipped.
+BEST_RESPONSE_FLOATS = 1 << 25
 
 
-#: static settings: the fields of ``config.GDiceAlgorithmSection`` (documented there) without the
-#: hyper-parameters (``GDiceHyper``) and the portfolio's own fields (``GDicePortfolio``)
+@dataclasses.dataclass
+class GDiceSection(ThresholdSection):
+    """``[algorithm]`` of G-DICE (SPEC 3): the shared fields of ``ThresholdSection`` and:"""
+
+    nodes: int = 7
+    #: "rollouts" (SPEC: mean of eval_rollouts returns), "exact" (tabular models only: the
+    #: exact expected return over the horizon, computed inside the compiled iteration),
+    #: "hybrid" (rollouts pick the ``exact_top`` best samples, which get exact values) or
+    #: "auto" (exact when one iteration's exact values cost at most ``EXACT_AUTO_LIMIT``
+    #: multiply-adds, else hybrid when its exact part does, else rollouts)
+    evaluator: Literal["rollouts", "exact", "hybrid", "auto"] = "rollouts"
+    #: evaluator "hybrid": the samples (best by rollouts) that get exact values
+    exact_top: int = 50
+    #: identical agents: each sample is one controller used by every agent (a search over
+    #: symmetric joint controllers; SPEC's G-DICE samples every agent independently)
+    shared_controller: bool = False
+    #: a time-layered controller for a finite horizon: ``problem.horizon`` layers of ``nodes``
+    #: nodes each; node q of layer t acts at step t and moves to layer t + 1 only
+    layered: bool = False
+    #: independent searches run side by side in one compiled step; the best policy of all
+    restarts: int = 1
+    #: extra searches over shared controllers beside them (identical agents only; skipped for
+    #: agents with different action or observation counts, so a default can always ask)
+    shared_restarts: int = 0
+    #: extra independent searches whose entropy injection mixes in ``explore_entropy_rate``
+    #: of uniform (a strong rate escapes local optima that the usual rate settles in)
+    explore_restarts: int = 0
+    explore_entropy_rate: float = 0.2
+    #: after the last iteration, at most this many single-entry changes of the best controller
+    #: by exact steepest ascent (exact or hybrid evaluator only; 0: none, as in SPEC)
+    polish_sweeps: int = 0
+    #: with the polish of a layered controller: at most this many rounds of each agent's exact
+    #: best response to the others (written into its layers when it fits), each followed by
+    #: the single-entry polish (``algorithms.best_response``; 0: none)
+    best_response_rounds: int = 0
+
+    def check(self, config) -> None:
+        super().check(config)
+        require_positive(self, "algorithm", "restarts", "exact_top")
+        for name in ("shared_restarts", "explore_restarts", "polish_sweeps"):
+            require(getattr(self, name) >= 0, f"algorithm.{name}", "must be >= 0")
+        require(self.best_response_rounds >= 0, "algorithm.best_response_rounds", "must be >= 0")
+        require_probability(self, "algorithm", "explore_entropy_rate")
+
+
+#: static settings: the fields of ``GDiceSection`` without the hyper-parameters
+#: (``ThresholdHyper``) and the portfolio's own fields (``GDicePortfolio``)
 GDiceSettings = settings_class(
     "GDiceSettings",
-    GDiceAlgorithmSection,
+    GDiceSection,
     exclude=(
         "alpha",
         *ENTROPY_SECTION_FIELDS,
@@ -137,10 +203,6 @@ class PolishInfo:
     moves_per_sweep: int = struct.field(pytree_node=False, default=0)
 
 
-#: an iteration's figures (the engine's, shared with COG-DICE)
-GDiceMetrics = SearchMetrics
-
-
 def _counts(env, name: str):
     counts = getattr(env, name, None)
     return tuple(counts) if counts is not None else None
@@ -155,17 +217,23 @@ def identical_agents(env) -> bool:
     )
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
 class GDice(ThresholdSearch):
-    """G-DICE on an environment with discrete observations; ``init`` / ``ask`` / ``tell`` /
-    ``step`` are pure (``algorithms.engine``)."""
+    """G-DICE on an environment with discrete observations; ``init`` / ``ask`` / ``evaluate``
+    / ``tell`` / ``step`` / ``finish`` are pure functions of explicit state and params
+    (``algorithms.engine``)."""
 
-    def __init__(self, env, env_params, settings: GDiceSettings, hyper: GDiceHyper | None = None):
+    def __post_init__(self):
+        env, settings = self.env, self.settings
         if env.num_obs is None:
-            raise ValueError("G-DICE needs discrete observations (env.num_obs is None)")
+            raise ConfigError("env.name", "G-DICE needs discrete observations (env.num_obs)")
         if settings.evaluator not in ("rollouts", "exact", "hybrid"):
-            raise ValueError(f"unknown evaluator {settings.evaluator!r}")
+            raise ConfigError("algorithm.evaluator", f"unknown evaluator {settings.evaluator!r}")
         if settings.evaluator != "rollouts" and not isinstance(env, TabularEnv):
-            raise ValueError(f"evaluator={settings.evaluator!r} needs a tabular (.dpomdp) model")
+            raise ConfigError(
+                "algorithm.evaluator",
+                f"{settings.evaluator!r} needs a tabular .dpomdp model (env.name = 'dpomdp')",
+            )
         if settings.shared_controller and not identical_agents(env):
             raise ConfigError(
                 "algorithm.shared_controller",
@@ -173,12 +241,8 @@ class GDice(ThresholdSearch):
                 f"has actions {_counts(env, 'action_counts')} and observations "
                 f"{_counts(env, 'obs_counts')}",
             )
-        self.env = env
-        self.env_params = env_params
-        self.settings = settings
-        self.hyper = hyper if hyper is not None else GDiceHyper()
         layers = env.horizon if settings.layered else 0
-        self.controller = TabularController(
+        controller = TabularController(
             num_agents=env.num_agents,
             num_nodes=settings.nodes * max(layers, 1),
             num_actions=env.num_actions,
@@ -187,8 +251,9 @@ class GDice(ThresholdSearch):
             shared=settings.shared_controller,
             layers=layers,
         )
+        self._set(controller=controller)
 
-    def init(self, key: jax.Array) -> GDiceState:
+    def init(self, key: jax.Array, params: SearchParams) -> GDiceState:
         dist = self.controller.init_distribution()
         return GDiceState(
             distribution=dist,
@@ -202,32 +267,33 @@ class GDice(ThresholdSearch):
             jax.random.split(key, self.settings.samples)
         )
 
-    def evaluate_samples(self, key: jax.Array, policies) -> jax.Array:
+    def evaluate(self, key: jax.Array, policies, params: SearchParams) -> jax.Array:
         """Value ``[samples]`` of each sampled controller: the mean return of
         ``eval_rollouts`` rollouts, or with ``evaluator="exact"`` the exact expected return
-        over the horizon (:mod:`cognet_jax.exact_jax`, tabular models only)."""
+        over the horizon (:mod:`cognet_jax.exact_jax`, tabular models only), or with
+        ``"hybrid"`` exact values of the ``exact_top`` best by rollouts (``-inf`` elsewhere)."""
         s = self.settings
         if s.evaluator == "exact":
-            return self.exact_values(policies)
-        means = self.mean_returns(key, policies)
+            return self.exact_values(policies, params)
+        means = super().evaluate(key, policies, params)
         if s.evaluator == "rollouts":
             return means
         _, top = jax.lax.top_k(means, min(s.exact_top, s.samples))
-        exact = self.exact_values(jax.tree.map(lambda x: x[top], policies))
+        exact = self.exact_values(jax.tree.map(lambda x: x[top], policies), params)
         return jnp.full_like(means, -jnp.inf).at[top].set(exact)
 
-    def exact_values(self, policies) -> jax.Array:
+    def exact_values(self, policies, params: SearchParams) -> jax.Array:
         """Exact expected returns ``[C]`` of controllers with a leading ``[C]`` axis."""
         s = self.settings
         value = exact_value_layered if s.layered else exact_value
         nodes = s.nodes if s.layered else self.controller.num_nodes
-        return jax.vmap(lambda p: value(self.env, self.env_params, p, nodes))(policies)
+        return jax.vmap(lambda p: value(self.env, params.env, p, nodes))(policies)
 
-    def exact_value_of(self, policy: DeterministicTabularPolicy) -> jax.Array:
-        """Exact expected return ``[]`` of one controller (:meth:`exact_values` of a batch of 1)."""
-        return self.exact_values(jax.tree.map(lambda x: x[None], policy))[0]
+    def exact_value_of(self, policy: DeterministicTabularPolicy, params) -> jax.Array:
+        """Exact expected return ``[]`` of one controller (``exact_values`` of a batch of 1)."""
+        return self.exact_values(jax.tree.map(lambda x: x[None], policy), params)[0]
 
-    def update_distribution(self, dist: TabularDistribution, elites, kept, hyper: GDiceHyper):
+    def update_distribution(self, dist: TabularDistribution, elites, kept, hyper):
         """Count MLE over the kept elites' tables + smoothing. ``elites``: policies with a
         leading ``[elites]`` axis, ``kept [elites]`` bool."""
         w = kept.astype(jnp.float32)
@@ -246,11 +312,9 @@ class GDice(ThresholdSearch):
         s = self.settings
         if s.evaluator == "exact":  # exact values need neither rollouts nor a fresh best
             return 0
-        if s.evaluator == "hybrid":  # the winner's value is exact: no fresh best
-            return s.samples * s.eval_rollouts
-        return s.samples * s.eval_rollouts + s.best_rollouts
+        return s.samples * s.eval_rollouts + self.fresh_rollouts
 
-    def inject(self, dist: TabularDistribution, injected, hyper: GDiceHyper):
+    def inject(self, dist: TabularDistribution, injected, hyper):
         """Entropy injection into actions and transitions where ``injected``."""
         rate = hyper.entropy.rate
         return TabularDistribution(
@@ -277,10 +341,7 @@ class GDice(ThresholdSearch):
             return jnp.mean(values, where=jnp.isfinite(values))
         return values.mean()
 
-    @staticmethod
-    def best_policy(state: GDiceState) -> DeterministicTabularPolicy:
-        return state.best_policy
-
+    # -- after the last iteration: the exact polish ---------------------------------------
     @property
     def polishes(self) -> bool:
         """Whether ``finish`` does anything: ``polish_sweeps > 0`` and exact values."""
@@ -303,37 +364,38 @@ class GDice(ThresholdSearch):
         s = self.settings
         return self.polishes and s.layered and s.best_response_rounds > 0
 
-    def respond(self, policy: DeterministicTabularPolicy, value: jax.Array):
+    def respond(self, policy: DeterministicTabularPolicy, value: jax.Array, params):
         """One round: every agent in turn replaced by its exact best response to the others
         when that fits the layers and beats ``value`` (by its exact value). Returns
         ``(policy, value, responses applied)``."""
         applied = jnp.int32(0)
         for agent in range(self.env.num_agents):
             candidate, _, fits = best_response(
-                self.env, self.env_params, policy, self.settings.nodes, agent
+                self.env, params.env, policy, self.settings.nodes, agent
             )
-            new = self.exact_value_of(candidate)
+            new = self.exact_value_of(candidate, params)
             better = fits & (new > value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(value)))
             policy = select_tree(better, candidate, policy)
             value = jnp.where(better, new, value)
             applied = applied + better
         return policy, value, applied
 
-    def polish_best(self, policy: DeterministicTabularPolicy, best_value: jax.Array):
+    def polish_best(self, policy, best_value: jax.Array, params: SearchParams):
         """``(policy, value, PolishInfo)``: ``policy`` improved by exact steepest ascent, then
         (``best_responds``) by rounds of best responses, each followed by steepest ascent,
         until a round changes nothing or ``best_response_rounds`` rounds."""
         moves = self.polish_moves()
         sweeps = self.settings.polish_sweeps
-        before = self.exact_value_of(policy)
-        policy, value, applied = polish(self.exact_values, policy, moves, sweeps)
+        exact = lambda ps: self.exact_values(ps, params)  # noqa: E731
+        before = self.exact_value_of(policy, params)
+        policy, value, applied = polish(exact, policy, moves, sweeps)
         responses = jnp.int32(0)
         if self.best_responds:
 
             def one_round(carry):
                 policy, value, applied, responses, rounds, _ = carry
-                policy, value, answered = self.respond(policy, value)
-                policy, value, more = polish(self.exact_values, policy, moves, sweeps)
+                policy, value, answered = self.respond(policy, value, params)
+                policy, value, more = polish(exact, policy, moves, sweeps)
                 return policy, value, applied + more, responses + answered, rounds + 1, answered > 0
 
             def keep_going(carry):
@@ -352,12 +414,12 @@ class GDice(ThresholdSearch):
         )
         return policy, jnp.maximum(value, best_value), info
 
-    def finish(self, state: GDiceState) -> tuple[GDiceState, PolishInfo | None]:
+    def finish(self, state: GDiceState, params: SearchParams):
         """After the last iteration (pure, jit-able): the best policy polished by exact local
         search when ``polishes``; ``(state, PolishInfo)``, or ``(state, None)``."""
         if not self.polishes:
             return state, None
-        policy, value, info = self.polish_best(state.best_policy, state.progress.best_value)
+        policy, value, info = self.polish_best(state.best_policy, state.progress.best_value, params)
         progress = state.progress.replace(best_value=value)
         return state.replace(best_policy=policy, progress=progress), info
 
@@ -372,14 +434,14 @@ class PortfolioState:
     progress: Progress
 
 
-class GDicePortfolio:
-    """Several independent G-DICE searches run side by side in one compiled ``step``: ``restarts``
-    searches as ``settings`` says (independent per-agent controllers unless
-    ``shared_controller``) and ``shared_restarts`` with one shared controller (identical agents
-    only; skipped otherwise). Each search keeps its own
-    distributions, elite threshold and entropy injection; the portfolio keeps the best policy
-    of all of them by their own best values (exact values with the exact evaluator, fresh means
-    with ``best_rollouts``).
+@dataclasses.dataclass(frozen=True, eq=False)
+class GDicePortfolio(Search):
+    """Several independent G-DICE searches run side by side in one compiled ``step``:
+    ``settings.restarts`` searches as ``settings`` says (independent per-agent controllers
+    unless ``shared_controller``) and ``shared_restarts`` with one shared controller (identical
+    agents only; skipped otherwise). Each search keeps its own distributions, elite threshold
+    and entropy injection; the portfolio keeps the best policy of all of them by their own best
+    values (exact values with the exact evaluator, fresh means with ``best_rollouts``).
 
     ``explore_restarts`` more independent searches inject entropy at ``explore_rate`` instead
     of the hyper's rate: a strong injection lets a converged search leave a local optimum (box
@@ -389,69 +451,38 @@ class GDicePortfolio:
     Why: a shared controller finds optima that need every agent to change the same entry at
     once (Recycling with gamma 0.9, Dec-Tiger h 5), but can only find symmetric controllers;
     running both and keeping the better one needs no guess of which problem is which.
+
+    Derived (``__post_init__``): ``members`` (one ``GDice`` per member search), ``restarts``
+    (searches per member), ``rates`` (the entropy rate replacing the hyper's, or ``None``).
+    The memory budget is shared: each member search gets ``memory / total restarts`` per
+    search.
     """
 
-    def __init__(
-        self,
-        env,
-        env_params,
-        settings: GDiceSettings,
-        hyper=None,
-        shared_restarts=0,
-        explore_restarts=0,
-        explore_rate=0.2,
-    ):
-        self.members = [GDice(env, env_params, settings, hyper)]
-        self.restarts = [settings.restarts]
-        #: per member: the entropy-injection rate that replaces the hyper's (None: keep it)
-        self.rates: list[float | None] = [None]
-        if shared_restarts and identical_agents(env) and env.num_agents > 1:
+    shared_restarts: int = 0
+    explore_restarts: int = 0
+    explore_rate: float = 0.2
+
+    def __post_init__(self):
+        env, settings = self.env, self.settings
+        plan = [(settings, settings.restarts, None)]
+        if self.shared_restarts and identical_agents(env) and env.num_agents > 1:
             shared = dataclasses.replace(settings, shared_controller=True)
-            self.members.append(GDice(env, env_params, shared, hyper))
-            self.restarts.append(shared_restarts)
-            self.rates.append(None)
-        if explore_restarts:
-            self.members.append(GDice(env, env_params, settings, hyper))
-            self.restarts.append(explore_restarts)
-            self.rates.append(explore_rate)
-        self.explore_restarts, self.explore_rate = explore_restarts, explore_rate
-        self.env, self.env_params, self.settings = env, env_params, settings
-        self.memory = None
-        self.hyper = self.members[0].hyper
-        self.controller = self.members[0].controller
+            plan.append((shared, self.shared_restarts, None))
+        if self.explore_restarts:
+            plan.append((settings, self.explore_restarts, self.explore_rate))
+        total = sum(r for _, r, _ in plan)
+        per_search = (budget_bytes() if self.memory is None else self.memory) // total
+        members = tuple(GDice(env, s, per_search) for s, _, _ in plan)
+        self._set(
+            members=members,
+            restarts=tuple(r for _, r, _ in plan),
+            rates=tuple(rate for _, _, rate in plan),
+            controller=members[0].controller,
+        )
 
-    @property
-    def env_params(self):
-        return self._env_params
-
-    @env_params.setter
-    def env_params(self, value):
-        """Setting the params (``sweep.with_env_params`` on a shallow copy) gives every member
-        search the same params, on copies, so the original portfolio is left as it was."""
-        self._env_params = value
-        self.members = [copy.copy(m) for m in self.members]
-        for m in self.members:
-            m.env_params = value
-
-    @property
-    def memory(self) -> int | None:
-        return self._memory
-
-    @memory.setter
-    def memory(self, value: int | None):
-        """The budget of the whole portfolio; each member search (``vmap``-ed over its
-        restarts) gets ``value / total restarts`` per restart."""
-        from cognet_jax.memory import budget_bytes
-
-        self._memory = value
-        per_lane = (budget_bytes() if value is None else value) // sum(self.restarts)
-        self.members = [copy.copy(m) for m in self.members]
-        for m in self.members:
-            m.memory = per_lane
-
-    def init(self, key: jax.Array) -> PortfolioState:
+    def init(self, key: jax.Array, params: SearchParams) -> PortfolioState:
         members = tuple(
-            jax.vmap(m.init)(jax.random.split(jax.random.fold_in(key, i), r))
+            jax.vmap(m.init, (0, None))(jax.random.split(jax.random.fold_in(key, i), r), params)
             for i, (m, r) in enumerate(zip(self.members, self.restarts))
         )
         first = jax.tree.map(lambda x: x[0], members[0].best_policy)
@@ -470,45 +501,45 @@ class GDicePortfolio:
         """Keys ``[restarts]`` of member search ``i`` for the iteration key ``key``."""
         return jax.random.split(jax.random.fold_in(key, i), self.restarts[i])
 
-    def ask(self, key: jax.Array, state: PortfolioState) -> tuple[tuple, tuple]:
+    def _member_params(self, params: SearchParams, i: int) -> SearchParams:
+        rate = self.rates[i]
+        if rate is None:
+            return params
+        entropy = params.hyper.entropy.replace(rate=rate)
+        return params.replace(hyper=params.hyper.replace(entropy=entropy))
+
+    def ask(self, key: jax.Array, state: PortfolioState, params: SearchParams):
         """``(samples, policies)``: one entry per member search, each with leading axes
         ``[restarts, samples]`` (see ``members`` and ``restarts``)."""
         asked = [
-            jax.vmap(m.ask)(self._member_keys(key, i), state.members[i])
+            jax.vmap(m.ask, (0, 0, None))(self._member_keys(key, i), state.members[i], params)
             for i, m in enumerate(self.members)
         ]
         return tuple(a[0] for a in asked), tuple(a[1] for a in asked)
 
-    def evaluate(self, key: jax.Array, policies: tuple) -> tuple:
+    def evaluate(self, key: jax.Array, policies: tuple, params: SearchParams) -> tuple:
         """Values ``[restarts, samples]`` per member search (each member's own evaluator)."""
         return tuple(
-            jax.vmap(m.evaluate)(self._member_keys(key, i), policies[i])
+            jax.vmap(m.evaluate, (0, 0, None))(self._member_keys(key, i), policies[i], params)
             for i, m in enumerate(self.members)
         )
 
-    def tell(
-        self,
-        key: jax.Array,
-        state: PortfolioState,
-        samples: tuple,
-        values: tuple,
-        *,
-        hyper: GDiceHyper | None = None,
-        fresh=None,
-    ):
+    def tell(self, key, state: PortfolioState, samples, values, params, *, fresh_value=None):
         """Every member search told its values (``ThresholdSearch.tell``), then the best of
-        them all kept; returns ``(state, GDiceMetrics)``. ``fresh(key, policy) -> value`` as in
+        them all kept; returns ``(state, SearchMetrics)``. ``fresh_value(key, policy)`` as in
         ``ThresholdSearch.tell`` (one policy; the portfolio ``vmap``s it over restarts)."""
-        hyper = self.hyper if hyper is None else hyper
         members, metrics = [], []
-        for i, (m, rate) in enumerate(zip(self.members, self.rates)):
-            h = hyper if rate is None else hyper.replace(entropy=hyper.entropy.replace(rate=rate))
+        for i, m in enumerate(self.members):
 
-            def tell_one(k, s, smp, v, m=m, h=h):
-                return m.tell(k, s, smp, v, hyper=h, fresh=fresh)
+            def tell_one(k, s, smp, v, p, m=m):
+                return m.tell(k, s, smp, v, p, fresh_value=fresh_value)
 
-            new, met = jax.vmap(tell_one)(
-                self._member_keys(key, i), state.members[i], samples[i], values[i]
+            new, met = jax.vmap(tell_one, (0, 0, 0, 0, None))(
+                self._member_keys(key, i),
+                state.members[i],
+                samples[i],
+                values[i],
+                self._member_params(params, i),
             )
             members.append(new)
             metrics.append(met)
@@ -520,7 +551,7 @@ class GDicePortfolio:
             improved, jax.tree.map(lambda x: x[winner], policies), state.best_policy
         )
         met = jax.tree.map(lambda *xs: jnp.concatenate(xs), *metrics)
-        out = GDiceMetrics(
+        out = SearchMetrics(
             value=met.value.max(),
             best_value=progress.best_value,
             mean_value=met.mean_value.mean(),
@@ -530,24 +561,11 @@ class GDicePortfolio:
         )
         return PortfolioState(tuple(members), best_policy, progress), out
 
-    def step(self, key: jax.Array, state: PortfolioState, hyper: GDiceHyper | None = None):
-        """One iteration of every member search (``ask``, ``evaluate``, ``tell``); returns
-        ``(state, GDiceMetrics)``."""
-        samples, policies = self.ask(key, state)
-        return self.tell(key, state, samples, self.evaluate(key, policies), hyper=hyper)
-
-    def policy_returns(self, key, policy, num: int, batch: int = 10_000):
-        return self.members[0].policy_returns(key, policy, num, batch)
-
-    @staticmethod
-    def best_policy(state: PortfolioState) -> DeterministicTabularPolicy:
-        return state.best_policy
-
     @property
     def polishes(self) -> bool:
         return self.members[0].polishes
 
-    def finish(self, state: PortfolioState) -> tuple[PortfolioState, PolishInfo | None]:
+    def finish(self, state: PortfolioState, params: SearchParams):
         """Every member search's best policy polished as in :meth:`GDice.finish`, and the best
         polished one kept: the searches often end in different basins, and the one with the
         best value before the polish is not always the one whose basin holds the best local
@@ -562,7 +580,7 @@ class GDicePortfolio:
             *[s.best_policy for s in state.members],
         )  # [1 + all restarts, ...]: the portfolio's best first
         polished, values, infos = jax.lax.map(
-            lambda p: search.polish_best(p, jnp.float32(-jnp.inf)), candidates
+            lambda p: search.polish_best(p, jnp.float32(-jnp.inf), params), candidates
         )
         winner = jnp.argmax(values)  # the first of equal values: the portfolio's best
         take = lambda tree: jax.tree.map(lambda x: x[winner], tree)  # noqa: E731
@@ -571,85 +589,108 @@ class GDicePortfolio:
         progress = state.progress.replace(best_value=value)
         return state.replace(best_policy=policy, progress=progress), info
 
+    @property
+    def searches(self) -> list[dict]:
+        """What each member search is (for results.json's ``resolved``)."""
+        return [
+            {"shared_controller": m.settings.shared_controller, "restarts": r, "entropy_rate": e}
+            for m, r, e in zip(self.members, self.restarts, self.rates)
+        ]
+
 
 # ---------------------------------------------------------------------------------------------
-# registration (cognet_jax.registry): config -> algorithm
+# the registry entry: config -> algorithm, hyper-parameters
 # ---------------------------------------------------------------------------------------------
-def build_from_config(config, env, env_params) -> GDice | GDicePortfolio:
-    """The search of ``config`` (``experiment.algorithm = "gdice"``): ``evaluator = "auto"``
-    resolved from the model's exact cost (``api.EXACT_AUTO_LIMIT``), the polish dropped when
-    one sweep costs more than ``api.POLISH_SWEEP_LIMIT``, a portfolio when more than one
-    search runs."""
-    from cognet_jax.api import (
-        BEST_RESPONSE_FLOATS,
-        EXACT_AUTO_LIMIT,
-        POLISH_SWEEP_LIMIT,
-        check_exact_cost,
-        exact_iteration_cost,
-    )
-    from cognet_jax.exact_jax import exact_cost
-    from cognet_jax.registry import fields_from
+def exact_iteration_cost(env, section, env_params=None) -> int:
+    """Multiply-adds of exact values for one iteration's samples (all restarts)."""
+    # a layered controller's recursion runs over one layer (``nodes`` per agent) per step
+    searches = section.restarts + section.shared_restarts + section.explore_restarts
+    return exact_cost(env, section.nodes, env_params) * section.samples * searches
 
+
+def resolve_evaluator(env, section, env_params) -> str:
+    """``section.evaluator`` with ``"auto"`` resolved from the model's exact cost
+    (``EXACT_AUTO_LIMIT``); ``ConfigError`` when exact values would cost more than
+    ``EXACT_EVALUATOR_LIMIT`` per iteration."""
+    evaluator = section.evaluator
+    if evaluator != "rollouts" and not isinstance(env, TabularEnv):
+        raise ConfigError(
+            "algorithm.evaluator",
+            f"{evaluator!r} needs a tabular .dpomdp model (env.name = 'dpomdp')",
+        )
+    if evaluator == "rollouts":
+        return evaluator
+    cost = exact_iteration_cost(env, section, env_params)
+    top = min(section.exact_top, section.samples)
+    if evaluator == "auto":
+        evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "hybrid"
+        if evaluator == "hybrid" and cost * top // section.samples > EXACT_AUTO_LIMIT:
+            return "rollouts"
+    if evaluator == "hybrid":
+        cost = cost * top // section.samples
+    if cost > EXACT_EVALUATOR_LIMIT:
+        raise ConfigError(
+            "algorithm.evaluator",
+            f"{evaluator!r} would need {cost:.2e} multiply-adds per iteration (nodes^agents * S "
+            f"* (S + joint observations) * horizon * samples * searches > "
+            f"{EXACT_EVALUATOR_LIMIT:.0e}); use 'rollouts' or fewer nodes/samples"
+            + (" or exact_top" if evaluator == "hybrid" else ""),
+        )
+    return evaluator
+
+
+def affordable_polish(env, settings, env_params):
+    """``settings`` with the polish and the best responses dropped where they would cost more
+    than ``POLISH_SWEEP_LIMIT`` / ``BEST_RESPONSE_FLOATS`` for this model (results.json's
+    ``resolved`` shows what ran)."""
+    nodes = settings.nodes
+    if settings.polish_sweeps and settings.evaluator in ("exact", "hybrid"):
+        moves = len(GDice(env, settings).polish_moves())
+        if moves * exact_cost(env, nodes, env_params) > POLISH_SWEEP_LIMIT:
+            settings = dataclasses.replace(settings, polish_sweeps=0)
+    if settings.best_response_rounds and not (settings.polish_sweeps and settings.layered):
+        settings = dataclasses.replace(settings, best_response_rounds=0)
+    if settings.best_response_rounds:
+        costs = [best_response_cost(env, nodes, i, env_params) for i in range(env.num_agents)]
+        if (
+            max(c[0] for c in costs) > POLISH_SWEEP_LIMIT
+            or max(c[1] for c in costs) > BEST_RESPONSE_FLOATS
+        ):
+            settings = dataclasses.replace(settings, best_response_rounds=0)
+    return settings
+
+
+def build(config, env, env_params, memory: int | None = None) -> GDice | GDicePortfolio:
+    """The search of ``config`` (``experiment.algorithm = "gdice"``): the evaluator resolved
+    (``resolve_evaluator``), the polish kept where affordable (``affordable_polish``), a
+    portfolio when more than one search runs."""
     a = config.algorithm
     if env.num_obs is None:
         raise ConfigError(
             "env.name", f"G-DICE needs discrete observations; {config.env.name!r} has none"
         )
-    evaluator = a.evaluator
-    if evaluator == "auto":
-        cost = exact_iteration_cost(env, a, env_params)
-        hybrid_cost = cost * min(a.exact_top, a.samples) // a.samples
-        evaluator = (
-            "exact"
-            if cost <= EXACT_AUTO_LIMIT
-            else "hybrid"
-            if hybrid_cost <= EXACT_AUTO_LIMIT
-            else "rollouts"
-        )
-    settings = fields_from(GDiceSettings, a, evaluator=evaluator)
-    if evaluator in ("exact", "hybrid"):
-        check_exact_cost(env, a, env_params, evaluator)
-    if settings.polish_sweeps and evaluator in ("exact", "hybrid"):
-        moves = len(GDice(env, env_params, settings).polish_moves())
-        if moves * exact_cost(env, a.nodes, env_params) > POLISH_SWEEP_LIMIT:
-            # too costly for this model: no polish (results.json's "resolved" shows it)
-            settings = dataclasses.replace(settings, polish_sweeps=0)
-    if settings.best_response_rounds and not (settings.polish_sweeps and settings.layered):
-        settings = dataclasses.replace(settings, best_response_rounds=0)
-    if settings.best_response_rounds:
-        costs = [best_response_cost(env, a.nodes, i, env_params) for i in range(env.num_agents)]
-        if (
-            max(c[0] for c in costs) > POLISH_SWEEP_LIMIT
-            or max(c[1] for c in costs) > BEST_RESPONSE_FLOATS
-        ):
-            # too costly for this model: no best responses (results.json's "resolved")
-            settings = dataclasses.replace(settings, best_response_rounds=0)
-    hyper = fields_from(GDiceHyper, a, entropy=entropy_config(a))
+    evaluator = resolve_evaluator(env, a, env_params)
+    settings = affordable_polish(
+        env, fields_from(GDiceSettings, a, evaluator=evaluator), env_params
+    )
     if a.restarts > 1 or a.shared_restarts > 0 or a.explore_restarts > 0:
         return GDicePortfolio(
             env,
-            env_params,
             settings,
-            hyper,
-            a.shared_restarts,
-            a.explore_restarts,
-            a.explore_entropy_rate,
+            memory,
+            shared_restarts=a.shared_restarts,
+            explore_restarts=a.explore_restarts,
+            explore_rate=a.explore_entropy_rate,
         )
-    return GDice(env, env_params, settings, hyper)
+    return GDice(env, settings, memory)
 
 
-def _register() -> None:
-    from cognet_jax.config import GDiceAlgorithmSection
-    from cognet_jax.registry import register_algorithm
-
-    register_algorithm(
-        "gdice",
-        GDiceAlgorithmSection,
-        build_from_config,
-        dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
-        discrete=True,
-        overwrite=False,
-    )
-
-
-_register()
+register_algorithm(
+    "gdice",
+    GDiceSection,
+    build,
+    threshold_hyper,
+    dynamic=(*ENTROPY_FIELDS, "algorithm.alpha"),
+    discrete=True,
+    overwrite=False,
+)

@@ -48,7 +48,3 @@ def action_support(env) -> jax.Array:
     masked out (e.g. for the uniform part of an entropy injection)."""
     counts = jnp.asarray(env.action_counts)
     return (jnp.arange(env.num_actions)[None, :] < counts[:, None])[:, None, :]
-
-
-def agent_index(num_agents: int) -> jax.Array:
-    return jnp.arange(num_agents)

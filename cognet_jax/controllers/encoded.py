@@ -17,6 +17,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.controllers.neural import NeuralPolicy
+from cognet_jax.vae import PatchVAE
 
 
 @struct.dataclass
@@ -46,8 +47,6 @@ class EncodedPolicy:
     def features(self, obs: jax.Array) -> jax.Array:
         """``obs [..., raw_features]`` -> encoder mean ``[..., latent]``; the function the
         search's rollouts apply (``ObservationPipeline.features``)."""
-        from cognet_jax.vae import PatchVAE
-
         model = PatchVAE(latent=self.latent, hidden=self.vae_hidden, features=self.raw_features)
         return model.apply(self.vae_params, obs.astype(jnp.float32), method=PatchVAE.encode)[0]
 

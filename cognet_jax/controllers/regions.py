@@ -10,9 +10,11 @@ controller has ``actions [agents, nodes]``, ``points [agents, nodes, N_t - 1]`` 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -57,3 +59,31 @@ def reactive_tagging_policy(
         transitions=jnp.tile(jnp.array([0, 1, 2], jnp.int32), (num_agents, 3, 1)),
     )
     return ctrl, policy
+
+
+def region_graph_edges(points, transitions) -> list[tuple[int, int, list[tuple[float, float]]]]:
+    """Edges of one agent's deterministic region controller, for ``plots.plot_controller_graphs``.
+
+    ``points [nodes, regions - 1]`` sorted, ``transitions [nodes, regions]`` (plain numpy or JAX
+    arrays). Returns ``(src, dst, [(lo, hi), ...])`` sorted by ``(src, dst)``: the observation
+    intervals ``(lo, hi]`` (``-inf`` / ``inf`` at the ends) leading from ``src`` to ``dst``,
+    adjacent regions with the same ``dst`` merged, empty regions (equal points) left out -- the
+    same format as ``plots.controller_graph_edges`` but with the exact division points.
+    """
+    pts = np.asarray(points, dtype=float)
+    trans = np.asarray(transitions)
+    edges = []
+    for src in range(trans.shape[0]):
+        bounds = [-math.inf, *pts[src].tolist(), math.inf]
+        by_dst: dict[int, list[tuple[float, float]]] = {}
+        for r, dst in enumerate(trans[src].tolist()):
+            lo, hi = bounds[r], bounds[r + 1]
+            if not lo < hi:
+                continue
+            intervals = by_dst.setdefault(int(dst), [])
+            if intervals and intervals[-1][1] == lo:
+                intervals[-1] = (intervals[-1][0], hi)
+            else:
+                intervals.append((lo, hi))
+        edges.extend((src, dst, by_dst[dst]) for dst in sorted(by_dst))
+    return edges

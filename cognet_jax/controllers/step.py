@@ -29,6 +29,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from cognet_jax.controllers.base import sample_categorical
 from cognet_jax.controllers.encoded import EncodedPolicy
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
@@ -138,8 +139,6 @@ def controller_step(policy, node: jax.Array, observation, key: jax.Array):
     u_move = jax.random.uniform(k_move, (agents,))
     u_act = jax.random.uniform(k_act, (agents,))
     if isinstance(policy, TabularDistribution):
-        from cognet_jax.controllers.base import sample_categorical
-
         idx = jnp.arange(agents)
         if observation is not None:
             obs = _checked_observation(policy, observation, agents).astype(jnp.int32)

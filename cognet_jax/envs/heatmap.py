@@ -26,13 +26,16 @@ h = 4, gamma = 1.
 from __future__ import annotations
 
 import dataclasses
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from cognet_jax.config import require, require_discount, require_nonnegative, require_positive
 from cognet_jax.envs.base import scaled_normal
+from cognet_jax.registry import register_env
 
 SIZE = 16
 PATCH = 4
@@ -281,7 +284,7 @@ class HeatmapSection:
     else)."""
 
     name: str = "heatmap"
-    start: str = "default"
+    start: Literal["thesis", "default"] = "default"
     horizon: int = 4
     discount: float = 1.0
     obs_noise_amplitude: float = 1.0
@@ -293,19 +296,9 @@ class HeatmapSection:
     far_reward: float = -1.0
 
     def check(self, config) -> None:
-        from cognet_jax.config import require, require_positive
-
-        require(
-            self.start in START_RANGES,
-            "env.start",
-            f"unknown start range {self.start!r} (known: {', '.join(sorted(START_RANGES))})",
-        )
         require_positive(self, "env", "horizon")
-        require(
-            0.0 < self.discount <= 1.0, "env.discount", f"must be in (0, 1], got {self.discount}"
-        )
-        for n in ("obs_noise_std", "obs_noise_amplitude"):
-            require(getattr(self, n) >= 0, f"env.{n}", f"must be >= 0, got {getattr(self, n)}")
+        require_discount(self.discount, "env.discount")
+        require_nonnegative(self, "env", "obs_noise_std", "obs_noise_amplitude")
         require(
             0.0 <= self.obs_signal <= 1.0,
             "env.obs_signal",
@@ -320,19 +313,13 @@ def build_from_section(section: HeatmapSection, config) -> tuple[Heatmap, Heatma
     return make_heatmap(section.start, horizon=section.horizon, **fields)
 
 
-def _register() -> None:
-    from cognet_jax.registry import register_env
-
-    register_env(
-        "heatmap",
-        HeatmapSection,
-        build_from_section,
-        dynamic=("discount",),
-        # SPEC section 8
-        references={"thesis": {"full knowledge of own position": 53.14, "random actions": 19.37}},
-        reference_field="start",
-        overwrite=False,
-    )
-
-
-_register()
+register_env(
+    "heatmap",
+    HeatmapSection,
+    build_from_section,
+    dynamic=("discount",),
+    # SPEC section 8
+    references={"thesis": {"full knowledge of own position": 53.14, "random actions": 19.37}},
+    reference_field="start",
+    overwrite=False,
+)

@@ -21,16 +21,28 @@ PRNG key in place of ``u`` (the uniforms are then drawn from it).
 from __future__ import annotations
 
 import dataclasses
+import math
+import sys
+import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from cognet_jax.config import (
+    ConfigError,
+    ProblemSection,
+    require,
+    require_discount,
+    require_positive,
+)
 from cognet_jax.envs.base import categorical_from_uniform
-from cognet_jax.io.dpomdp import TabularModel
+from cognet_jax.io.dpomdp import TabularModel, parse_dpomdp
+from cognet_jax.registry import register_env
 
-__all__ = ["TabularEnv", "TabularParams", "make_tabular"]
+__all__ = ["TabularEnv", "TabularParams", "load_problem", "make_tabular"]
 
 
 @struct.dataclass
@@ -74,21 +86,11 @@ class TabularEnv:
     obs_shape: tuple[int, ...] = ()
     obs_range: tuple[float, float] | None = None
 
-    @property
-    def num_actions(self) -> int:
-        return max(self.action_counts)
-
-    @property
-    def num_obs(self) -> int:
-        return max(self.obs_counts)
-
-    @property
-    def num_joint_actions(self) -> int:
-        return int(np.prod(self.action_counts))
-
-    @property
-    def num_joint_obs(self) -> int:
-        return int(np.prod(self.obs_counts))
+    #: actions and observations per agent (the most of any agent), and joint ones
+    num_actions = property(lambda self: max(self.action_counts))
+    num_obs = property(lambda self: max(self.obs_counts))
+    num_joint_actions = property(lambda self: math.prod(self.action_counts))
+    num_joint_obs = property(lambda self: math.prod(self.obs_counts))
 
     def default_params(self) -> TabularParams:
         raise NotImplementedError(
@@ -198,8 +200,6 @@ class DpomdpSection:
     name: str = "dpomdp"
 
     def check(self, config) -> None:
-        from cognet_jax.config import require, require_positive
-
         problem = config.problem
         require(
             bool(problem.path),
@@ -207,21 +207,40 @@ class DpomdpSection:
             "is required for a .dpomdp problem: --set problem.path=FILE.dpomdp",
         )
         require_positive(problem, "problem", "horizon")
-        d = problem.discount
-        require(d is None or 0.0 < d <= 1.0, "problem.discount", f"must be in (0, 1], got {d}")
+        require_discount(problem.discount, "problem.discount")
+
+
+#: the last parsed model, keyed by (resolved path, mtime, size, discount): a run builds the
+#: env, the exact evaluation and the plots' names from one parse
+_PARSED: dict = {}
+#: files larger than this get a "parsing ..." line on stderr
+PARSE_PROGRESS_BYTES = 1_000_000
+
+
+def load_problem(problem: ProblemSection) -> TabularModel:
+    """The parsed model of ``problem.path`` (``ConfigError`` if unreadable); parsed once per
+    file version and discount, then reused."""
+    path = Path(problem.path).expanduser()
+    if not path.is_file():
+        raise ConfigError("problem.path", f"no such file: {problem.path}")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size, problem.discount)
+    if key not in _PARSED:
+        _PARSED.clear()
+        large = st.st_size > PARSE_PROGRESS_BYTES
+        if large:
+            print(f"parsing {path} ({st.st_size / 1e6:.1f} MB) ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        _PARSED[key] = parse_dpomdp(str(path), discount=problem.discount)
+        if large:
+            print(f"parsed {path} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return _PARSED[key]
 
 
 def build_from_section(section: DpomdpSection, config) -> tuple[TabularEnv, TabularParams]:
-    """The parsed model of ``problem.path`` (parsed once per file version, ``api.load_problem``)."""
-    from cognet_jax.api import load_problem
-
-    return make_tabular(load_problem(config), config.problem.horizon, config.problem.discount)
-
-
-def _register() -> None:
-    from cognet_jax.registry import register_env
-
-    register_env("dpomdp", DpomdpSection, build_from_section, overwrite=False)
+    """The parsed model of ``problem.path`` (parsed once per file version, ``load_problem``)."""
+    problem = config.problem
+    return make_tabular(load_problem(problem), problem.horizon, problem.discount)
 
 
-_register()
+register_env("dpomdp", DpomdpSection, build_from_section, reads=("problem",), overwrite=False)

@@ -895,42 +895,40 @@ class _Parser:
     # -- final checks -----------------------------------------------------------------------
 
     def finish(self) -> None:
-        sums = self.T.sum(-1, dtype=np.float64)
-        bad = (self.t_line > 0) & (np.abs(sums - 1.0) > self.t_tol)
+        """Every row of T and O was given and sums to one (else the error names the line)."""
+        self.check_rows(
+            self.T.sum(-1, dtype=np.float64),
+            self.t_line,
+            self.t_tol,
+            lambda s, ja: f"T(.|s={self.state_names[s]}, ja={self.ja_name(ja)})",
+            "T",
+        )
+        self.check_rows(
+            self.O.sum(-1),
+            self.o_line,
+            PROB_TOL,
+            lambda ja, sp: f"O(.|ja={self.ja_name(ja)}, s'={self.state_names[sp]})",
+            "O",
+        )
+
+    def check_rows(self, sums, lines, tol: float, row_name, table: str) -> None:
+        """``sums [a, b]`` of the rows of a table written last on ``lines [a, b]`` (0: never):
+        the first row written whose sum is off by more than ``tol``, else the first row never
+        written, is an error; ``row_name(a, b)`` names a row."""
+        bad = (lines > 0) & (np.abs(sums - 1.0) > tol)
         if bad.any():
-            s, ja = min(np.argwhere(bad), key=lambda ij: self.t_line[ij[0], ij[1]])
+            a, b = min(np.argwhere(bad), key=lambda ij: lines[ij[0], ij[1]])
             raise self.error(
-                int(self.t_line[s, ja]),
-                f"T(.|s={self.state_names[s]}, ja={self.ja_name(ja)}) sums to "
-                f"{sums[s, ja]:.12g}, not 1 (tolerance {self.t_tol:g}); last written here",
+                int(lines[a, b]),
+                f"{row_name(a, b)} sums to {sums[a, b]:.12g}, not 1 (tolerance {tol:g}); last "
+                "written here",
             )
-        missing = self.t_line == 0
+        missing = lines == 0
         if missing.any():
-            s, ja = np.argwhere(missing)[0]
+            a, b = np.argwhere(missing)[0]
             more = int(missing.sum()) - 1
-            extra = f" (and {more} more rows of T)" if more else ""
-            raise self.error(
-                None,
-                f"T(.|s={self.state_names[s]}, ja={self.ja_name(ja)}) never specified{extra}",
-            )
-        sums = self.O.sum(-1)
-        bad = (self.o_line > 0) & (np.abs(sums - 1.0) > PROB_TOL)
-        if bad.any():
-            ja, sp = min(np.argwhere(bad), key=lambda ij: self.o_line[ij[0], ij[1]])
-            raise self.error(
-                int(self.o_line[ja, sp]),
-                f"O(.|ja={self.ja_name(ja)}, s'={self.state_names[sp]}) sums to "
-                f"{sums[ja, sp]:.12g}, not 1 (tolerance {PROB_TOL:g}); last written here",
-            )
-        missing = self.o_line == 0
-        if missing.any():
-            ja, sp = np.argwhere(missing)[0]
-            more = int(missing.sum()) - 1
-            extra = f" (and {more} more rows of O)" if more else ""
-            raise self.error(
-                None,
-                f"O(.|ja={self.ja_name(ja)}, s'={self.state_names[sp]}) never specified{extra}",
-            )
+            extra = f" (and {more} more rows of {table})" if more else ""
+            raise self.error(None, f"{row_name(a, b)} never specified{extra}")
 
     def warnings(self, text: str) -> tuple[str, ...]:
         """Where MADP's defaults silently decide (see the module docstring)."""

@@ -1,0 +1,742 @@
+"""The one driver: runs searches from the command line -- compile once, iterate with a progress
+bar, checkpoint, stop cleanly on signals, polish, evaluate the best policy honestly, write each
+run's folder.
+
+A *group* is a list of runs (``Run``: config, seed, folder) that share one compiled program:
+``cognet-jax train`` is a group of one run, a sweep (``cognet_jax.sweep``) runs one group per
+set of settings that differ only in dynamic fields. A group of one runs the search as it is;
+a larger group ``vmap``s it over a leading ``[runs]`` axis, sharded over the local devices
+(``shard_map``, no collectives). Run r of a group uses exactly the keys of ``train --seed s``
+(``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``). The params of a run are
+constants of the program unless the group's runs differ in them (then they are data), as in
+``api.make_train(config)`` called without params.
+
+Every run ends with the one honest evaluation (``api.honest_returns``: ``evaluation.rollouts``
+fresh rollouts of its best policy from the seed's evaluation key), compiled with the run's
+params as constants -- the function ``cognet-jax evaluate DIR`` runs to reproduce it.
+
+Files of a run folder (``write_run``): ``results.json`` (``RESULTS_SCHEMA``: experiment,
+algorithm, seed, setting and grid of a sweep, full config, ``final_value`` {mean, stderr,
+rollouts, exact values of tabular controllers}, ``in_loop_best`` (the search's own, optimistic
+estimate), per-iteration values, polish record, timings); ``policy.msgpack`` (the best policy,
+``checkpoint.policy_bytes``); ``vae.msgpack`` when the observation pipeline has a VAE; PNG plots
+(a group of one run with ``run.plots``).
+
+Signals (``cognet_jax.signals``): SIGINT, SIGTERM and SIGHUP during the iterations stop the
+group after the current iteration (``signals.deferred_stop``); its checkpoint and every run's
+best policy so far are written and ``Interrupted`` is raised (the CLI exits with ``128 +
+signal``). Checkpoints are written every ``run.checkpoint_every`` iterations and every
+``run.checkpoint_seconds`` seconds of search (atomic, ``checkpoint.save_checkpoint``);
+``resume`` continues from one bit for bit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from tqdm.auto import tqdm
+
+from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.api import (
+    build_algorithm,
+    honest_returns,
+    iteration_step,
+    params_of,
+    seed_key,
+    split_seed_key,
+)
+from cognet_jax.checkpoint import (
+    CHECKPOINT_NAME,
+    atomic_write_bytes,
+    atomic_write_text,
+    policy_bytes,
+    read_checkpoint,
+    read_policy,
+    restore_history,
+    restore_key,
+    restore_state,
+    save_checkpoint,
+    stack_history,
+)
+from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
+from cognet_jax.envs.tabular import load_problem
+from cognet_jax.errors import MismatchError, read_json
+from cognet_jax.exact import exact_value
+from cognet_jax.memory import budget_bytes, trace_checked
+from cognet_jax.observations import VAE_FILE
+from cognet_jax.registry import config_from_dict
+from cognet_jax.reporting import write_plots
+from cognet_jax.signals import deferred_stop
+from cognet_jax.vae import save_vae
+
+#: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
+RESULTS_SCHEMA = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One search of a group: its config, seed and training folder (``None``: no files);
+    ``setting`` and ``grid`` say which setting of a sweep it is."""
+
+    config: Config
+    seed: int
+    folder: Path | None = None
+    setting: int = 0
+    grid: dict = dataclasses.field(default_factory=dict)
+
+
+class Interrupted(Exception):
+    """A group stopped by a signal after writing its checkpoint and every run's best policy;
+    ``signum`` is the signal (the CLI exits with ``128 + signum``)."""
+
+    def __init__(self, out_dir: Path, iteration: int, iterations: int, signum: int = 2):
+        self.out_dir, self.iteration, self.signum = Path(out_dir), iteration, int(signum)
+        name = signal.Signals(self.signum).name
+        super().__init__(
+            f"interrupted at iteration {iteration}/{iterations} ({name}): best policy and "
+            f"checkpoint written to {out_dir}; continue with --resume {out_dir}"
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# the compiled program of a group
+# ---------------------------------------------------------------------------------------------
+def _same_tree(a, b) -> bool:
+    """Whether two pytrees of arrays have the same structure and values."""
+    leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b)
+    )
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def take(tree, r: int):
+    """Run ``r`` of a pytree with a leading ``[runs]`` axis."""
+    return jax.tree.map(lambda x: x[r], tree)
+
+
+def per_run(fn, sharding, num_args: int, **jit_kwargs):
+    """``jit`` of ``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output,
+    each device running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk
+    to each other, so the program holds no collective."""
+    spec = sharding.spec
+    mapped = jax.shard_map(
+        jax.vmap(fn),
+        mesh=sharding.mesh,
+        in_specs=(spec,) * num_args,
+        out_specs=spec,
+        check_vma=False,  # carries start as constants; runs are independent anyway
+    )
+    return jax.jit(mapped, **jit_kwargs)
+
+
+class Program:
+    """The compiled functions of a group: ``init``, ``step`` (one iteration of every run),
+    ``finish`` and each run's honest evaluation. One run: the search itself, params as
+    constants. Several: ``vmap`` over ``[runs]`` (padded to a multiple of the local devices by
+    repeating the last run), hyper-parameters as data, env params as data only when the runs
+    differ in them (a zero noise level can then not skip its draws, ``envs.base.scaled_normal``)."""
+
+    def __init__(self, runs: list[Run]):
+        self.runs = runs
+        config = runs[0].config
+        self.config = config
+        self.batched = len(runs) > 1
+        mesh = Mesh(np.array(jax.local_devices()), ("runs",)) if self.batched else None
+        self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
+        padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
+        self.algorithm, self.params = build_algorithm(config, lanes=len(padded))
+        self.run_params = [params_of(r.config) for r in runs]
+        self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
+        self._step = iteration_step(self.algorithm)
+        self._evaluations: list = []  # (env params, compiled honest evaluation)
+        if self.batched:
+            padded_params = self.run_params + [self.run_params[-1]] * (len(padded) - len(runs))
+            self.shared_env = all(_same_tree(p.env, self.params.env) for p in self.run_params)
+            keys = jnp.stack([seed_key(r.config, r.seed) for r in padded])
+            hyper = _stack([p.hyper for p in padded_params])
+            env = _stack([p.env for p in padded_params])
+            self.data = jax.device_put((keys, hyper, env), self.sharding)
+
+    # -- per-run pieces, written once for both layouts --------------------------------------
+    def _params(self, hyper, env_params) -> SearchParams:
+        env = self.params.env if self.shared_env else env_params
+        return SearchParams(env=env, hyper=hyper)
+
+    def _init_one(self, key, hyper, env_params):
+        k_init, _, _ = split_seed_key(key)
+        return self.algorithm.init(k_init, self._params(hyper, env_params))
+
+    def _step_one(self, key, state, hyper, env_params):
+        _, k_run, _ = split_seed_key(key)
+        return self._step(k_run, state, self._params(hyper, env_params))
+
+    def _finish_one(self, state, hyper, env_params):
+        return self.algorithm.finish(state, self._params(hyper, env_params))
+
+    # -- the program ---------------------------------------------------------------------
+    def init(self):
+        """The initial state (every run's, stacked when batched)."""
+        if not self.batched:
+            k_init, _, _ = split_seed_key(self.seed_keys[0])
+            init = jax.jit(lambda k: self.algorithm.init(k, self.params))
+            trace_checked(init, (k_init,), self.memory, "the initial state")
+            return init(k_init)
+        return per_run(self._init_one, self.sharding, 3)(*self.data)
+
+    @property
+    def memory(self) -> int:
+        return budget_bytes(self.config.run.memory_gb)
+
+    def compile_step(self, state):
+        """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
+        checked against the memory budget and compiled ahead of time."""
+        t0 = time.perf_counter()
+        if not self.batched:
+            _, k_run, _ = split_seed_key(self.seed_keys[0])
+            jitted = jax.jit(lambda k, s: self._step(k, s, self.params), donate_argnums=(1,))
+            args, what = (k_run, state), "one iteration"
+        else:
+            jitted = per_run(self._step_one, self.sharding, 4, donate_argnums=(1,))
+            keys, hyper, env = self.data
+            args, what = (keys, state, hyper, env), f"one iteration of {len(keys)} runs"
+        compiled = trace_checked(jitted, args, self.memory, what).lower().compile()
+        compile_s = time.perf_counter() - t0
+        if not self.batched:
+            return lambda s: compiled(args[0], s), compile_s
+        return lambda s: compiled(keys, s, hyper, env), compile_s
+
+    def metrics_template(self, state):
+        """One iteration's metrics, as shapes (to restore a checkpoint's history)."""
+        if not self.batched:
+            _, k_run, _ = split_seed_key(self.seed_keys[0])
+            return jax.eval_shape(lambda k, s: self._step(k, s, self.params), k_run, state)[1]
+        return jax.eval_shape(jax.vmap(self._step_one), *self._with_state(state))[1]
+
+    def _with_state(self, state):
+        keys, hyper, env = self.data
+        return keys, state, hyper, env
+
+    def finish(self, state):
+        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked)."""
+        if not self.batched:
+            return jax.jit(lambda s: self.algorithm.finish(s, self.params))(state)
+        _, hyper, env = self.data
+        state, info = per_run(self._finish_one, self.sharding, 3)(state, hyper, env)
+        return state, info
+
+    def best_policies(self, state) -> list:
+        """Every run's best policy, on the host."""
+        if not self.batched:
+            return [jax.device_get(self.algorithm.best_policy(state))]
+        best = jax.device_get(jax.vmap(self.algorithm.best_policy)(state))
+        return [take(best, r) for r in range(len(self.runs))]
+
+    def evaluate(self, r: int, policy) -> dict:
+        """Run ``r``'s honest value (``honest_summary``), compiled once per env params."""
+        params = self.run_params[r]
+        found = [fn for env, fn in self._evaluations if _same_tree(env, params.env)]
+        if not found:
+            found = [honest_evaluation(self.algorithm, self.runs[r].config, params)]
+            self._evaluations.append((params.env, found[0]))
+        return found[0](self.seed_keys[r], policy)
+
+
+def honest_evaluation(algorithm, config: Config, params: SearchParams):
+    """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
+    evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
+    the compiled program, the mean and standard error summed in float64 on the host."""
+    returns = jax.jit(lambda k, p: honest_returns(algorithm, config.evaluation)(k, p, params))
+    return lambda key, policy: return_summary(returns(key, policy))
+
+
+def return_summary(returns) -> dict:
+    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64)."""
+    returns = np.asarray(returns, dtype=np.float64)
+    return {
+        "mean": float(returns.mean()),
+        "stderr": float(returns.std(ddof=1) / np.sqrt(returns.size)),
+        "rollouts": int(returns.size),
+    }
+
+
+def exact_evaluation(config: Config, policy) -> dict | None:
+    """Exact values of a deterministic tabular controller on a ``.dpomdp`` problem:
+    ``{"exact": finite-horizon value at problem.horizon (backward DP)}`` plus
+    ``"exact_infinite"`` (Bellman iteration to 1e-10) when the discount is below 1; ``None`` for
+    other problems or policies."""
+    if config.env.name != "dpomdp" or not hasattr(policy, "transitions"):
+        return None
+    model = load_problem(config.problem)
+    actions, transitions = np.asarray(policy.actions), np.asarray(policy.transitions)
+    out = {
+        "exact": float(
+            exact_value(model, actions, transitions, config.problem.horizon, model.discount)
+        )
+    }
+    if model.discount < 1:
+        out["exact_infinite"] = float(
+            exact_value(model, actions, transitions, None, model.discount)
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the loop
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class Checkpointing:
+    """When a group saves its state: ``path`` of the checkpoint file (``None``: never),
+    every ``every`` iterations and every ``seconds`` seconds of search (0: not by that)."""
+
+    path: Path | None
+    every: int = 0
+    seconds: float = 0.0
+
+    def due(self, iteration: int, since_last: float) -> bool:
+        """Whether a checkpoint is due after ``iteration``, ``since_last`` seconds after the
+        last one."""
+        if self.path is None:
+            return False
+        by_count = self.every > 0 and iteration % self.every == 0
+        return by_count or (self.seconds > 0 and since_last >= self.seconds)
+
+
+def iterate(step, state, *, start, iterations, history, checkpointing, save, progress, desc):
+    """``state, metrics = step(state)`` from iteration ``start`` to ``iterations``, each
+    iteration's metrics appended to ``history``; returns ``(state, signum)`` where ``signum``
+    is the stop signal that ended the loop early (``None`` when it ran to the end).
+
+    At most two iterations are in flight: the loop waits for iteration i - 1 before it
+    dispatches i + 1, so a signal is seen within an iteration. ``save(i, state, history)``
+    writes a checkpoint (``checkpointing``) and on a stop."""
+    i, last_save = start, time.perf_counter()
+    bar = tqdm(total=iterations, disable=not progress, desc=desc, unit="it", dynamic_ncols=True)
+    with deferred_stop() as flag, bar:
+        bar.update(start)
+        pending = None
+        while i < iterations and flag["signum"] is None:
+            state, metrics = step(state)
+            history.append(metrics)
+            i += 1
+            if pending is not None:
+                jax.block_until_ready(pending)
+            pending = metrics
+            if i < iterations and checkpointing.due(i, time.perf_counter() - last_save):
+                save(i, state, history)
+                last_save = time.perf_counter()
+            if progress and (i % 10 == 0 or i == iterations):
+                bar.set_postfix(**_postfix(jax.device_get(metrics)))
+                bar.update(i - bar.n)
+    return state, (flag["signum"] if i < iterations else None)
+
+
+def _postfix(metrics) -> dict:
+    value, best = np.asarray(metrics.value), np.asarray(metrics.best_value)
+    return {"value": f"{float(value.mean()):.2f}", "best": f"{float(best.max()):.2f}"}
+
+
+# ---------------------------------------------------------------------------------------------
+# a group, from start or checkpoint to its run folders
+# ---------------------------------------------------------------------------------------------
+def rollout_mesh(config: Config):
+    """The context a run's iterations are compiled in: with ``run.shard_rollouts`` a 1-D mesh
+    ``("rollouts",)`` over the local devices is set (``jax.set_mesh``), and the rollout
+    engine lays every batch of rollouts (and so the candidates' evaluations) over it
+    (``rollout.shard_rollouts``); otherwise nothing changes."""
+    if not config.run.shard_rollouts:
+        return contextlib.nullcontext()
+    return jax.set_mesh(Mesh(np.array(jax.local_devices()), ("rollouts",)))
+
+
+def _meta(runs: list[Run]) -> dict:
+    """What a checkpoint was written by (compared on resume, ``run`` sections aside)."""
+    return {
+        "kind": "runs",
+        "runs": [[r.setting, r.seed] for r in runs],
+        "configs": [r.config.to_dict() for r in runs],
+    }
+
+
+def _without_run_section(meta: dict) -> dict:
+    meta = json.loads(json.dumps(meta))
+    for config in meta.get("configs", []):
+        config.pop("run", None)
+    return meta
+
+
+def _run_keys(program: Program):
+    keys = [split_seed_key(k)[1] for k in program.seed_keys]
+    return keys[0] if not program.batched else jnp.stack(keys)
+
+
+def _save(program: Program, path: Path, iteration: int, state, history) -> None:
+    save_checkpoint(
+        path,
+        state=state,
+        keys={"run": _run_keys(program)},
+        iteration=iteration,
+        history=stack_history(history),
+        meta=_meta(program.runs),
+    )
+
+
+def _restore(program: Program, state, path: Path):
+    """``(state, history, iteration)`` from the checkpoint at ``path``; ``MismatchError`` when
+    another group (configs, seeds or generator) wrote it."""
+    raw = read_checkpoint(path)
+    if _without_run_section(raw["meta"]) != _without_run_section(_meta(program.runs)):
+        raise MismatchError(f"{path} was written by another config or seed")
+    stored = restore_key(raw, "run", program.config.run.prng_impl)
+    expected = jax.random.key_data(_run_keys(program))
+    if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
+        raise MismatchError(f"{path}: stored run keys do not match the seeds")
+    restored = restore_state(jax.device_get(state), raw)
+    state = jax.device_put(restored, program.sharding) if program.batched else restored
+    state = jax.tree.map(jnp.asarray, state) if not program.batched else state
+    history = restore_history(program.metrics_template(state), raw)
+    return state, history, int(raw["iteration"])
+
+
+def _polish_records(info, runs: int, seconds: float) -> list:
+    """Each run's polish record for results.json (``None`` without a polish)."""
+    if info is None:
+        return [None] * runs
+    info = jax.device_get(info)
+    pick = (lambda x, r: x[r]) if np.ndim(info.before) else (lambda x, r: x)
+    return [
+        {
+            "value_before": float(pick(info.before, r)),
+            "value_after": float(pick(info.after, r)),
+            "moves_applied": int(pick(info.moves_applied, r)),
+            "moves_per_sweep": int(info.moves_per_sweep),
+            "best_responses_applied": int(pick(info.responses_applied, r)),
+            "seconds": seconds,
+        }
+        for r in range(runs)
+    ]
+
+
+def _settings_dict(algorithm) -> dict:
+    """The algorithm's settings as built (e.g. the evaluator "auto" chose)."""
+    settings = getattr(algorithm, "settings", None)
+    if not dataclasses.is_dataclass(settings):
+        return {}
+    out = dataclasses.asdict(settings)
+    searches = getattr(algorithm, "searches", None)
+    if searches is not None:  # a G-DICE portfolio: its member searches
+        out["searches"] = searches
+    return json.loads(json.dumps(out, default=str))
+
+
+def run_record(run: Run, program: Program, **fields) -> dict:
+    """The results.json of ``run`` (``RESULTS_SCHEMA``), from ``fields``: ``status``,
+    ``iteration``, ``final_value`` and, for a finished run, its history and timings."""
+    config = run.config
+    record = {
+        "schema": RESULTS_SCHEMA,
+        "experiment": config.experiment.name,
+        "algorithm": config.experiment.algorithm,
+        "seed": run.seed,
+        "setting": run.setting,
+        "grid": run.grid,
+        "config": config.to_dict(),
+        "resolved": _settings_dict(program.algorithm),
+        "iterations": config.algorithm.iterations,
+        "runs_in_program": len(program.runs),
+        "jax_version": jax.__version__,
+        "backend": jax.default_backend(),
+    }
+    record.update(fields)
+    return record
+
+
+def _history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
+    """The per-iteration fields of run ``r`` (``None``: an unbatched history)."""
+    h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
+    env = algorithm.env
+    return {
+        "in_loop_best": float(h.best_value[-1]),
+        # the search's budget: agent-steps simulated by all its iterations
+        "simulated_agent_steps": iterations
+        * algorithm.rollouts_per_iteration
+        * env.horizon
+        * env.num_agents,
+        "values_per_iteration": np.asarray(h.value).tolist(),
+        "best_per_iteration": np.asarray(h.best_value).tolist(),
+        "threshold_per_iteration": np.asarray(h.threshold).tolist(),
+        "kept_per_iteration": np.asarray(h.kept).tolist(),
+        "entropy_injections": int(np.sum(h.injected)),
+    }
+
+
+def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
+    """A run's training folder: ``policy.msgpack``, ``results.json``, the pipeline's VAE and,
+    with ``plots``, the figures (``reporting.write_plots``)."""
+    if run.folder is None:
+        return
+    run.folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(run.folder / "policy.msgpack", policy_bytes(policy))
+    vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
+    if vae is not None:
+        save_vae(run.folder / VAE_FILE, vae)
+    atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
+    if plots and record.get("status") == "complete":
+        write_plots(run.config, algorithm, policy, record, run.folder)
+
+
+def _stop(program: Program, state, iteration: int, checkpoint, resume_dir, signum):
+    """Keep what a stopped group has (checkpoint, every run's best policy) and raise
+    ``Interrupted``."""
+    best = program.best_policies(state)
+    for r, run in enumerate(program.runs):
+        record = run_record(run, program, status="interrupted", iteration=iteration)
+        write_run(run, dict(record, final_value=None), best[r], program.algorithm)
+    out = resume_dir or (checkpoint.parent if checkpoint else Path("."))
+    raise Interrupted(out, iteration, program.config.algorithm.iterations, signum)
+
+
+def run_group(
+    runs: list[Run],
+    *,
+    checkpoint: Path | None = None,
+    resume: bool = False,
+    progress: bool | None = None,
+    log=print,
+    desc: str | None = None,
+    resume_dir: Path | None = None,
+) -> tuple[list[dict], dict]:
+    """Run every run of ``runs`` (one compiled program; see the module docstring) and write
+    their folders; returns ``(records, timing)``, one results.json record per run.
+
+    ``checkpoint``: the checkpoint file (``None``: none), written every
+    ``run.checkpoint_every`` iterations, every ``run.checkpoint_seconds`` seconds, at the end
+    of the search and on a stop signal (then ``Interrupted`` is raised, naming ``resume_dir``);
+    ``resume`` continues from it bit for bit."""
+    config = runs[0].config
+    with rollout_mesh(config):
+        program = Program(runs)
+        progress = config.run.progress if progress is None else progress
+        return _run(program, checkpoint, resume, progress, log, desc, resume_dir)
+
+
+@dataclasses.dataclass
+class _Searched:
+    """A group's search, done: its final state, per-iteration metrics, the iteration it
+    started from, and timings (seconds; ``t_start``, ``t_loop``: ``time.perf_counter``)."""
+
+    state: Any
+    history: list
+    start: int
+    compile_s: float
+    t_start: float
+    t_loop: float
+
+
+def _search(program: Program, checkpoint, resume, progress, log, desc, resume_dir) -> _Searched:
+    """Every iteration of the group, from its start or its checkpoint; on a stop signal the
+    checkpoint and the best policies so far are written and ``Interrupted`` is raised."""
+    config = program.config
+    iterations = config.algorithm.iterations
+    t_start = time.perf_counter()
+    state, history, start = program.init(), [], 0
+    if resume and checkpoint is not None and checkpoint.exists():
+        state, history, start = _restore(program, state, checkpoint)
+        log(f"resuming {config.experiment.name} at iteration {start}/{iterations}")
+    step, compile_s = program.compile_step(state)
+    run = config.run
+    checkpointing = Checkpointing(checkpoint, run.checkpoint_every, run.checkpoint_seconds)
+
+    def save(i, state, history):
+        _save(program, checkpoint, i, state, history)
+
+    t_loop = time.perf_counter()
+    state, signum = iterate(
+        step,
+        state,
+        start=start,
+        iterations=iterations,
+        history=history,
+        checkpointing=checkpointing,
+        save=save,
+        progress=progress,
+        desc=desc or config.experiment.name,
+    )
+    if checkpoint is not None:
+        save(len(history), state, history)
+    if signum is not None:
+        _stop(program, state, len(history), checkpoint, resume_dir, signum)
+    return _Searched(state, history, start, compile_s, t_start, t_loop)
+
+
+def _run(program: Program, checkpoint, resume, progress, log, desc, resume_dir):
+    """``(records, timing)`` of the group: search, finish (polish), the honest evaluation of
+    every run's best policy, its folder."""
+    runs, iterations = program.runs, program.config.algorithm.iterations
+    done = _search(program, checkpoint, resume, progress, log, desc, resume_dir)
+    t_polish = time.perf_counter()
+    state, info = program.finish(done.state)
+    polish = _polish_records(info, len(runs), time.perf_counter() - t_polish)
+    stacked = stack_history(done.history)  # on the host: a jnp.stack of 500 arrays compiles
+    loop_s = time.perf_counter() - done.t_loop
+    t_eval = time.perf_counter()
+    best = program.best_policies(state)
+    finals = []
+    for r, run in enumerate(runs):
+        final = program.evaluate(r, best[r])
+        final.update(exact_evaluation(run.config, best[r]) or {})
+        finals.append(final)
+    timing = {
+        "compile_s": done.compile_s,
+        "loop_s": loop_s,
+        "eval_s": time.perf_counter() - t_eval,
+        "runs": len(runs),
+        "resumed_from_iteration": done.start or None,
+    }
+    records = []
+    for r, run in enumerate(runs):
+        history = _history_fields(
+            stacked, r if program.batched else None, iterations, program.algorithm
+        )
+        record = run_record(
+            run,
+            program,
+            status="complete",
+            iteration=iterations,
+            resumed_from_iteration=done.start if resume else None,
+            final_value=finals[r],
+            polish=polish[r],
+            wall_s=time.perf_counter() - done.t_start,
+            **{k: timing[k] for k in ("compile_s", "loop_s", "eval_s")},
+            **history,
+        )
+        plots = run.config.run.plots and not program.batched
+        write_run(run, record, best[r], program.algorithm, plots=plots)
+        records.append(record)
+    if not program.batched:
+        _log_run(records[0], runs[0], log)
+    return records, timing
+
+
+def _log_run(record: dict, run: Run, log) -> None:
+    polish, final = record["polish"], record["final_value"]
+    if polish is not None:
+        log(
+            f"polish: exact {polish['value_before']:.6f} -> {polish['value_after']:.6f} "
+            f"({polish['moves_applied']} moves of {polish['moves_per_sweep']} tried per sweep, "
+            f"{polish['best_responses_applied']} best responses, {polish['seconds']:.1f} s)"
+        )
+    exact = f" (exact {final['exact']:.6f})" if "exact" in final else ""
+    log(
+        f"{record['experiment']} seed {record['seed']}: honest value {final['mean']:.3f} "
+        f"+- {final['stderr']:.3f} ({final['rollouts']} rollouts){exact}; in-loop best "
+        f"{record['in_loop_best']:.3f}; wall {record['wall_s']:.1f} s (compile "
+        f"{record['compile_s']:.1f} s)"
+    )
+    if run.folder is not None:
+        plots = " and plots" if run.config.run.plots else ""
+        log(f"wrote {run.folder}/results.json, policy.msgpack{plots}")
+
+
+# ---------------------------------------------------------------------------------------------
+# one run: train, resume, load, evaluate
+# ---------------------------------------------------------------------------------------------
+def train(config: Config, seed: int, out_dir, progress=None, log=print, resume=False) -> dict:
+    """Run the search of ``config`` with ``seed`` and write its folder ``out_dir``: the group
+    of one run (``run_group``), checkpointed to ``out_dir/checkpoint.msgpack``; ``resume``
+    continues from that checkpoint. Returns the run's results.json record."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    records, _ = run_group(
+        [Run(config, seed, out)],
+        checkpoint=out / CHECKPOINT_NAME,
+        resume=resume,
+        progress=progress,
+        log=log,
+        resume_dir=out,
+    )
+    return records[0]
+
+
+def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, int]:
+    """``(config, seed)`` stored in the checkpoint of the run folder ``run_dir``.
+    ``overrides`` may only touch the ``run`` section (progress, plots, checkpoints)."""
+    for text in overrides or []:
+        (section, _), _ = parse_override(text)
+        if section != "run":
+            raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
+    meta = read_checkpoint(Path(run_dir) / CHECKPOINT_NAME)["meta"]
+    if meta.get("kind") != "runs" or len(meta.get("runs", [])) != 1:
+        raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")
+    config = config_from_dict(apply_overrides(meta["configs"][0], overrides or []))
+    return config, int(meta["runs"][0][1])
+
+
+@dataclasses.dataclass
+class LoadedRun:
+    """A finished (or stopped) run folder: its config (with overrides), the search and params
+    built from it, its best policy and its results.json."""
+
+    config: Config
+    algorithm: Any
+    params: SearchParams
+    policy: Any
+    results: dict
+
+
+def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
+    """The run in ``run_dir``. ``overrides`` (``--set``) may change the evaluation setting,
+    e.g. ``env.obs_noise=0.1``; shapes must match. The run's own ``vae.msgpack`` (if any) is
+    used unless ``network.vae_path`` is overridden."""
+    run_dir = Path(run_dir)
+    results_path = run_dir / "results.json"
+    if not results_path.is_file():
+        raise FileNotFoundError(f"{results_path} not found: is {run_dir} a training output folder?")
+    results = read_json(results_path, ("config",))
+    overrides = list(overrides or [])
+    named = {tuple(parse_override(o)[0]) for o in overrides}
+    if ("problem", "path") in named:
+        raise MismatchError(
+            f"--set problem.path: the policy in {run_dir} was trained on "
+            f"{results['config'].get('problem', {}).get('path')!r}; a policy is evaluated on "
+            "its own model (other fields, e.g. problem.horizon or env noise, may change)"
+        )
+    if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
+        overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
+    config = config_from_dict(apply_overrides(results["config"], overrides))
+    algorithm, params = build_algorithm(config)
+    template = algorithm.best_policy(algorithm.init(jax.random.key(0), params))
+    policy = jax.tree.map(jnp.asarray, read_policy(run_dir / "policy.msgpack", template))
+    return LoadedRun(config, algorithm, params, policy, results)
+
+
+def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, overrides=()):
+    """The honest value of the best policy in ``run_dir``: by default the run's own
+    evaluation (its seed's evaluation key, ``evaluation.rollouts``), which reproduces its
+    results.json ``final_value``; ``seed`` draws from that seed's evaluation key instead,
+    ``rollouts`` changes the number, ``overrides`` the setting. Returns the summary with
+    ``seed``, ``overrides`` and ``wall_s``."""
+    t0 = time.perf_counter()
+    run = load_run(run_dir, list(overrides))
+    config = run.config
+    if rollouts is not None:
+        evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
+        config = dataclasses.replace(config, evaluation=evaluation)
+    seed = int(run.results.get("seed", 0)) if seed is None else seed
+    evaluate = honest_evaluation(run.algorithm, config, run.params)
+    value = evaluate(seed_key(config, seed), run.policy)
+    value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
+    return value
