@@ -1,0 +1,89 @@
+"""The benchmark-model generators of experiments/models.py: box pushing gives MADP's lines
+(those quoted below are verbatim lines of MADP's ``boxPushingUAI07.dpomdp``), fire fighting
+reproduces the published optimum at horizon 2 with MADP's rounding, and both parse."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cognet_jax.exact import brute_force_optimum
+from cognet_jax.io.dpomdp import parse_dpomdp
+
+PATH = Path(__file__).resolve().parents[1] / "experiments" / "models.py"
+
+
+@pytest.fixture(scope="module")
+def models():
+    spec = importlib.util.spec_from_file_location("models", PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["models"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def box(models):
+    return parse_dpomdp(models.box_pushing())
+
+
+def _row(model, s, a1, a2):
+    ja = model.joint_action_index([a1, a2])
+    row = model.transition[s, ja]
+    return {int(k): round(float(row[k]), 6) for k in np.flatnonzero(row)}, model.reward[s, ja]
+
+
+@pytest.mark.parametrize(
+    "s,actions,row,reward",
+    [
+        # both enter the same empty cell; only one succeeding moves it
+        (23, (2, 2), {19: 0.09, 23: 0.82, 63: 0.09}, -10.2),
+        (17, (2, 2), {17: 0.1, 21: 0.9}, -5.2),  # the follower is blocked
+        (19, (2, 2), {19: 1.0}, -10.2),  # facing each other
+        (15, (2, 0), {0: 0.9, 14: 0.09, 15: 0.01}, 9.8),  # a small box, the other turns
+        (53, (2, 3), {53: 1.0}, -5.2),  # the large box alone
+        (52, (2, 2), {3: 0.81, 52: 0.19}, 99.8),  # the large box together
+        (12, (2, 2), {0: 0.09, 1: 0.09, 2: 0.81, 12: 0.01}, 19.8),  # both small boxes
+        (39, (2, 3), {39: 1.0}, -5.2),  # facing south
+        (27, (2, 2), {23: 0.09, 27: 0.01, 63: 0.81, 67: 0.09}, -0.2),  # the start state
+        (3, (1, 2), {27: 1.0}, 0.0),  # a pushed box: the episode begins again
+        (67, (2, 2), {63: 0.09, 67: 0.82, 90: 0.09}, -10.2),  # MADP's odd line (rules: 91)
+    ],
+)
+def test_box_pushing_gives_madps_lines(box, s, actions, row, reward):
+    got_row, got_reward = _row(box, s, *actions)
+    assert got_row == row
+    assert got_reward == pytest.approx(reward, abs=1e-5)
+
+
+def test_box_pushing_header_observations_and_rules_only_variant(box, models):
+    assert box.transition.shape == (100, 16, 100) and box.observation.shape == (16, 100, 25)
+    assert box.initial_belief[27] == 1.0 and box.discount == 1.0
+    sees = {s: int(np.argmax(box.observation[0, s])) for s in (0, 11, 14, 53, 57, 90, 91)}
+    # joint observation index = 5 * o1 + o2 (MADP's lines 'O: .. : s' : o1 o2 : 1.0')
+    assert sees == {0: 0, 11: 15, 14: 16, 53: 20, 57: 21, 90: 11, 91: 12}
+    rules = parse_dpomdp(models.box_pushing(madp_quirk=False))
+    assert _row(rules, 67, 2, 2)[0] == {63: 0.09, 67: 0.82, 91: 0.09}
+
+
+def test_fire_fighting_reproduces_the_published_horizon_2_optimum(models):
+    """Fire fighting 2 agents, 3 houses, 3 levels: 432 states (the positions are part of the
+    state, as in MADP's file); with MADP's two-decimal rounding the optimum at horizon 2 is
+    the published -4.383496 (Oliehoek et al.; masplan)."""
+    rounded = parse_dpomdp(models.fire_fighting(3, 3, madp_rounding=True))
+    assert rounded.transition.shape == (432, 9, 432)
+    assert rounded.initial_belief.sum() == pytest.approx(1.0)
+    assert np.count_nonzero(rounded.initial_belief) == 27
+    assert brute_force_optimum(rounded, 2).value == pytest.approx(-4.383496, abs=1e-6)
+    exact = parse_dpomdp(models.fire_fighting(3, 3))
+    assert brute_force_optimum(exact, 2).value == pytest.approx(-4.383579, abs=1e-6)
+
+
+def test_fire_fighting_four_houses_is_the_2025_state_model(models):
+    text = models.fire_fighting(4, 3)
+    states = next(line for line in text.splitlines() if line.startswith("states:"))
+    assert len(states.split()) == 1 + 2025
+    with pytest.raises(ValueError, match="sum to 1.02"):
+        models.fire_fighting(4, 3, madp_rounding=True)
