@@ -27,6 +27,7 @@ _PUBLIC = {
     "make_train": "cognet_jax.api",
     "make_evaluate": "cognet_jax.api",
     "seed_key": "cognet_jax.api",
+    "streams": "cognet_jax.algorithms.engine",
     "controller_step": "cognet_jax.controllers.step",
     "portable_policy": "cognet_jax.controllers.encoded",
     "EncodedPolicy": "cognet_jax.controllers.encoded",

@@ -1,5 +1,3 @@
-import sys
+from cognet_jax.cli import run
 
-from cognet_jax.cli import main
-
-sys.exit(main())
+run()

@@ -147,8 +147,10 @@ POLICY_FORMAT = "cognet-jax policy"
 POLICY_VERSION = 1
 
 
-def policy_bytes(policy) -> bytes:
-    """The bytes of a policy file for ``policy`` (a policy pytree)."""
+def policy_bytes(policy, fingerprint: dict | None = None) -> bytes:
+    """The bytes of a policy file for ``policy`` (a policy pytree); ``fingerprint``: what the
+    policy was trained with (``driver.fingerprint``: hashes of the shaping config and of the
+    model file), checked when it is read back."""
     body = serialization.to_bytes(jax.device_get(policy))
     header = {
         "format": POLICY_FORMAT,
@@ -157,13 +159,16 @@ def policy_bytes(policy) -> bytes:
         "sha256": hashlib.sha256(body).hexdigest(),
         "policy": body,
     }
+    if fingerprint is not None:
+        header["fingerprint"] = json.dumps(fingerprint, sort_keys=True)
     return serialization.msgpack_serialize(header)
 
 
-def read_policy(path: str | Path, template):
+def read_policy(path: str | Path, template, fingerprint: dict | None = None):
     """The policy saved in ``path``, restored into the structure of ``template``. A damaged
     file (truncated, checksum, foreign bytes, newer version) is a ``CorruptFileError``; a
-    policy of another kind or other shapes is a ``MismatchError``."""
+    policy of another kind or other shapes, or whose stored fingerprint differs from
+    ``fingerprint`` in any key both have, is a ``MismatchError``."""
     path = Path(path)
     try:
         raw = serialization.msgpack_restore(path.read_bytes())
@@ -183,7 +188,36 @@ def read_policy(path: str | Path, template):
         raise MismatchError(
             f"{path}: holds a {raw.get('kind')} where this configuration needs a {kind}"
         )
+    _check_fingerprint(path, raw.get("fingerprint"), fingerprint)
     return restore_msgpack(path, template, data=body)
+
+
+#: what each fingerprint key stands for, in the refusal
+FINGERPRINT_KEYS = {
+    "config": (
+        "the config it was trained with (results.json's config was edited)",
+        "--set evaluates it under another setting on purpose",
+    ),
+    "model": (
+        "the model file it was trained on (the file changed since)",
+        "restore the file, or train on the new one",
+    ),
+}
+
+
+def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
+    if stored is None or expected is None:  # a file written before fingerprints, or no check
+        return
+    try:
+        stored = json.loads(stored)
+    except (TypeError, ValueError):
+        raise CorruptFileError(path, "the fingerprint is not valid JSON") from None
+    for key, (what, remedy) in FINGERPRINT_KEYS.items():
+        if key in stored and key in expected and stored[key] != expected[key]:
+            raise MismatchError(
+                f"{path}: this policy does not belong to {what}; evaluating it would give a "
+                f"number of another policy ({remedy})"
+            )
 
 
 def restore_msgpack(path: str | Path, template, data: bytes | None = None):

@@ -32,14 +32,14 @@ import os
 import shutil
 import sys
 import time
-import warnings
+import traceback
 from pathlib import Path
 
 from tqdm.auto import tqdm
 
 from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
 from cognet_jax.errors import InputError
-from cognet_jax.io.dpomdp import DpomdpWarning, parse_dpomdp
+from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.registry import load_config
 from cognet_jax.signals import Stopped, install_stop_handlers
 
@@ -50,7 +50,7 @@ def _add_experiment(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "experiment",
         nargs="?",
-        default=DEFAULT_EXPERIMENT,
+        default=None,
         help=f"built-in experiment name or TOML file (default {DEFAULT_EXPERIMENT})",
     )
 
@@ -81,28 +81,82 @@ def _add_checkpoints(parser: argparse.ArgumentParser, resumed: str) -> None:
     parser.add_argument("--resume", metavar="DIR", default=None, help=f"continue {resumed}")
 
 
-def _common() -> argparse.ArgumentParser:
-    """The options every command takes: ``--debug`` and ``--import``."""
+def _common(suffix: str = "") -> argparse.ArgumentParser:
+    """The options every command takes, before or after its name: ``--debug`` and
+    ``--import`` (``suffix`` tells the top-level parser's apart, ``_merge_common``)."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
-        "--debug", action="store_true", help="show the Python traceback of an error"
+        "--debug",
+        dest=f"debug{suffix}",
+        action="store_true",
+        help="show the Python traceback of an error",
     )
     common.add_argument(
         "--import",
-        dest="imports",
+        dest=f"imports{suffix}",
         action="append",
         default=[],
         metavar="MODULE",
         help="import a module or .py file first, e.g. one that registers your own simulator "
         "(cognet_jax.register_env); repeatable",
     )
+    common.add_argument(
+        "--no-compile-cache",
+        dest=f"no_compile_cache{suffix}",
+        action="store_true",
+        help=f"compile every program afresh (default: cache them in ${CACHE_VARIABLE}, "
+        "~/.cache/cognet-jax/xla)",
+    )
     return common
+
+
+#: the environment variable naming the compilation cache folder ("off" turns it off)
+CACHE_VARIABLE = "COGNET_JAX_CACHE"
+#: the cache may hold this many bytes; JAX evicts the least recently used programs above it
+CACHE_MAX_BYTES = 2 * 10**9
+
+
+def compile_cache_dir() -> Path | None:
+    """Where the command line keeps compiled programs (JAX's persistent compilation cache):
+    ``$COGNET_JAX_CACHE``, else ``$XDG_CACHE_HOME/cognet-jax/xla``, else
+    ``~/.cache/cognet-jax/xla``; ``None`` when ``COGNET_JAX_CACHE=off``."""
+    chosen = os.environ.get(CACHE_VARIABLE, "")
+    if chosen.lower() in ("off", "0", "false", "none"):
+        return None
+    if chosen:
+        return Path(chosen).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "cognet-jax" / "xla"
+
+
+def use_compile_cache(args) -> None:
+    """Keep every compiled program in ``compile_cache_dir()`` (unless ``--no-compile-cache``,
+    or a cache folder was already chosen, e.g. by ``JAX_COMPILATION_CACHE_DIR``): a repeated run
+    loads its programs instead of compiling them. The cache key holds JAX's and XLA's versions
+    and the machine's devices, so another version or machine compiles afresh (and adds its own
+    entries)."""
+    import jax
+
+    folder = None if args.no_compile_cache else compile_cache_dir()
+    if folder is None or jax.config.jax_compilation_cache_dir:
+        return
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+
+
+def _merge_common(args) -> argparse.Namespace:
+    """``--debug`` and ``--import`` given before the command name count as after it."""
+    args.debug = args.debug or args.debug_top
+    args.imports = args.imports_top + args.imports
+    args.no_compile_cache = args.no_compile_cache or args.no_compile_cache_top
+    return args
 
 
 def _add_train(sub) -> None:
     t = sub.add_parser("train", help="run a policy search and write results, policy and plots")
     _add_experiment(t)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=int, default=None, help="default 0")
     t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
     _add_overrides(t, "override a config field; repeatable")
     _add_checkpoints(t, "the interrupted run in DIR from its checkpoint (config and seed from it)")
@@ -114,8 +168,10 @@ def _add_sweep(sub) -> None:
         help="many seeds x settings in one compiled program; writes runs.csv/json, summary.md",
     )
     _add_experiment(w)
-    w.add_argument("--seeds", type=int, default=1, help="number of seeds (default 1)")
-    w.add_argument("--first-seed", type=int, default=0, help="seeds are first .. first+N-1")
+    w.add_argument("--seeds", type=int, default=None, help="number of seeds (default 1)")
+    w.add_argument(
+        "--first-seed", type=int, default=None, help="seeds are first .. first+N-1 (default 0)"
+    )
     w.add_argument(
         "--grid",
         action="append",
@@ -184,10 +240,17 @@ def _add_vae(sub) -> None:
     vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
+class _ArgumentParser(argparse.ArgumentParser):
+    """An argument error is one line (``UsageError``, exit 2), not usage text and a line."""
+
+    def error(self, message: str):
+        raise UsageError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
 def _parser() -> argparse.ArgumentParser:
     common = _common()
-    p = argparse.ArgumentParser(
-        prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[common]
+    p = _ArgumentParser(
+        prog="cognet-jax", description=__doc__.split("\n\n")[0], parents=[_common("_top")]
     )
     sub = p.add_subparsers(dest="command", required=True)
     add_parser = sub.add_parser
@@ -195,6 +258,12 @@ def _parser() -> argparse.ArgumentParser:
     _add_train(sub)
     _add_sweep(sub)
     _add_evaluate(sub)
+    c = sub.add_parser(
+        "check", help="validate an experiment and its sizes without running it (exit 0 or 2)"
+    )
+    _add_experiment(c)
+    c.add_argument("--seed", type=int, default=0)
+    _add_overrides(c, "override a config field; repeatable")
     _add_vae(sub)
     sub.add_parser("list", help="list the built-in experiments")
     i = sub.add_parser(
@@ -227,19 +296,35 @@ def _removed_on_failure(out: Path):
         raise
 
 
+def _refuse_with_resume(args, flags: dict) -> None:
+    """``UsageError`` naming the first of ``flags`` (flag -> value given, ``None`` or ``[]``
+    when not given) that ``--resume`` contradicts: the run continues as it was started."""
+    for flag, value in flags.items():
+        if value not in (None, []):
+            raise UsageError(
+                f"{flag} cannot be given with --resume: {args.resume} continues with the "
+                "settings it was started with (only --set run.* fields may change)"
+            )
+
+
 def _train(args) -> int:
     from cognet_jax.driver import Interrupted, resume_target, train
 
     try:
         if args.resume:
+            flags = {"EXPERIMENT": args.experiment, "--seed": args.seed, "--out": args.out}
+            _refuse_with_resume(args, flags)
             config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
             train(config, seed, Path(args.resume), resume=True)
             return 0
-        config = load_config(args.experiment, args.overrides + _run_overrides(args))
-        out = Path(args.out or f"runs/{config.experiment.name}-seed{args.seed}")
+        seed = 0 if args.seed is None else args.seed
+        overrides = args.overrides + _run_overrides(args)
+        config = load_config(args.experiment or DEFAULT_EXPERIMENT, overrides)
+        out = Path(args.out or f"runs/{config.experiment.name}-seed{seed}")
         with _removed_on_failure(out):
-            train(config, args.seed, out)
+            train(config, seed, out)
     except Interrupted as err:
+        _STOPPED["signum"] = err.signum
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
     return 0
@@ -252,14 +337,72 @@ def init_distributed(args) -> None:
 
     explicit = (args.coordinator, args.num_processes, args.process_id)
     if args.cluster:
-        jax.distributed.initialize()
+        try:
+            jax.distributed.initialize()
+        except (RuntimeError, ValueError) as err:
+            raise UsageError(f"--cluster: cannot start jax.distributed: {err}") from None
     elif any(v is not None for v in explicit):
         for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
             if v is None:
-                raise ConfigError(name.lstrip("-"), f"{name} is needed for a multi-process sweep")
+                raise UsageError(f"{name} is needed for a multi-process sweep")
         if not 0 <= args.process_id < args.num_processes:
-            raise ConfigError("process-id", f"must be in 0 .. {args.num_processes - 1}")
-        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+            raise UsageError(f"--process-id must be in 0 .. {args.num_processes - 1}")
+        check_coordinator(args.coordinator, args.process_id)
+        try:
+            jax.distributed.initialize(
+                args.coordinator,
+                args.num_processes,
+                args.process_id,
+                initialization_timeout=COORDINATOR_TIMEOUT_S,
+            )
+        except (RuntimeError, ValueError) as err:
+            raise UsageError(f"--coordinator {args.coordinator}: cannot start: {err}") from None
+
+
+#: how long the processes of a multi-process sweep wait for each other
+COORDINATOR_TIMEOUT_S = 120
+
+
+def check_coordinator(address: str, process_id: int) -> None:
+    """Refuse, in one line, what would make ``jax.distributed`` abort the process natively: an
+    address that is not ``HOST:PORT``, a host that does not resolve, a port process 0 cannot
+    listen on, and (other processes) a coordinator that does not answer within
+    ``COORDINATOR_TIMEOUT_S``. (A peer process that never starts still ends JAX's own wait
+    with an abort, after that timeout.)"""
+    import socket
+
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UsageError(f"--coordinator {address!r}: expected HOST:PORT (a port 1-65535)")
+    try:
+        socket.getaddrinfo(host.strip("[]"), int(port), type=socket.SOCK_STREAM)
+    except OSError as err:
+        raise UsageError(f"--coordinator {address}: unknown host {host!r} ({err})") from None
+    if process_id == 0:  # the coordination service runs here and listens on PORT
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                probe.bind(("", int(port)))
+        except OSError as err:
+            raise UsageError(
+                f"--coordinator {address}: process 0 cannot listen on port {port} ({err.strerror})"
+            ) from None
+        return
+    deadline, told = time.monotonic() + COORDINATOR_TIMEOUT_S, False
+    while True:
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=2).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise UsageError(
+                    f"--coordinator {address}: no answer in {COORDINATOR_TIMEOUT_S} s (start "
+                    "process 0 first, on that host)"
+                ) from None
+            if not told:
+                print(f"waiting for the coordinator at {address} ...", file=sys.stderr)
+                told = True
+            time.sleep(0.5)
 
 
 def set_cpu_devices(requested: int | None, runs: int) -> None:
@@ -287,16 +430,24 @@ def _sweep(args) -> int:
         raise ConfigError("checkpoint-every", f"must be >= 0, got {args.checkpoint_every}")
     run_sets = _run_overrides(args)
     if args.resume:
+        flags = {"EXPERIMENT": args.experiment, "--seeds": args.seeds, "--out": args.out}
+        flags.update({"--first-seed": args.first_seed, "--grid": args.grid})
+        flags["--set"] = [o for o in args.overrides if not o.strip().startswith("run.")]
+        _refuse_with_resume(args, flags)
         spec = read_spec(args.resume)
         experiment, seeds, grid = spec["experiment"], spec["seeds"], spec["grid"]
-        overrides, out = spec["overrides"] + run_sets, Path(args.resume)
+        overrides, out = spec["overrides"], Path(args.resume)
+        run_sets = args.overrides + run_sets
     else:
-        if args.seeds < 1:
-            raise ConfigError("seeds", f"--seeds must be >= 1, got {args.seeds}")
-        experiment, grid = args.experiment, parse_grid(args.grid)
-        overrides = args.overrides + run_sets
-        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-        out = Path(args.out or f"runs/sweep-{Path(args.experiment).stem}")
+        n = 1 if args.seeds is None else args.seeds
+        if n < 1:
+            raise ConfigError("seeds", f"--seeds must be >= 1, got {n}")
+        experiment = args.experiment or DEFAULT_EXPERIMENT
+        grid = parse_grid(args.grid, args.overrides)
+        overrides = args.overrides
+        first = 0 if args.first_seed is None else args.first_seed
+        seeds = list(range(first, first + n))
+        out = Path(args.out or f"runs/sweep-{Path(experiment).stem}")
     processes = args.num_processes or 1
     total = len(seeds) * math.prod(len(v) for v in grid.values())
     set_cpu_devices(args.cpu_devices, -(-total // processes))
@@ -314,8 +465,10 @@ def _sweep(args) -> int:
             log=print if main_process else (lambda *a: None),
             out=out,
             resume=bool(args.resume),
+            run_overrides=run_sets,
         )
     except Interrupted as err:
+        _STOPPED["signum"] = err.signum
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
     if main_process:
@@ -349,6 +502,8 @@ def _vae(args) -> int:
 
     if args.epochs < 1:
         raise UsageError("--epochs must be >= 1")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
     if args.latent < 1:
         raise UsageError("--latent must be >= 1")
     if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
@@ -392,6 +547,20 @@ def _vae(args) -> int:
     return 0
 
 
+def _check(args) -> int:
+    """Everything ``train`` checks before it compiles: the config, the model file, the sizes
+    (memory and time), the seed and the search it builds; nothing runs."""
+    from cognet_jax.api import build_algorithm, build_env, check_budget, seed_key
+
+    config = load_config(args.experiment or DEFAULT_EXPERIMENT, args.overrides)
+    seed_key(config, args.seed)
+    env, env_params = build_env(config)
+    seconds = check_budget(config, env)
+    build_algorithm(config, env, env_params)
+    print(f"{config.experiment.name}: valid; at least {seconds:.3g} s of simulation")
+    return 0
+
+
 def _list(args) -> int:
     for name in builtin_experiments():
         desc = read_experiment(name).get("experiment", {}).get("description", "")
@@ -400,7 +569,7 @@ def _list(args) -> int:
 
 
 def _inspect(args) -> int:
-    """Sizes of a model, its warnings (as ``warning:`` lines) and how long it took to parse."""
+    """Sizes of a model and how long it took to parse (or the first error in it)."""
     t0 = time.perf_counter()
     model = parse_dpomdp(args.file)
     wall = time.perf_counter() - t0
@@ -426,47 +595,81 @@ def _one_line(err: BaseException) -> str:
     return " ".join(text.split())
 
 
-def _one_line_warnings() -> None:
-    """Show the parser's warnings (``DpomdpWarning``) as one ``warning: ...`` line each."""
-    default = warnings.showwarning
-
-    def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, DpomdpWarning):
-            print(f"warning: {message}", file=sys.stderr)
-        else:
-            default(message, category, filename, lineno, file, line)
-
-    warnings.showwarning = show
+def _where(err: BaseException, path: str | None) -> str:
+    """``file:line`` of the user module's line that raised ``err`` (the last frame in
+    ``path``, or the last frame at all)."""
+    if isinstance(err, SyntaxError):
+        return f"{err.filename}:{err.lineno}"
+    frames = traceback.extract_tb(err.__traceback__)
+    own = [f for f in frames if path and Path(f.filename).resolve() == Path(path).resolve()]
+    frame = (own or frames or [None])[-1]
+    return f"{frame.filename}:{frame.lineno}" if frame else "?"
 
 
 def import_plugin(name: str) -> None:
-    """Import a module by name, or a ``.py`` file by path (``--import``)."""
+    """Import a module by name, or a ``.py`` file by path (``--import``); an error of the
+    module itself is a ``UsageError`` naming its file and line."""
+    if not name or name.startswith("."):
+        raise UsageError(f"--import {name!r}: give a module name or a .py file")
     path = Path(name)
-    if name.endswith(".py"):
-        if not path.is_file():
-            raise UsageError(f"--import {name}: no such file")
-        spec = importlib.util.spec_from_file_location(path.stem, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[path.stem] = module
-        spec.loader.exec_module(module)
-        return
+    origin = str(path) if name.endswith(".py") else None
     try:
-        importlib.import_module(name)
-    except ModuleNotFoundError as err:
+        if origin is not None:
+            if not path.is_file():
+                raise UsageError(f"--import {name}: no such file")
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[path.stem] = module
+            spec.loader.exec_module(module)
+        else:
+            spec = importlib.util.find_spec(name)
+            if spec is None:
+                raise UsageError(f"--import {name}: no module of that name")
+            origin = spec.origin
+            importlib.import_module(name)
+    except UsageError:
+        raise
+    except (ModuleNotFoundError, ValueError) as err:
         raise UsageError(f"--import {name}: {err}") from None
+    except Exception as err:  # the module's own error: where, what
+        raise UsageError(
+            f"--import {name}: {_where(err, origin)}: {type(err).__name__}: {_one_line(err)}"
+        ) from None
+
+
+#: set when a command ended on a stop signal: ``run`` then exits without waiting for work a
+#: signal left running in a worker thread (a compile, a compiled call)
+_STOPPED = {"signum": None}
+
+
+def run() -> None:
+    """The ``cognet-jax`` executable: ``main`` with the process's arguments. After a stop
+    signal the process ends with ``os._exit`` (the output flushed first): the interpreter's
+    shutdown would otherwise wait for, or tear down under, a computation still running in XLA
+    (a segmentation fault)."""
+    code = main()
+    if _STOPPED["signum"] is not None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 def main(argv: list[str] | None = None) -> int:
     install_stop_handlers()
-    args = _parser().parse_args(argv)
-    _one_line_warnings()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = argparse.Namespace(debug="--debug" in argv)
     try:
+        args = _merge_common(_parser().parse_args(argv))
         for name in args.imports:
             import_plugin(name)
+        if args.command in ("train", "sweep", "evaluate"):
+            use_compile_cache(args)
         return {
             "train": _train,
             "sweep": _sweep,
             "evaluate": _evaluate,
+            "check": _check,
             "vae": _vae,
             "list": _list,
             "inspect": _inspect,
@@ -477,6 +680,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {_one_line(err)}", file=sys.stderr)
         return 2
     except Stopped as err:
+        _STOPPED["signum"] = err.signum
         print(f"error: stopped by {err}", file=sys.stderr)
         return 128 + err.signum
     except KeyboardInterrupt:
@@ -494,4 +698,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

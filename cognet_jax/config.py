@@ -72,9 +72,22 @@ def require_probability(section: Any, prefix: str, *names: str) -> None:
 # --------------------------------------------------------------------------------------------
 @dataclasses.dataclass
 class ExperimentSection:
+    """What the experiment is called (it names the run folder ``runs/NAME-seedS``), the search
+    algorithm's registered name, and a line of description."""
+
     name: str = "custom"
     algorithm: str = "cognet-dice"
     description: str = ""
+
+    def check(self, config: Config) -> None:
+        name = self.name
+        safe = name and not name.startswith(".") and not set(name) & set("/\\:\0")
+        require(
+            bool(safe),
+            "experiment.name",
+            f"{name!r} is no folder name (it names runs/NAME-seedS): use letters, digits, "
+            "'-', '_', '+' or '.', not starting with '.'",
+        )
 
 
 @dataclasses.dataclass
@@ -275,15 +288,26 @@ def check_known_sections(data: dict) -> None:
             raise ConfigError(key, f"unknown section (known: {', '.join(sorted(Config.SECTIONS))})")
 
 
+#: the largest float32; the simulators and searches compute in float32
+FLOAT32_MAX = 3.4028234663852886e38
+#: the largest integer a size may take (array indices are int32)
+INT32_MAX = 2**31 - 1
+
+
 def check_finite(config: Config) -> None:
-    """Every number of every section is finite: ``inf`` and ``nan`` parse as TOML floats but
-    mean nothing as a noise level, rate, reward or size."""
+    """Every number of every section is finite and fits the float32 / int32 arithmetic of the
+    compiled programs: ``inf`` and ``nan`` parse as TOML floats but mean nothing as a noise
+    level, rate, reward or size, and 1e308 would become ``inf`` in float32."""
     for name in Config.SECTIONS:
         values = getattr(config, name)
         for f in dataclasses.fields(values):
-            v = getattr(values, f.name)
+            v, field = getattr(values, f.name), f"{name}.{f.name}"
             if isinstance(v, float) and not math.isfinite(v):
-                raise ConfigError(f"{name}.{f.name}", f"must be a finite number, got {v}")
+                raise ConfigError(field, f"must be a finite number, got {v}")
+            if isinstance(v, float) and abs(v) > FLOAT32_MAX:
+                raise ConfigError(field, f"{v} does not fit float32 (|x| <= {FLOAT32_MAX:.3g})")
+            if isinstance(v, int) and not isinstance(v, bool) and abs(v) > INT32_MAX:
+                raise ConfigError(field, f"{v} does not fit a 32-bit integer (<= {INT32_MAX})")
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -325,7 +349,16 @@ def read_experiment(name_or_path: str) -> dict:
     if name_or_path.endswith(".toml") or path.exists():
         if not path.exists():
             raise ConfigError("", f"no such experiment file: {name_or_path}")
-        text = path.read_text()
+        if not path.is_file():
+            raise ConfigError(
+                "", f"{name_or_path}: not a regular file (an experiment is a TOML file)"
+            )
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as err:
+            raise ConfigError("", f"{name_or_path}: not a UTF-8 TOML file ({err.reason})") from None
+        if not text.strip():
+            raise ConfigError("", f"{name_or_path}: empty experiment file (no settings)")
         origin = str(path)
     else:
         res = resources.files("cognet_jax") / "experiments" / f"{name_or_path}.toml"

@@ -7,9 +7,10 @@ A *group* is a list of runs (``Run``: config, seed, folder) that share one compi
 set of settings that differ only in dynamic fields. A group of one runs the search as it is;
 a larger group ``vmap``s it over a leading ``[runs]`` axis, sharded over the local devices
 (``shard_map``, no collectives). Run r of a group uses exactly the keys of ``train --seed s``
-(``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``). The params of a run are
-constants of the program unless the group's runs differ in them (then they are data), as in
-``api.make_train(config)`` called without params.
+(``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``). The params of a group of
+one are constants of the program, as in ``api.make_train(config)`` called without params; in a
+larger group the hyper-parameters are data (stacked over ``[runs]``), and so are the env params
+when the runs differ in them.
 
 Every run ends with the one honest evaluation (``api.honest_returns``: ``evaluation.rollouts``
 fresh rollouts of its best policy from the seed's evaluation key), compiled with the run's
@@ -34,8 +35,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import json
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -48,7 +51,11 @@ from tqdm.auto import tqdm
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
+    FASTEST_RATE,
+    LONG_SECONDS,
     build_algorithm,
+    build_env,
+    check_budget,
     honest_returns,
     iteration_step,
     params_of,
@@ -70,13 +77,13 @@ from cognet_jax.checkpoint import (
 )
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.envs.tabular import load_problem
-from cognet_jax.errors import MismatchError, read_json
+from cognet_jax.errors import CorruptFileError, InputError, MismatchError, read_json
 from cognet_jax.exact import exact_value
 from cognet_jax.memory import budget_bytes, trace_checked
 from cognet_jax.observations import VAE_FILE
-from cognet_jax.registry import config_from_dict
+from cognet_jax.registry import config_from_dict, env_entry
 from cognet_jax.reporting import write_plots
-from cognet_jax.signals import deferred_stop
+from cognet_jax.signals import Stopped, deferred_stop, in_background
 from cognet_jax.vae import save_vae
 
 #: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
@@ -161,6 +168,8 @@ class Program:
         self.algorithm, self.params = build_algorithm(config, lanes=len(padded))
         self.run_params = [params_of(r.config) for r in runs]
         self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
+        # the first run's init and run keys (what a single-run program uses)
+        self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
         self._step = iteration_step(self.algorithm)
         self._evaluations: list = []  # (env params, compiled honest evaluation)
         if self.batched:
@@ -191,29 +200,30 @@ class Program:
     def init(self):
         """The initial state (every run's, stacked when batched)."""
         if not self.batched:
-            k_init, _, _ = split_seed_key(self.seed_keys[0])
             init = jax.jit(lambda k: self.algorithm.init(k, self.params))
-            trace_checked(init, (k_init,), self.memory, "the initial state")
-            return init(k_init)
+            trace_checked(init, (self.k_init,), self.memory, "the initial state")
+            return init(self.k_init)
         return per_run(self._init_one, self.sharding, 3)(*self.data)
 
     @property
     def memory(self) -> int:
         return budget_bytes(self.config.run.memory_gb)
 
-    def compile_step(self, state):
+    def compile_step(self, state, before_compile=lambda: None):
         """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
-        checked against the memory budget and compiled ahead of time."""
+        checked against the memory budget (``before_compile()`` is called once that passed)
+        and compiled ahead of time."""
         t0 = time.perf_counter()
         if not self.batched:
-            _, k_run, _ = split_seed_key(self.seed_keys[0])
-            jitted = jax.jit(lambda k, s: self._step(k, s, self.params), donate_argnums=(1,))
-            args, what = (k_run, state), "one iteration"
+            jitted = jax.jit(lambda k, s: self._step(k, s, self.params))
+            args, what = (self.k_run, state), "one iteration"
         else:
-            jitted = per_run(self._step_one, self.sharding, 4, donate_argnums=(1,))
+            jitted = per_run(self._step_one, self.sharding, 4)
             keys, hyper, env = self.data
             args, what = (keys, state, hyper, env), f"one iteration of {len(keys)} runs"
-        compiled = trace_checked(jitted, args, self.memory, what).lower().compile()
+        traced = trace_checked(jitted, args, self.memory, what)
+        before_compile()
+        compiled = traced.lower().compile()
         compile_s = time.perf_counter() - t0
         if not self.batched:
             return lambda s: compiled(args[0], s), compile_s
@@ -222,8 +232,8 @@ class Program:
     def metrics_template(self, state):
         """One iteration's metrics, as shapes (to restore a checkpoint's history)."""
         if not self.batched:
-            _, k_run, _ = split_seed_key(self.seed_keys[0])
-            return jax.eval_shape(lambda k, s: self._step(k, s, self.params), k_run, state)[1]
+            step = lambda k, s: self._step(k, s, self.params)  # noqa: E731
+            return jax.eval_shape(step, self.k_run, state)[1]
         return jax.eval_shape(jax.vmap(self._step_one), *self._with_state(state))[1]
 
     def _with_state(self, state):
@@ -258,14 +268,32 @@ class Program:
 def honest_evaluation(algorithm, config: Config, params: SearchParams):
     """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
     evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
-    the compiled program, the mean and standard error summed in float64 on the host."""
+    the compiled program (its arrays checked against ``run.memory_gb`` when first traced),
+    the mean and standard error summed in float64 on the host."""
     returns = jax.jit(lambda k, p: honest_returns(algorithm, config.evaluation)(k, p, params))
-    return lambda key, policy: return_summary(returns(key, policy))
+    memory = budget_bytes(config.run.memory_gb)
+    checked = set()
+
+    def evaluate(key, policy):
+        shapes = str(jax.tree.map(jnp.shape, policy))
+        if shapes not in checked:
+            trace_checked(returns, (key, policy), memory, "the honest evaluation")
+            checked.add(shapes)
+        return return_summary(returns(key, policy))
+
+    return evaluate
 
 
 def return_summary(returns) -> dict:
-    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64)."""
+    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64); an
+    ``InputError`` when a return is not finite (float32 overflowed: rewards too large for the
+    horizon)."""
     returns = np.asarray(returns, dtype=np.float64)
+    if not np.isfinite(returns).all():
+        raise InputError(
+            "the returns are not finite: the rewards overflow float32 over this horizon "
+            "(lower the rewards or the horizon)"
+        )
     return {
         "mean": float(returns.mean()),
         "stderr": float(returns.std(ddof=1) / np.sqrt(returns.size)),
@@ -315,33 +343,64 @@ class Checkpointing:
         return by_count or (self.seconds > 0 and since_last >= self.seconds)
 
 
+#: seconds a stopped loop waits for the iteration in flight before it keeps the last finished one
+STOP_GRACE_S = 5.0
+
+
+def wait_ready(tree, flag=None, timeout: float | None = None) -> bool:
+    """Wait until every array of ``tree`` is computed; ``False`` when ``flag["signum"]`` is
+    set (a stop signal) or ``timeout`` seconds pass first. Polls instead of blocking, so the
+    main thread stays free for signal handlers; the pause grows from 10 microseconds, so a
+    millisecond iteration is not slowed."""
+    leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array)]
+    t0, pause = time.perf_counter(), 1e-5
+    while not all(x.is_ready() for x in leaves):
+        if flag is not None and flag["signum"] is not None:
+            return False
+        if timeout is not None and time.perf_counter() - t0 > timeout:
+            return False
+        time.sleep(pause)
+        pause = min(2 * pause, 0.02)
+    return True
+
+
 def iterate(step, state, *, start, iterations, history, checkpointing, save, progress, desc):
     """``state, metrics = step(state)`` from iteration ``start`` to ``iterations``, each
-    iteration's metrics appended to ``history``; returns ``(state, signum)`` where ``signum``
-    is the stop signal that ended the loop early (``None`` when it ran to the end).
+    finished iteration's metrics appended to ``history``; returns ``(state, signum)``: the state
+    after the last finished iteration (``len(history)``) and the stop signal that came during
+    the loop (``None`` when none did).
 
-    At most two iterations are in flight: the loop waits for iteration i - 1 before it
-    dispatches i + 1, so a signal is seen within an iteration. ``save(i, state, history)``
-    writes a checkpoint (``checkpointing``) and on a stop."""
-    i, last_save = start, time.perf_counter()
+    Two iterations are in flight (the next is dispatched while the previous computes); the
+    loop waits by polling (``wait_ready``), so a stop signal is seen at once. It then waits at
+    most ``STOP_GRACE_S`` for the oldest iteration in flight and keeps the last finished state.
+    ``save(i, state, history)`` writes a checkpoint (``checkpointing``)."""
+    last_save = time.perf_counter()
     bar = tqdm(total=iterations, disable=not progress, desc=desc, unit="it", dynamic_ncols=True)
+    done, flight = state, []  # the last finished state; (state, metrics) dispatched, oldest first
     with deferred_stop() as flag, bar:
         bar.update(start)
-        pending = None
-        while i < iterations and flag["signum"] is None:
-            state, metrics = step(state)
+        while len(history) < iterations:
+            while len(flight) < 2 and len(history) + len(flight) < iterations:
+                if flag["signum"] is not None:
+                    break
+                flight.append(step(flight[-1][0] if flight else done))
+            if not flight:
+                break
+            state, metrics = flight.pop(0)
+            if not wait_ready(metrics, flag) and not wait_ready(metrics, timeout=STOP_GRACE_S):
+                break
+            done = state
             history.append(metrics)
-            i += 1
-            if pending is not None:
-                jax.block_until_ready(pending)
-            pending = metrics
+            i = len(history)
+            if flag["signum"] is not None:
+                break
             if i < iterations and checkpointing.due(i, time.perf_counter() - last_save):
-                save(i, state, history)
+                save(i, done, history)
                 last_save = time.perf_counter()
             if progress and (i % 10 == 0 or i == iterations):
                 bar.set_postfix(**_postfix(jax.device_get(metrics)))
                 bar.update(i - bar.n)
-    return state, (flag["signum"] if i < iterations else None)
+    return done, flag["signum"]
 
 
 def _postfix(metrics) -> dict:
@@ -394,10 +453,25 @@ def _save(program: Program, path: Path, iteration: int, state, history) -> None:
     )
 
 
+def _current_meta(meta: dict, path) -> dict:
+    """``meta`` of a checkpoint in today's form: a ``train`` checkpoint of the earlier runner is
+    the group of its one run; an earlier sweep's cannot be read (it kept no run keys)."""
+    kind = meta.get("kind")
+    if kind == "train" and "config" in meta and "seed" in meta:
+        return {"kind": "runs", "runs": [[0, meta["seed"]]], "configs": [meta["config"]]}
+    if kind != "runs":
+        raise MismatchError(
+            f"{path} holds a {kind!r} checkpoint of an earlier cognet-jax; resume it with that "
+            "version, or start again"
+        )
+    return meta
+
+
 def _restore(program: Program, state, path: Path):
     """``(state, history, iteration)`` from the checkpoint at ``path``; ``MismatchError`` when
     another group (configs, seeds or generator) wrote it."""
     raw = read_checkpoint(path)
+    raw["meta"] = _current_meta(raw["meta"], path)
     if _without_run_section(raw["meta"]) != _without_run_section(_meta(program.runs)):
         raise MismatchError(f"{path} was written by another config or seed")
     stored = restore_key(raw, "run", program.config.run.prng_impl)
@@ -483,13 +557,28 @@ def _history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     }
 
 
+def fingerprint(config: Config) -> dict:
+    """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections,
+    and the model file it reads (a simulator that reads ``[problem]``). Stored in the policy
+    file; ``load_run`` refuses a policy whose results.json or model changed since."""
+    shaping = {k: v for k, v in config.to_dict().items() if k not in ("run", "evaluation")}
+    text = json.dumps(shaping, sort_keys=True, default=str).encode()
+    out = {"config": hashlib.sha256(text).hexdigest()}
+    path = Path(config.problem.path).expanduser() if config.problem.path else None
+    if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
+        out["model"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return out
+
+
 def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
-    """A run's training folder: ``policy.msgpack``, ``results.json``, the pipeline's VAE and,
-    with ``plots``, the figures (``reporting.write_plots``)."""
+    """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
+    ``results.json``, the pipeline's VAE and, with ``plots``, the figures
+    (``reporting.write_plots``)."""
     if run.folder is None:
         return
     run.folder.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(run.folder / "policy.msgpack", policy_bytes(policy))
+    policy_file = policy_bytes(policy, fingerprint(run.config))
+    atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
     vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
     if vae is not None:
         save_vae(run.folder / VAE_FILE, vae)
@@ -498,39 +587,49 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
         write_plots(run.config, algorithm, policy, record, run.folder)
 
 
-def _stop(program: Program, state, iteration: int, checkpoint, resume_dir, signum):
+@dataclasses.dataclass
+class GroupOptions:
+    """How ``run_group`` drives a group: ``checkpoint`` file (``None``: none), ``resume`` from
+    it, ``progress`` bar (``None``: ``run.progress``), ``log`` for lines a person reads, ``desc``
+    of the bar, ``resume_dir`` named by ``Interrupted``, and ``announce``: a run of its own
+    (``train``), which logs its result and draws its plots (``run.plots``); a sweep's runs do
+    neither (the sweep writes its tables)."""
+
+    checkpoint: Path | None = None
+    resume: bool = False
+    progress: bool | None = None
+    log: Any = print
+    desc: str | None = None
+    resume_dir: Path | None = None
+    announce: bool = False
+
+
+def _stop(program: Program, state, iteration: int, opts: GroupOptions, signum):
     """Keep what a stopped group has (checkpoint, every run's best policy) and raise
     ``Interrupted``."""
-    best = program.best_policies(state)
-    for r, run in enumerate(program.runs):
-        record = run_record(run, program, status="interrupted", iteration=iteration)
-        write_run(run, dict(record, final_value=None), best[r], program.algorithm)
-    out = resume_dir or (checkpoint.parent if checkpoint else Path("."))
+    with deferred_stop():  # what was found is written even if the signal comes again
+        best = program.best_policies(state)
+        for r, run in enumerate(program.runs):
+            record = run_record(run, program, status="interrupted", iteration=iteration)
+            write_run(run, dict(record, final_value=None), best[r], program.algorithm)
+    out = opts.resume_dir or (opts.checkpoint.parent if opts.checkpoint else Path("."))
     raise Interrupted(out, iteration, program.config.algorithm.iterations, signum)
 
 
-def run_group(
-    runs: list[Run],
-    *,
-    checkpoint: Path | None = None,
-    resume: bool = False,
-    progress: bool | None = None,
-    log=print,
-    desc: str | None = None,
-    resume_dir: Path | None = None,
-) -> tuple[list[dict], dict]:
+def run_group(runs: list[Run], opts: GroupOptions | None = None) -> tuple[list[dict], dict]:
     """Run every run of ``runs`` (one compiled program; see the module docstring) and write
     their folders; returns ``(records, timing)``, one results.json record per run.
 
-    ``checkpoint``: the checkpoint file (``None``: none), written every
-    ``run.checkpoint_every`` iterations, every ``run.checkpoint_seconds`` seconds, at the end
-    of the search and on a stop signal (then ``Interrupted`` is raised, naming ``resume_dir``);
-    ``resume`` continues from it bit for bit."""
+    ``opts.checkpoint`` is written every ``run.checkpoint_every`` iterations, every
+    ``run.checkpoint_seconds`` seconds, at the end of the search and on a stop signal (then
+    ``Interrupted`` is raised, naming ``opts.resume_dir``); ``opts.resume`` continues from it
+    bit for bit."""
+    opts = opts or GroupOptions()
     config = runs[0].config
+    if opts.progress is None:
+        opts = dataclasses.replace(opts, progress=config.run.progress)
     with rollout_mesh(config):
-        program = Program(runs)
-        progress = config.run.progress if progress is None else progress
-        return _run(program, checkpoint, resume, progress, log, desc, resume_dir)
+        return _run(runs, opts, time.perf_counter())
 
 
 @dataclasses.dataclass
@@ -546,68 +645,127 @@ class _Searched:
     t_loop: float
 
 
-def _search(program: Program, checkpoint, resume, progress, log, desc, resume_dir) -> _Searched:
-    """Every iteration of the group, from its start or its checkpoint; on a stop signal the
-    checkpoint and the best policies so far are written and ``Interrupted`` is raised."""
+def _prepare(runs: list[Run], opts: GroupOptions):
+    """``(program, state, history, start, step, compile_s)``: the group's program built, its
+    state initialised or restored from ``opts.checkpoint``, one iteration compiled. Run in a
+    worker thread (``signals.in_background``): a stop signal ends the command at once, leaving
+    the folder as it was (no iteration has finished)."""
+    config = runs[0].config
+    seconds = sum(check_budget(r.config, build_env(r.config)[0]) for r in runs)
+    if seconds > LONG_SECONDS:
+        print(
+            f"warning: {config.experiment.name}: {len(runs)} run(s) of at least "
+            f"{seconds / 3600:.1f} h of simulation (agent-steps at {FASTEST_RATE:.0e}/s, the "
+            "fastest rate measured; the progress bar shows this machine's)",
+            file=sys.stderr,
+        )
+
+    def prepare():
+        with rollout_mesh(config):
+            program = Program(runs)
+            state, history, start = program.init(), [], 0
+            if opts.resume and opts.checkpoint is not None and opts.checkpoint.exists():
+                state, history, start = _restore(program, state, opts.checkpoint)
+                total = config.algorithm.iterations
+                opts.log(f"resuming {config.experiment.name} at iteration {start}/{total}")
+            what = f"{config.experiment.name}" + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
+            step, compile_s = program.compile_step(
+                state, lambda: print(f"compiling {what} ...", file=sys.stderr, flush=True)
+            )
+            print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
+        return program, state, history, start, step, compile_s
+
+    return in_background(prepare)
+
+
+def _search(runs, opts: GroupOptions, t_start: float):
+    """``(program, _Searched)``: every iteration of the group, from its start or its
+    checkpoint; on a stop signal (also one during the last iteration) the checkpoint and the
+    best policies so far are written and ``Interrupted`` is raised."""
+    program, state, history, start, step, compile_s = _prepare(runs, opts)
     config = program.config
-    iterations = config.algorithm.iterations
-    t_start = time.perf_counter()
-    state, history, start = program.init(), [], 0
-    if resume and checkpoint is not None and checkpoint.exists():
-        state, history, start = _restore(program, state, checkpoint)
-        log(f"resuming {config.experiment.name} at iteration {start}/{iterations}")
-    step, compile_s = program.compile_step(state)
     run = config.run
-    checkpointing = Checkpointing(checkpoint, run.checkpoint_every, run.checkpoint_seconds)
+    checkpointing = Checkpointing(opts.checkpoint, run.checkpoint_every, run.checkpoint_seconds)
 
     def save(i, state, history):
-        _save(program, checkpoint, i, state, history)
+        _save(program, opts.checkpoint, i, state, history)
 
     t_loop = time.perf_counter()
     state, signum = iterate(
         step,
         state,
         start=start,
-        iterations=iterations,
+        iterations=config.algorithm.iterations,
         history=history,
         checkpointing=checkpointing,
         save=save,
-        progress=progress,
-        desc=desc or config.experiment.name,
+        progress=opts.progress,
+        desc=opts.desc or config.experiment.name,
     )
-    if checkpoint is not None:
-        save(len(history), state, history)
+    if opts.checkpoint is not None:
+        with deferred_stop():  # a signal now stops the group once this is written
+            save(len(history), state, history)
     if signum is not None:
-        _stop(program, state, len(history), checkpoint, resume_dir, signum)
-    return _Searched(state, history, start, compile_s, t_start, t_loop)
+        _stop(program, state, len(history), opts, signum)
+    return program, _Searched(state, history, start, compile_s, t_start, t_loop)
 
 
-def _run(program: Program, checkpoint, resume, progress, log, desc, resume_dir):
+def _finish_and_evaluate(program: Program, state):
+    """``(state, polish records, final values, best policies)``: the algorithm's ``finish``
+    (G-DICE's polish) and every run's honest evaluation, in a worker thread
+    (``signals.in_background``), so a stop signal is obeyed at once."""
+
+    def work():
+        t_polish = time.perf_counter()
+        finished, info = jax.block_until_ready(program.finish(state))
+        polish = _polish_records(info, len(program.runs), time.perf_counter() - t_polish)
+        best = program.best_policies(finished)
+        finals = []
+        for r, run in enumerate(program.runs):
+            final = program.evaluate(r, best[r])
+            final.update(exact_evaluation(run.config, best[r]) or {})
+            finals.append(final)
+        return finished, polish, finals, best
+
+    with rollout_mesh(program.config):
+        return in_background(work)
+
+
+def _run(runs, opts: GroupOptions, t_start: float):
     """``(records, timing)`` of the group: search, finish (polish), the honest evaluation of
-    every run's best policy, its folder."""
-    runs, iterations = program.runs, program.config.algorithm.iterations
-    done = _search(program, checkpoint, resume, progress, log, desc, resume_dir)
-    t_polish = time.perf_counter()
-    state, info = program.finish(done.state)
-    polish = _polish_records(info, len(runs), time.perf_counter() - t_polish)
+    every run's best policy, its folder. A stop signal after the search keeps the search's best
+    policies (``_stop``); one while the folders are written lets them be finished first."""
+    program, done = _search(runs, opts, t_start)
+    iterations = program.config.algorithm.iterations
     stacked = stack_history(done.history)  # on the host: a jnp.stack of 500 arrays compiles
-    loop_s = time.perf_counter() - done.t_loop
-    t_eval = time.perf_counter()
-    best = program.best_policies(state)
-    finals = []
-    for r, run in enumerate(runs):
-        final = program.evaluate(r, best[r])
-        final.update(exact_evaluation(run.config, best[r]) or {})
-        finals.append(final)
+    t_end = time.perf_counter()
+    try:
+        _, polish, finals, best = _finish_and_evaluate(program, done.state)
+    except Stopped as stop:
+        _stop(program, done.state, iterations, opts, stop.signum)
+    polish_s = (polish[0] or {}).get("seconds", 0.0)
     timing = {
         "compile_s": done.compile_s,
-        "loop_s": loop_s,
-        "eval_s": time.perf_counter() - t_eval,
+        "loop_s": t_end - done.t_loop + polish_s,
+        "eval_s": time.perf_counter() - t_end - polish_s,
         "runs": len(runs),
         "resumed_from_iteration": done.start or None,
     }
+    with deferred_stop() as flag:
+        records = _write_runs(program, done, stacked, opts, timing, polish, finals, best)
+    if opts.announce:
+        _log_run(records[0], runs[0], opts.log)
+    if flag["signum"] is not None:
+        raise Stopped(flag["signum"])
+    return records, timing
+
+
+def _write_runs(program, done, stacked, opts, timing, polish, finals, best) -> list:
+    """Every run's record (results.json) written with its folder (plots: ``opts.announce``
+    and ``run.plots``)."""
+    iterations = program.config.algorithm.iterations
     records = []
-    for r, run in enumerate(runs):
+    for r, run in enumerate(program.runs):
         history = _history_fields(
             stacked, r if program.batched else None, iterations, program.algorithm
         )
@@ -616,19 +774,17 @@ def _run(program: Program, checkpoint, resume, progress, log, desc, resume_dir):
             program,
             status="complete",
             iteration=iterations,
-            resumed_from_iteration=done.start if resume else None,
+            resumed_from_iteration=done.start if opts.resume else None,
             final_value=finals[r],
             polish=polish[r],
             wall_s=time.perf_counter() - done.t_start,
             **{k: timing[k] for k in ("compile_s", "loop_s", "eval_s")},
             **history,
         )
-        plots = run.config.run.plots and not program.batched
+        plots = opts.announce and run.config.run.plots
         write_run(run, record, best[r], program.algorithm, plots=plots)
         records.append(record)
-    if not program.batched:
-        _log_run(records[0], runs[0], log)
-    return records, timing
+    return records
 
 
 def _log_run(record: dict, run: Run, log) -> None:
@@ -660,14 +816,8 @@ def train(config: Config, seed: int, out_dir, progress=None, log=print, resume=F
     continues from that checkpoint. Returns the run's results.json record."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    records, _ = run_group(
-        [Run(config, seed, out)],
-        checkpoint=out / CHECKPOINT_NAME,
-        resume=resume,
-        progress=progress,
-        log=log,
-        resume_dir=out,
-    )
+    opts = GroupOptions(out / CHECKPOINT_NAME, resume, progress, log, resume_dir=out, announce=True)
+    records, _ = run_group([Run(config, seed, out)], opts)
     return records[0]
 
 
@@ -678,8 +828,9 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
         (section, _), _ = parse_override(text)
         if section != "run":
             raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
-    meta = read_checkpoint(Path(run_dir) / CHECKPOINT_NAME)["meta"]
-    if meta.get("kind") != "runs" or len(meta.get("runs", [])) != 1:
+    path = Path(run_dir) / CHECKPOINT_NAME
+    meta = _current_meta(read_checkpoint(path)["meta"], path)
+    if len(meta.get("runs", [])) != 1:
         raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")
     config = config_from_dict(apply_overrides(meta["configs"][0], overrides or []))
     return config, int(meta["runs"][0][1])
@@ -706,6 +857,9 @@ def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
     if not results_path.is_file():
         raise FileNotFoundError(f"{results_path} not found: is {run_dir} a training output folder?")
     results = read_json(results_path, ("config",))
+    if not isinstance(results["config"], dict):
+        raise CorruptFileError(results_path, "its config is not a table of sections")
+    trained = fingerprint(config_from_dict(results["config"]))
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
     if ("problem", "path") in named:
@@ -719,7 +873,8 @@ def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
     config = config_from_dict(apply_overrides(results["config"], overrides))
     algorithm, params = build_algorithm(config)
     template = algorithm.best_policy(algorithm.init(jax.random.key(0), params))
-    policy = jax.tree.map(jnp.asarray, read_policy(run_dir / "policy.msgpack", template))
+    saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
+    policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
 
 
@@ -735,7 +890,10 @@ def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, 
     if rollouts is not None:
         evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
         config = dataclasses.replace(config, evaluation=evaluation)
-    seed = int(run.results.get("seed", 0)) if seed is None else seed
+    stored = run.results.get("seed", 0)
+    if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
+        raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")
+    seed = stored if seed is None else seed
     evaluate = honest_evaluation(run.algorithm, config, run.params)
     value = evaluate(seed_key(config, seed), run.policy)
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)

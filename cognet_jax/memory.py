@@ -15,11 +15,11 @@ uses the same key (common random numbers) and its own rollouts are never split.
   upper bound (every array of one step of one rollout, summed) says the batch could be too big.
 * :func:`candidate_chunk` -- how many candidates to evaluate at once, or ``ResourceError``
   when even one candidate's rollouts exceed the budget.
+* :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
+  budget; a program whose single array cannot fit is refused with its shape.
 
 This module is a leaf of the rollout layer: the rollouts it measures come in as a function
 ``run(key, policy, num, env_params) -> returns [num]`` (``cognet_jax.rollout`` passes its own).
-* :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
-  budget; a program whose single array cannot fit is refused with its shape.
 
 **[choice]** The budget is per search: a portfolio of ``r`` searches or a sweep of ``n`` runs
 (both ``vmap``-ed) gives each lane ``budget / lanes``.

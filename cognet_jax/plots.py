@@ -1,4 +1,5 @@
-"""Figures for finite-state controllers and training runs (matplotlib only, Agg backend).
+"""Figures for finite-state controllers and training runs (matplotlib's object interface:
+``Figure`` objects written to PNG, so importing this module changes no backend or pyplot state).
 
 Every function takes plain numpy arrays (or anything ``np.asarray`` accepts), writes one PNG to
 ``path``, closes its figure and returns ``path``. There is no JAX in here, so the same functions
@@ -28,13 +29,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Circle, FancyArrowPatch  # noqa: E402
-from matplotlib.path import Path as MplPath  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, FancyArrowPatch
+from matplotlib.path import Path as MplPath
 
 __all__ = [
     "controller_graph_edges",
@@ -59,12 +57,18 @@ def _save(fig, path, dpi: int, title: str | None = None) -> str | Path:
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
     return path
 
 
+def _subplots(*grid, figsize=None, **options):
+    """``(fig, axes)``: a new ``Figure`` of ``figsize`` with ``Figure.subplots(*grid,
+    **options)``."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **options)
+
+
 def _colors(n: int) -> list:
-    cmap = plt.get_cmap("tab10" if n <= 10 else "tab20")
+    cmap = matplotlib.colormaps["tab10" if n <= 10 else "tab20"]
     return [cmap(i % cmap.N) for i in range(n)]
 
 
@@ -87,7 +91,7 @@ def plot_action_distributions(
         raise ValueError(f"action_probs must be [agents, nodes, actions], got {probs.shape}")
     agents, nodes, actions = probs.shape
     names = _action_names(action_names, actions)
-    fig, axes = plt.subplots(
+    fig, axes = _subplots(
         1,
         agents,
         figsize=(max(3.5, 0.9 * nodes + 1.5) * agents, 3.4),
@@ -133,7 +137,7 @@ def plot_node_responses(
             f"{p.shape}"
         )
     agents, nodes, _, nxt = p.shape
-    fig, axes = plt.subplots(
+    fig, axes = _subplots(
         agents,
         nodes,
         figsize=(2.8 * nodes + 1.2, 2.3 * agents + 0.6),
@@ -177,7 +181,7 @@ def plot_values(
     drawn as a dashed horizontal line (e.g. ``{"reactive controller": 20.76}``)."""
     values = np.asarray(values_per_iteration, dtype=float).reshape(-1)
     best = np.asarray(best_per_iteration, dtype=float).reshape(-1)
-    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    fig, ax = _subplots(figsize=(6.4, 3.8))
     ax.plot(
         np.arange(values.size),
         values,
@@ -217,7 +221,7 @@ def plot_value_vs_noise(
     """Value against noise level with standard-error bars; ``results`` maps a variant name to
     ``(means [L], stderrs [L])`` over the ``noise_levels [L]``."""
     x = np.asarray(noise_levels, dtype=float).reshape(-1)
-    fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    fig, ax = _subplots(figsize=(6.0, 3.8))
     for name, (means, stderrs) in results.items():
         m = np.asarray(means, dtype=float).reshape(-1)
         s = np.asarray(stderrs, dtype=float).reshape(-1)
@@ -519,7 +523,7 @@ def plot_controller_graphs(
     names = _action_names(names_in, probs.shape[2])
     x0, x1, y0, y1 = _layout(probs.shape[1])[2]
     scale = _SCALE  # fonts stay fixed, so the figure grows with the node count
-    fig, axes = plt.subplots(
+    fig, axes = _subplots(
         1, agents, figsize=(scale * (x1 - x0) * agents, scale * (y1 - y0) + 0.6), squeeze=False
     )
     for i, ax in enumerate(axes[0]):
@@ -531,7 +535,7 @@ def plot_controller_graphs(
 def plot_sweep_values(result: dict, path, label) -> None:
     """A sweep's in-loop value per iteration, mean over seeds +- s.e. per setting (``label``
     names a setting's grid values)."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = _subplots(figsize=(7, 4))
     for index, values in enumerate(result["settings"]):
         v = np.array([r["values_per_iteration"] for r in result["rows"] if r["setting"] == index])
         mean = v.mean(0)
@@ -548,7 +552,7 @@ def plot_sweep_values(result: dict, path, label) -> None:
 
 def plot_position_map(grid, low: int, high: int, path, title: str, label: str, dpi: int = 110):
     """``grid [x, y]`` over the positions ``low..high`` in both coordinates, as an image."""
-    fig, ax = plt.subplots(figsize=(4.6, 3.8))
+    fig, ax = _subplots(figsize=(4.6, 3.8))
     im = ax.imshow(grid, origin="lower", extent=(low - 0.5, high + 0.5, low - 0.5, high + 0.5))
     ax.set_xlabel("y")
     ax.set_ylabel("x")

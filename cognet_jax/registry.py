@@ -11,8 +11,10 @@ An algorithm is one module too: its ``[algorithm]`` section (with ``check``) and
 
     register_algorithm("my-search", MySection, build, hyper)
 
-``build(config, env, env_params, memory) -> algorithm`` makes the immutable search object and
-``hyper(config) -> pytree`` reads its dynamic hyper-parameters (``cognet_jax.api``). After
+``build(config, env, env_params, memory) -> algorithm`` makes the immutable search object (the
+protocol of ``algorithms.engine``, with what the driver reads: ``state.progress``, the
+``SearchMetrics`` fields, ``rollouts_per_iteration``) and ``hyper(config) -> pytree`` reads its
+dynamic hyper-parameters (``cognet_jax.api``). After
 registration ``load_config`` / TOML files with ``env.name = "my-sim"`` or ``experiment.algorithm
 = "my-search"``, ``api.make_env``, ``api.make_algorithm``, ``cognet-jax train --import`` and
 sweeps know them; nothing in ``config.py`` or ``api.py`` names them. The built-in entries are
@@ -246,7 +248,7 @@ def validate(config: Config, env_reads: tuple[str, ...] | None = None) -> None:
     simulator nor the algorithm reads must keep its defaults. ``env_reads``: the simulator's
     ``reads`` when it is an object rather than a registered entry (``api.make_algorithm``)."""
     check_finite(config)
-    for name in ("env", "algorithm", "evaluation", "run"):
+    for name in ("experiment", "env", "algorithm", "evaluation", "run"):
         check = getattr(getattr(config, name), "check", None)
         if callable(check):
             check(config)

@@ -1,11 +1,16 @@
 """Stop signals: SIGINT (Ctrl-C), SIGTERM (``timeout``, schedulers) and SIGHUP (a closed
-terminal or ssh session). Standard library only, so the command line installs the handlers
-before JAX loads.
+terminal or ssh session), except those the process was started ignoring (``nohup``). Standard
+library only, so the command line installs the handlers before JAX loads.
 
 Outside a search loop a stop signal raises ``Stopped`` (the command ends with one line and
 status ``128 + signal``); inside one (``deferred_stop``) the first signal only sets a flag, so
 the driver finishes the current iteration and keeps its checkpoint and best policies, and a
 second signal raises ``Stopped`` at once.
+
+A signal repeated within ``REPEAT_S`` of the one before is the same stop, not a second one:
+``timeout`` sends its signal to the command and then to the command's process group (so the
+command receives it twice), as do process managers that signal a whole group. Only a signal
+that comes later (a second Ctrl-C) cuts the stop short.
 """
 
 from __future__ import annotations
@@ -13,8 +18,28 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: a stop signal this soon after the one before repeats it (seconds)
+REPEAT_S = 1.0
+_last_stop = {"time": -float("inf")}
+
+
+def _fresh() -> bool:
+    """Whether a stop signal arriving now is a new one (not a repeat within ``REPEAT_S``); a
+    new one is remembered."""
+    now = time.monotonic()
+    if now - _last_stop["time"] <= REPEAT_S:
+        return False
+    _last_stop["time"] = now
+    return True
+
+
+def _heeded() -> list:
+    """The stop signals this process heeds: not those it was started ignoring (``nohup``
+    ignores SIGHUP; a shell's background job ignores SIGINT)."""
+    return [sig for sig in STOP_SIGNALS if signal.getsignal(sig) is not signal.SIG_IGN]
 
 
 class Stopped(KeyboardInterrupt):
@@ -26,13 +51,14 @@ class Stopped(KeyboardInterrupt):
 
 
 def _raise_stopped(signum, frame):
-    raise Stopped(signum)
+    if _fresh():
+        raise Stopped(signum)
 
 
 def install_stop_handlers() -> None:
     """Every stop signal raises ``Stopped`` (main thread only; the command line calls it)."""
     if threading.current_thread() is threading.main_thread():
-        for sig in STOP_SIGNALS:
+        for sig in _heeded():
             signal.signal(sig, _raise_stopped)
 
 
@@ -46,14 +72,43 @@ def deferred_stop():
         yield flag
         return
 
+    heeded = _heeded()
+
     def handler(signum, frame):
+        if not _fresh():
+            return
         flag["signum"] = int(signum)
-        for sig in STOP_SIGNALS:
+        for sig in heeded:
             signal.signal(sig, _raise_stopped)
 
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, handler) for sig in heeded}
     try:
         yield flag
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+def in_background(fn, poll: float = 0.05):
+    """``fn()`` run in a worker thread while the main thread waits in short steps, so that a
+    stop signal is handled at once (a compile or a long compiled call holds the main thread
+    for as long as it runs otherwise); returns its value or raises its exception. On a stop
+    the worker is left running: the command exits without waiting for it
+    (``cli.run``)."""
+    if threading.current_thread() is not threading.main_thread():
+        return fn()
+    box: dict = {}
+
+    def target():
+        try:
+            box["value"] = fn()
+        except BaseException as err:  # handed to the main thread
+            box["error"] = err
+
+    worker = threading.Thread(target=target, daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(poll)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]

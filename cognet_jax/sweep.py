@@ -12,8 +12,11 @@ Each group is run by the one driver (``driver.run_group``, which ``train`` runs 
 one): run r uses exactly the keys of ``train --seed s`` (``seed -> (init, run, eval)``,
 iteration i with ``fold_in(run_key, i)``), and its honest final value is the one honest
 evaluation (``api.honest_returns``) of its best policy with its own params, compiled as
-``train`` compiles it. So a run of a sweep computes what the single run with its seed and
-setting computes (tests/test_sweep.py checks the numbers).
+``train`` compiles it (one run after another, so ``eval_s`` grows with the runs). The search
+itself runs ``vmap``-ed, its hyper-parameters as data: the same operations on the same keys as
+the single run, which batching may round differently (equal to the last bit on tagging,
+tests/test_sweep.py; the heatmap's larger networks can differ, README "Sweeps"); with
+``standardize_inputs`` every run uses the input statistics of the group's first setting.
 
 Devices: the ``[runs]`` axis is sharded over the local devices (``NamedSharding`` over a 1-D
 mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run); each
@@ -45,7 +48,7 @@ from jax.experimental import multihost_utils
 
 from cognet_jax.checkpoint import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
-from cognet_jax.driver import Run, run_group
+from cognet_jax.driver import GroupOptions, Run, run_group
 from cognet_jax.errors import MismatchError, read_json
 from cognet_jax.plots import plot_sweep_values
 from cognet_jax.registry import dynamic_fields, load_config
@@ -59,21 +62,25 @@ STATE_DIR = "sweep-state"  # OUT/sweep-state/: the spec, each group's checkpoint
 # ---------------------------------------------------------------------------------------------
 # planning
 # ---------------------------------------------------------------------------------------------
-def parse_grid(texts: list[str]) -> dict[str, list]:
+def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
     """``["section.key=v1,v2", ...]`` -> ``{"section.key": [v1, v2]}`` (values read as TOML
-    literals, like ``--set``)."""
+    literals, like ``--set``). An empty value, a field given twice, or a field ``overrides``
+    (``--set``) also sets is a ``ConfigError`` naming it."""
     grid: dict[str, list] = {}
+    fixed = {".".join(parse_override(o)[0]) for o in overrides}
     for text in texts:
         if "=" not in text:
             raise ConfigError(text, "a grid entry must look like section.key=v1,v2,...")
         name, raw = text.split("=", 1)
         name = name.strip()
-        values = [parse_override(f"{name}={v}")[1] for v in raw.split(",") if v.strip()]
-        if not values:
-            raise ConfigError(name, "a grid entry needs at least one value")
+        parts = raw.split(",")
+        if not raw.strip() or any(not v.strip() for v in parts):
+            raise ConfigError(name, f"empty value in the grid entry {text!r}")
         if name in grid:
             raise ConfigError(name, "appears twice in the grid")
-        grid[name] = values
+        if name in fixed:
+            raise ConfigError(name, "is set by both --grid and --set; give it in one of them")
+        grid[name] = [parse_override(f"{name}={v}")[1] for v in parts]
     return grid
 
 
@@ -165,7 +172,7 @@ def _group_runs(group: Group, out: Path | None) -> list[Run]:
     ]
 
 
-def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, progress, desc):
+def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, progress, log, desc):
     """``(rows, timing)`` of one group: from its finished rows when a resumed sweep has them,
     else by the driver (checkpointed under ``OUT/sweep-state/``)."""
     tag = f"group{g_index}-p{jax.process_index()}"
@@ -178,14 +185,9 @@ def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, p
         return stored["rows"], stored["timing"]
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}
-    rows, timing = run_group(
-        _group_runs(group, out),
-        checkpoint=None if state is None else state / f"{tag}.checkpoint.msgpack",
-        resume=resume,
-        progress=progress,
-        desc=desc,
-        resume_dir=out,
-    )
+    checkpoint = None if state is None else state / f"{tag}.checkpoint.msgpack"
+    opts = GroupOptions(checkpoint, resume, progress, log, desc, resume_dir=out)
+    rows, timing = run_group(_group_runs(group, out), opts)
     if done is not None:
         atomic_write_text(done, json.dumps({"runs": group.runs, "rows": rows, "timing": timing}))
     return rows, timing
@@ -200,17 +202,20 @@ def run_sweep(
     log=print,
     out: Path | None = None,
     resume: bool = False,
+    run_overrides: list[str] = (),
 ) -> dict:
     """Run the sweep: every group by the driver, each run's folder under ``out`` and the
     checkpoints under ``out/sweep-state`` (``out=None``: no files); with ``resume`` a finished
-    group's rows are kept and a cut one continues from its checkpoint. Returns ``{"rows":
+    group's rows are kept and a cut one continues from its checkpoint; ``run_overrides``
+    (``run.*`` fields: progress, checkpoints) drive it without being part of the sweep's own
+    settings (sweep.json, runs.json). Returns ``{"rows":
     [...] (every process's, sorted by setting and seed), "groups": [...], "grid", "seeds",
     "wall_s", ...}``."""
     if not seeds:
         raise ConfigError("seeds", "a sweep needs at least one seed")
     t0 = time.perf_counter()
     grid = grid or {}
-    groups = plan(experiment, grid, overrides or [])
+    groups = plan(experiment, grid, [*(overrides or []), *run_overrides])
     total = assign_runs(groups, seeds, jax.process_index(), jax.process_count())
     if out is not None:
         spec = {"experiment": experiment, "seeds": seeds, "grid": grid, "overrides": overrides}
@@ -218,7 +223,7 @@ def run_sweep(
     rows, timings = [], []
     for g_index, g in enumerate(groups):
         desc = f"group {g_index + 1}/{len(groups)}"
-        g_rows, timing = _run_one_group(g, g_index, out, resume, progress, desc)
+        g_rows, timing = _run_one_group(g, g_index, out, resume, progress, log, desc)
         for row in g_rows:
             row["group"] = g_index
         rows.extend(g_rows)

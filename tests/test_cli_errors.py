@@ -182,19 +182,17 @@ def test_other_madp_formats_are_refused(capsys, tmp_path, name):
     one_line_error(capsys, ["inspect", str(path)], str(path), "not supported")
 
 
-def test_model_warnings_are_one_line_each(capsys, tmp_path):
+def test_model_defaults_that_would_decide_silently_are_errors(capsys, tmp_path):
+    """No R: lines (every reward 0) and a file cut short before its rewards are written are
+    one-line errors naming the file (and the last line), not warnings."""
     path = tmp_path / "w.dpomdp"
     path.write_text(
         BAD_DPOMDP.replace("T: * : 0 : 0 : 1.5\n", "T: * :\nuniform\nO: * :\nuniform\n")
     )
-    assert main(["inspect", str(path)]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"warning: {path}: no R: lines, so every reward is 0"]
+    one_line_error(capsys, ["inspect", str(path)], str(path), "no R: lines")
     text = path.read_text() + "R: 0 0 : 0 : * : * : 3"  # cut short: no final newline
     path.write_text(text)
-    assert main(["inspect", str(path)]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "cut short" in err[0] and "7 of 8 rewards" in err[0], err
+    one_line_error(capsys, ["inspect", str(path)], str(path), "cut short", "7 of 8 rewards")
 
 
 def test_policy_file_checksum_version_and_old_format(capsys, run_dir, tmp_path):

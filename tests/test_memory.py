@@ -114,8 +114,8 @@ def test_a_run_within_a_small_budget_matches_the_unchunked_run(tmp_path):
     "experiment,override,expected",
     [
         ("tagging-thesis-cogdice-n3", "algorithm.nodes=1000000000", "the initial state needs"),
-        ("tagging-thesis-cogdice-n3", "algorithm.samples=1000000000", "one iteration needs"),
-        ("tagging-thesis-n3", "algorithm.candidates=1000000000", "one iteration needs"),
+        ("tagging-thesis-cogdice-n3", "algorithm.samples=1000000", "one iteration needs"),
+        ("tagging-thesis-n3", "algorithm.candidates=300000", "one iteration needs"),
         ("tagging-thesis-cogdice-n3", "algorithm.eval_rollouts=1000000", "eval_rollouts"),
     ],
 )

@@ -95,6 +95,10 @@ class CognetThesisSection(EntropySection):
     #: 0 (SPEC): step 8 evaluates the updated policy with eval_rollouts; N > 0: with N
     best_rollouts: int = 0
 
+    def rollouts_per_iteration(self) -> int:
+        """Rollouts one iteration simulates (the size checks of ``api.check_budget``)."""
+        return rollouts_per_iteration(self)
+
     def check(self, config) -> None:
         names = ("nodes", "iterations", "rollouts", "top", "keep", "eval_rollouts")
         require_positive(self, "algorithm", *names)
@@ -114,6 +118,14 @@ class CognetThesisSection(EntropySection):
         self.check_entropy()
         require(self.best_rollouts >= 0, "algorithm.best_rollouts", "must be >= 0")
         check_network(config, training=True)
+
+
+def rollouts_per_iteration(s) -> int:
+    """Rollouts one iteration of the settings (or section) ``s`` simulates: the policy's
+    rollouts, the candidates' evaluations (not in separate training) and the evaluation of the
+    updated policy."""
+    candidates = 0 if s.separate else s.top * s.eval_rollouts
+    return s.rollouts + candidates + (s.best_rollouts or s.eval_rollouts)
 
 
 @struct.dataclass
@@ -314,11 +326,8 @@ class CognetDice(Search):
     # -- one iteration -------------------------------------------------------------------------
     @property
     def rollouts_per_iteration(self) -> int:
-        """Simulated rollouts in one ``step``: the policy's rollouts, the candidates' evaluations
-        (not in separate training) and the evaluation of the updated policy."""
-        s = self.settings
-        step8 = s.best_rollouts or s.eval_rollouts
-        return s.rollouts + (0 if s.separate else s.top * s.eval_rollouts) + step8
+        """Simulated rollouts in one ``step`` (``rollouts_per_iteration``)."""
+        return rollouts_per_iteration(self.settings)
 
     # -- one iteration: ask / evaluate / tell (algorithms.engine's protocol) ------------------
     def ask(self, key: jax.Array, state: CognetState, params: SearchParams):

@@ -92,6 +92,7 @@ from cognet_jax.config import (
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
+from cognet_jax.memory import trace_checked
 from cognet_jax.observations import (
     ObservationPipeline,
     build_pipeline,
@@ -164,6 +165,10 @@ class CognetWeightsSection:
     standardize_inputs: bool = False
     paired_best: bool = False
 
+    def rollouts_per_iteration(self) -> int:
+        """Rollouts one iteration simulates (the size checks of ``api.check_budget``)."""
+        return rollouts_per_iteration(self)
+
     def check(self, config) -> None:
         names = ("nodes", "iterations", "candidates", "eval_rollouts", "elites", "best_rollouts")
         require_positive(self, "algorithm", *names)
@@ -193,6 +198,13 @@ class CognetWeightsSection:
             "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
             "network (use experiment.algorithm = 'cognet-dice-thesis')",
         )
+
+
+def rollouts_per_iteration(s) -> int:
+    """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
+    evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
+    far, ``paired_best``)."""
+    return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
 
 
 @struct.dataclass
@@ -244,15 +256,19 @@ def _gaussian_refit(mean, std, elite_draws, alpha):
     )
 
 
-def input_statistics(env, controller, pipeline, env_params) -> tuple[jax.Array, jax.Array]:
+def input_statistics(env, controller, pipeline, env_params, memory=None):
     """``(mean, scale) [agents, F]`` of the networks' input features over the observations
     of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
-    ``env_params``; a feature that never varies gets scale 1."""
+    ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
+    ``memory`` bytes (``memory.trace_checked``)."""
     template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
     uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
-    traj = jax.jit(
+    record = jax.jit(
         lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
-    )(jax.random.key(0))
+    )
+    what = f"the input statistics ({STATS_ROLLOUTS} recorded rollouts)"
+    trace_checked(record, (jax.random.key(0),), memory, what)
+    traj = record(jax.random.key(0))
     feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
     feats = feats.reshape(feats.shape[:3] + (-1,))
     mean, std = feats.mean((0, 1)), feats.std((0, 1))
@@ -407,10 +423,8 @@ class CognetWeights(Search):
 
     @property
     def rollouts_per_iteration(self) -> int:
-        """Simulated rollouts in one ``step``: candidates' evaluations plus the fresh
-        evaluations of the winner and of the mode (and of the best so far, ``paired_best``)."""
-        s = self.settings
-        return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
+        """Simulated rollouts in one ``step`` (``rollouts_per_iteration``)."""
+        return rollouts_per_iteration(self.settings)
 
     def ask(self, key: jax.Array, state: WeightsState, params: SearchParams):
         """``(samples, policies)``: ``candidates`` joint controllers drawn from the state's
@@ -486,7 +500,7 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     )
     stats = None
     if settings.standardize_inputs:
-        stats = input_statistics(env, controller, pipeline, env_params)
+        stats = input_statistics(env, controller, pipeline, env_params, memory)
     return CognetWeights(env, settings, memory, pipeline, stats)
 
 

@@ -14,20 +14,26 @@ params pytree and the algorithm's hyper-parameters -- is one :class:`SearchParam
     policy = search.best_policy(state)
 
 ``step(key, state, params)`` is exactly ``ask``, ``evaluate`` and ``tell`` with one iteration
-key. **Random streams**: each of the three derives what it draws from that key through
-:func:`streams`, which splits it once into independent named keys -- ``sample`` (the
-candidates; the thesis COGNet-DICE's rollouts of its current policy), ``evaluate`` (the
-candidates' rollouts), ``best`` (the fresh rollouts that value the iteration's winner for the
-anytime best) and ``other`` (anything else: the default COGNet-DICE's mode, the thesis
-algorithm's augmentation). So a search driven by hand draws exactly what ``step`` draws, and
-the winner's fresh rollouts never reuse the rollouts it was selected on.
+key. What the driver (``cognet_jax.driver``) reads besides: ``state.progress.iteration`` (the
+iteration count, ``cross_entropy.Progress``), the metrics fields ``value``, ``best_value``,
+``threshold``, ``kept`` and ``injected`` (``SearchMetrics``), and the algorithm's
+``rollouts_per_iteration``.
+
+**Random streams**: each of ``ask``, ``evaluate`` and ``tell`` derives what it draws from the
+iteration key through :func:`streams`, which splits it once into independent named keys --
+``sample`` (the candidates; the thesis COGNet-DICE's rollouts of its current policy),
+``evaluate`` (the candidates' rollouts), ``best`` (the fresh rollouts that value the
+iteration's winner for the anytime best) and ``other`` (anything else: the default
+COGNet-DICE's mode, the thesis algorithm's augmentation). So a search driven by hand draws
+exactly what ``step`` draws, and the winner's fresh rollouts never reuse the rollouts it was
+selected on.
 
 **Evaluation**, one name per concept:
 
 * ``evaluate(key, policies, params) -> [C]``: the algorithm's fitness of asked candidates;
 * ``fresh_value(key, policy, params) -> []``: one policy's mean return over ``best_rollouts``
-  fresh rollouts (the anytime best); ``tell(..., fresh_value=fn)`` replaces it by your
-  ``fn(key, policy)``;
+  fresh rollouts (the anytime best; the thesis COGNet-DICE falls back to ``eval_rollouts`` when
+  it is 0); ``tell(..., fresh_value=fn)`` replaces it by your ``fn(key, policy)``;
 * ``returns(key, policy, num, params, batch) -> [num]``: the returns of ``num`` rollouts of
   one policy (the honest evaluation, ``api.honest_returns``, draws these from the seed's
   evaluation key).
@@ -107,6 +113,10 @@ class ThresholdSection(EntropySection):
     alpha: float = 0.1
     common_random_numbers: bool = True
     best_rollouts: int = 0
+
+    def rollouts_per_iteration(self) -> int:
+        """Rollouts one iteration simulates at least (the size checks of ``api.check_budget``)."""
+        return self.samples * self.eval_rollouts + self.best_rollouts
 
     def check(self, config) -> None:
         require_positive(self, "algorithm", "nodes", "iterations", "samples", "elites")

@@ -91,7 +91,12 @@ from cognet_jax.algorithms.engine import (
     ThresholdSection,
     threshold_hyper,
 )
-from cognet_jax.algorithms.polish import RELATIVE_TOLERANCE, neighbour_moves, polish
+from cognet_jax.algorithms.polish import (
+    RELATIVE_TOLERANCE,
+    count_moves,
+    neighbour_moves,
+    polish,
+)
 from cognet_jax.config import (
     ConfigError,
     require,
@@ -160,6 +165,15 @@ class GDiceSection(ThresholdSection):
     #: the single-entry polish (``algorithms.best_response``; 0: none)
     best_response_rounds: int = 0
 
+    def rollouts_per_iteration(self) -> int:
+        """Rollouts one iteration simulates at least: none when exact values may rank the
+        samples (``exact``, ``auto``), else every search's samples (and fresh bests)."""
+        if self.evaluator in ("exact", "auto"):
+            return 0
+        searches = self.restarts + self.shared_restarts + self.explore_restarts
+        fresh = self.best_rollouts if self.evaluator == "rollouts" else 0
+        return searches * (self.samples * self.eval_rollouts + fresh)
+
     def check(self, config) -> None:
         super().check(config)
         require_positive(self, "algorithm", "restarts", "exact_top")
@@ -226,7 +240,10 @@ class GDice(ThresholdSearch):
     def __post_init__(self):
         env, settings = self.env, self.settings
         if env.num_obs is None:
-            raise ConfigError("env.name", "G-DICE needs discrete observations (env.num_obs)")
+            raise ConfigError(
+                "env.name",
+                f"G-DICE needs discrete observations (env.num_obs); {type(env).__name__} has none",
+            )
         if settings.evaluator not in ("rollouts", "exact", "hybrid"):
             raise ConfigError("algorithm.evaluator", f"unknown evaluator {settings.evaluator!r}")
         if settings.evaluator != "rollouts" and not isinstance(env, TabularEnv):
@@ -347,15 +364,13 @@ class GDice(ThresholdSearch):
         """Whether ``finish`` does anything: ``polish_sweeps > 0`` and exact values."""
         return self.settings.polish_sweeps > 0 and self.settings.evaluator in ("exact", "hybrid")
 
-    def polish_moves(self):
-        """The moves one polish sweep tries, ``[moves, 5]`` (``polish.neighbour_moves``)."""
+    def polish_moves(self, count: bool = False):
+        """The moves one polish sweep tries, ``[moves, 5]`` (``polish.neighbour_moves``); with
+        ``count``, only their number (``polish.count_moves``)."""
         env = self.env
-        return neighbour_moves(
-            self.controller,
-            env.action_counts,
-            env.obs_counts,
-            joint_moves=identical_agents(env) and env.num_agents > 1,
-        )
+        moves = count_moves if count else neighbour_moves
+        joint = identical_agents(env) and env.num_agents > 1
+        return moves(self.controller, env.action_counts, env.obs_counts, joint_moves=joint)
 
     @property
     def best_responds(self) -> bool:
@@ -645,7 +660,7 @@ def affordable_polish(env, settings, env_params):
     ``resolved`` shows what ran)."""
     nodes = settings.nodes
     if settings.polish_sweeps and settings.evaluator in ("exact", "hybrid"):
-        moves = len(GDice(env, settings).polish_moves())
+        moves = GDice(env, settings).polish_moves(count=True)
         if moves * exact_cost(env, nodes, env_params) > POLISH_SWEEP_LIMIT:
             settings = dataclasses.replace(settings, polish_sweeps=0)
     if settings.best_response_rounds and not (settings.polish_sweeps and settings.layered):
@@ -665,10 +680,6 @@ def build(config, env, env_params, memory: int | None = None) -> GDice | GDicePo
     (``resolve_evaluator``), the polish kept where affordable (``affordable_polish``), a
     portfolio when more than one search runs."""
     a = config.algorithm
-    if env.num_obs is None:
-        raise ConfigError(
-            "env.name", f"G-DICE needs discrete observations; {config.env.name!r} has none"
-        )
     evaluator = resolve_evaluator(env, a, env_params)
     settings = affordable_polish(
         env, fields_from(GDiceSettings, a, evaluator=evaluator), env_params

@@ -63,6 +63,23 @@ def neighbour_moves(
     return np.asarray(rows, np.int32)
 
 
+def count_moves(controller: TabularController, action_counts, obs_counts, joint_moves: bool):
+    """The number of rows ``neighbour_moves`` lists, without listing them (a controller of
+    millions of nodes would take minutes to list)."""
+    n = controller.num_nodes
+    if controller.layers:  # no moves out of the last layer; a next layer of width targets
+        width = controller.layer_width
+        moving, targets = n - width, width
+    else:
+        moving, targets = n, n
+    agents = list(range(controller.num_agents)) + ([-1] if joint_moves else [])
+    total = 0
+    for agent in agents:
+        a_count, o_count = int(action_counts[max(agent, 0)]), int(obs_counts[max(agent, 0)])
+        total += n * a_count + moving * o_count * targets
+    return total
+
+
 def apply_move(policy: DeterministicTabularPolicy, move: jax.Array) -> DeterministicTabularPolicy:
     """``policy`` with one move ``(kind, agent, node, obs, value)`` applied."""
     kind, agent, node, obs, value = move[0], move[1], move[2], move[3], move[4]

@@ -32,6 +32,7 @@ import numpy as np
 from flax import struct
 
 from cognet_jax.config import (
+    FLOAT32_MAX,
     ConfigError,
     ProblemSection,
     require,
@@ -221,8 +222,10 @@ def load_problem(problem: ProblemSection) -> TabularModel:
     """The parsed model of ``problem.path`` (``ConfigError`` if unreadable); parsed once per
     file version and discount, then reused."""
     path = Path(problem.path).expanduser()
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError("problem.path", f"no such file: {problem.path}")
+    if not path.is_file():
+        raise ConfigError("problem.path", f"{problem.path}: not a regular file (a .dpomdp model)")
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size, problem.discount)
     if key not in _PARSED:
@@ -238,9 +241,18 @@ def load_problem(problem: ProblemSection) -> TabularModel:
 
 
 def build_from_section(section: DpomdpSection, config) -> tuple[TabularEnv, TabularParams]:
-    """The parsed model of ``problem.path`` (parsed once per file version, ``load_problem``)."""
+    """The parsed model of ``problem.path`` (parsed once per file version, ``load_problem``);
+    ``ConfigError`` when its rewards over the horizon overflow float32."""
     problem = config.problem
-    return make_tabular(load_problem(problem), problem.horizon, problem.discount)
+    model = load_problem(problem)
+    top = float(np.abs(model.reward).max()) if model.reward.size else 0.0
+    if top * problem.horizon > FLOAT32_MAX:
+        raise ConfigError(
+            "problem.path",
+            f"{problem.path}: rewards up to {top:.3g} over horizon {problem.horizon} overflow "
+            f"float32 (|return| <= {FLOAT32_MAX:.3g})",
+        )
+    return make_tabular(model, problem.horizon, problem.discount)
 
 
 register_env("dpomdp", DpomdpSection, build_from_section, reads=("problem",), overwrite=False)

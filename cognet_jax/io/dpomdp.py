@@ -59,11 +59,10 @@ Choices made here (where the format or MADP leaves room)
 * Models whose ``T`` or ``O`` array would exceed :data:`MAX_ENTRIES` entries, or with more than
   :data:`MAX_COUNT` agents, states, actions or observations, are rejected (a parse error
   rather than an out-of-memory crash on a corrupted count).
-* **Warnings** (:class:`DpomdpWarning`, also kept in ``TabularModel.warnings``) where MADP's
-  rules make a silent choice: a file with no ``R`` line (every reward 0), and a file whose last
-  line has no newline and leaves some rewards unwritten (a reward section that stops mid-file).
-  Rewards a complete file leaves unwritten are 0, as in MADP, without a warning: many files
-  write only the non-zero ones.
+* **Errors where MADP's rules would silently decide** (a model nobody meant): a file with no
+  ``R`` line (every reward 0, so every controller is worth 0), and a file whose last line has no
+  newline and leaves some rewards unwritten (a reward section cut short). Rewards a complete
+  file leaves unwritten are 0, as in MADP: many files write only the non-zero ones.
 * ``.pgmx`` (factored) and ``.toi-dpomdp`` (transition-observation independent) models are
   other formats: they are refused with a message saying so.
 * A missing file raises the usual ``FileNotFoundError``; everything wrong *inside* the text
@@ -80,7 +79,6 @@ import dataclasses
 import gzip
 import os
 import re
-import warnings
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
@@ -90,7 +88,6 @@ import numpy as np
 from cognet_jax.errors import InputError
 
 __all__ = [
-    "DpomdpWarning",
     "MAX_COUNT",
     "MAX_ENTRIES",
     "PROB_TOL",
@@ -138,10 +135,6 @@ class DpomdpParseError(InputError):
         super().__init__(f"{where}: {message}")
 
 
-class DpomdpWarning(UserWarning):
-    """A ``.dpomdp`` text is valid but MADP's rules made a choice its author may not expect."""
-
-
 #: Model formats of the MADP toolbox this parser does not read (suffix -> what it is).
 UNSUPPORTED_FORMATS = {
     ".pgmx": "a factored model (.pgmx)",
@@ -169,8 +162,6 @@ class TabularModel:
     reward: np.ndarray
     initial_belief: np.ndarray
     source: str = "<string>"
-    #: what the parser warned about (see :class:`DpomdpWarning`)
-    warnings: tuple[str, ...] = ()
 
     @property
     def num_agents(self) -> int:
@@ -265,6 +256,8 @@ def _read_source(path_or_text, name: str | None) -> tuple[str, str]:
             raise DpomdpParseError(
                 label, None, f"{what} is not supported: only .dpomdp files (or .dpomdp.gz) are"
             )
+    if path.exists() and not path.is_file():  # a folder, a FIFO, a device: never read
+        raise DpomdpParseError(label, None, "not a regular file")
     data = path.read_bytes()
     return _decode(data, label), label
 
@@ -930,19 +923,17 @@ class _Parser:
             extra = f" (and {more} more rows of {table})" if more else ""
             raise self.error(None, f"{row_name(a, b)} never specified{extra}")
 
-    def warnings(self, text: str) -> tuple[str, ...]:
-        """Where MADP's defaults silently decide (see the module docstring)."""
-        out = []
+    def check_rewards(self, text: str) -> None:
+        """Where MADP's defaults would silently decide, an error (see the module docstring)."""
         if self.r_lines == 0:
-            out.append(f"{self.label}: no R: lines, so every reward is 0")
-        elif not text.endswith(("\n", "\r")) and not self.r_written.all():
+            raise self.error(None, "no R: lines: every reward would be 0 (write the rewards)")
+        if not text.endswith(("\n", "\r")) and not self.r_written.all():
             missing = int((~self.r_written).sum())
-            out.append(
-                f"{self.label}:{self.lines[-1][0]}: the file ends without a newline and "
-                f"{missing} of {self.r_written.size} rewards R(s, ja) were never written "
-                "(they are 0): was the file cut short?"
+            raise self.error(
+                self.lines[-1][0],
+                f"the file ends without a newline and {missing} of {self.r_written.size} "
+                "rewards R(s, ja) were never written: was the file cut short?",
             )
-        return tuple(out)
 
     def current_line(self) -> int | None:
         if 0 < self.pos <= len(self.lines):
@@ -953,9 +944,7 @@ class _Parser:
         self.parse_header()
         self.parse_body()
         self.finish()
-        notes = self.warnings(text)
-        for note in notes:
-            warnings.warn(note, DpomdpWarning, stacklevel=3)
+        self.check_rewards(text)
         R = -self.R if self.cost else self.R
         arrays = [self.T, self.O, R + 0.0, self.initial_belief]
         for a in arrays:
@@ -971,7 +960,6 @@ class _Parser:
             reward=arrays[2],
             initial_belief=arrays[3],
             source=self.label,
-            warnings=notes,
         )
 
 

@@ -1,0 +1,123 @@
+"""Stop signals in every phase of ``cognet-jax train`` (the search itself: tests/test_checkpoint.py
+and tests/test_sweep.py): while it compiles, and while it evaluates its best policy after the
+search. The process ends within 10 s with one line and status 128 + the signal, never a
+segmentation fault; what a finished search found is kept, and ``--resume`` completes it to the
+uninterrupted run's numbers."""
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from cognet_jax.checkpoint import CHECKPOINT_NAME
+from cognet_jax.driver import resume_target, train
+from cognet_jax.registry import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = [
+    "algorithm.iterations=50",
+    "algorithm.rollouts=40",
+    "algorithm.top=8",
+    "algorithm.keep=3",
+    "algorithm.eval_rollouts=8",
+    "network.train_steps=2",
+    "run.plots=false",
+]
+
+
+def _start(out: Path, sets: list[str]):
+    """``cognet-jax train`` in a fresh process (no compilation cache: it really compiles), its
+    stderr lines in a queue."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    args = [sys.executable, "-m", "cognet_jax", "train", "tagging-thesis-spec-n3", "--seed", "3"]
+    args += ["--out", str(out), "--no-progress", "--no-compile-cache"]
+    args += [x for s in sets for x in ("--set", s)]
+    proc = subprocess.Popen(
+        args, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stderr], daemon=True).start()
+    return proc, lines
+
+
+def _wait_line(lines: queue.Queue, text: str, timeout: float = 120.0) -> list[str]:
+    seen, t0 = [], time.time()
+    while time.time() - t0 < timeout:
+        try:
+            seen.append(lines.get(timeout=0.05))
+        except queue.Empty:
+            continue
+        if text in seen[-1]:
+            return seen
+    raise AssertionError(f"no line with {text!r}: {seen}")
+
+
+def _stopped(proc, lines: queue.Queue, sig) -> list[str]:
+    """Send ``sig``; the process must end within 10 s. Returns its remaining stderr lines."""
+    t0 = time.time()
+    proc.send_signal(sig)
+    proc.wait(timeout=10)
+    assert time.time() - t0 < 10
+    time.sleep(0.2)
+    rest = []
+    while not lines.empty():
+        rest.append(lines.get())
+    assert proc.returncode == 128 + sig, rest
+    text = "".join(rest)
+    assert "Segmentation" not in text and "Traceback" not in text, text
+    return [x.strip() for x in rest if x.strip()]
+
+
+def test_sigterm_while_compiling_ends_at_once_and_leaves_no_folder(tmp_path):
+    out = tmp_path / "run"
+    proc, lines = _start(out, TINY)
+    _wait_line(lines, "compiling")
+    rest = _stopped(proc, lines, signal.SIGTERM)
+    assert rest[-1].startswith("error:") and "SIGTERM" in rest[-1], rest
+    if not (out / CHECKPOINT_NAME).exists():  # the signal came before an iteration finished
+        assert rest[-1] == "error: stopped by SIGTERM" and not out.exists(), rest
+
+
+def test_sigint_during_the_final_evaluation_keeps_the_search_then_resume_finishes_it(tmp_path):
+    """The search has finished (its checkpoint is written) and the honest evaluation of 20
+    million rollouts runs: Ctrl-C keeps the search's best policy and checkpoint; ``--resume``
+    skips the search and gives the uninterrupted run's value."""
+    sets = TINY + ["evaluation.rollouts=20000000", "run.checkpoint_seconds=0"]
+    out = tmp_path / "run"
+    proc, lines = _start(out, sets)
+    ckpt = out / CHECKPOINT_NAME
+    t0 = time.time()
+    while not ckpt.exists():
+        assert proc.poll() is None and time.time() - t0 < 120
+        time.sleep(0.01)
+    time.sleep(0.5)  # into the evaluation
+    rest = _stopped(proc, lines, signal.SIGINT)
+    assert "interrupted at iteration 50/50" in rest[-1] and "--resume" in rest[-1], rest
+    partial = json.loads((out / "results.json").read_text())
+    assert partial["status"] == "interrupted" and (out / "policy.msgpack").exists()
+    config, seed = resume_target(out)
+    resumed = train(config, seed, out, resume=True, log=lambda *_: None)
+    assert resumed["resumed_from_iteration"] == 50
+    reference = train(load_config("tagging-thesis-spec-n3", sets), 3, tmp_path / "ref")
+    assert resumed["final_value"] == reference["final_value"]
+    assert resumed["values_per_iteration"] == reference["values_per_iteration"]
+
+
+def test_a_signal_sent_twice_at_once_is_one_stop(tmp_path):
+    """``timeout`` signals the command and then its process group, so the command gets
+    SIGTERM twice at once: that is one stop, which keeps the search's best policy and its
+    checkpoint (a second stop would cut the writing short)."""
+    out = tmp_path / "run"
+    proc, lines = _start(out, TINY + ["algorithm.iterations=100000"])
+    _wait_line(lines, "compiled")
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    rest = _stopped(proc, lines, signal.SIGTERM)
+    assert "interrupted at iteration" in rest[-1] and "--resume" in rest[-1], rest
+    assert (out / "policy.msgpack").exists() and (out / CHECKPOINT_NAME).exists()
