@@ -113,6 +113,7 @@ def _common(suffix: str = "") -> argparse.ArgumentParser:
 #: the environment variable naming the compilation cache folder ("off" turns it off)
 CACHE_VARIABLE = "COGNET_JAX_CACHE"
 #: the cache may hold this many bytes; JAX evicts the least recently used programs above it
+#: (with the ``filelock`` package, which torch brings; without it the folder is not bounded)
 CACHE_MAX_BYTES = 2 * 10**9
 
 
@@ -142,7 +143,8 @@ def use_compile_cache(args) -> None:
         return
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+    if importlib.util.find_spec("filelock") is not None:  # JAX's eviction needs it
+        jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
 
 
 def _merge_common(args) -> argparse.Namespace:

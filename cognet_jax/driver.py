@@ -83,7 +83,7 @@ from cognet_jax.memory import budget_bytes, trace_checked
 from cognet_jax.observations import VAE_FILE
 from cognet_jax.registry import config_from_dict, env_entry
 from cognet_jax.reporting import write_plots
-from cognet_jax.signals import Stopped, deferred_stop, in_background
+from cognet_jax.signals import Stopped, deferred_stop, in_background, wait_for
 from cognet_jax.vae import save_vae
 
 #: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
@@ -345,23 +345,42 @@ class Checkpointing:
 
 #: seconds a stopped loop waits for the iteration in flight before it keeps the last finished one
 STOP_GRACE_S = 5.0
+#: the loop dispatches iterations ahead of the one it waits for, about this many seconds of
+#: them (at least 2; at most ``AHEAD_MAX`` and ``AHEAD_BYTES`` of search states)
+AHEAD_S = 0.1
+AHEAD_MAX = 256
+AHEAD_BYTES = 256 * 2**20
 
 
 def wait_ready(tree, flag=None, timeout: float | None = None) -> bool:
     """Wait until every array of ``tree`` is computed; ``False`` when ``flag["signum"]`` is
-    set (a stop signal) or ``timeout`` seconds pass first. Polls instead of blocking, so the
-    main thread stays free for signal handlers; the pause grows from 10 microseconds, so a
-    millisecond iteration is not slowed."""
+    set (a stop signal) or ``timeout`` seconds pass first. The blocking wait runs in a waiter
+    thread (``signals.wait_for``), so the main thread stays free for signal handlers."""
     leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array)]
-    t0, pause = time.perf_counter(), 1e-5
-    while not all(x.is_ready() for x in leaves):
-        if flag is not None and flag["signum"] is not None:
-            return False
-        if timeout is not None and time.perf_counter() - t0 > timeout:
-            return False
+    pause = 1e-4
+    while pause < 0.01:  # a short wait polls (cheaper than waking a thread)
+        if all(x.is_ready() for x in leaves):
+            return True
         time.sleep(pause)
-        pause = min(2 * pause, 0.02)
-    return True
+        pause *= 2
+    return wait_for(jax.block_until_ready, leaves, flag, timeout)
+
+
+class Ahead:
+    """How many iterations the loop keeps dispatched: about ``AHEAD_S`` seconds of them, from
+    the mean time between finished iterations, so short iterations queue up (the dispatch
+    overhead hides behind the computation) while long ones stay two deep; bounded by
+    ``AHEAD_MAX`` and by ``AHEAD_BYTES`` of search states in flight."""
+
+    def __init__(self, state):
+        size = sum(x.nbytes for x in jax.tree.leaves(state) if hasattr(x, "nbytes"))
+        self.cap = int(max(2, min(AHEAD_MAX, AHEAD_BYTES // max(size, 1))))
+        self.depth, self.count, self.t0 = 2, 0, time.perf_counter()
+
+    def finished(self) -> None:
+        self.count += 1
+        mean = (time.perf_counter() - self.t0) / self.count
+        self.depth = int(max(2, min(self.cap, AHEAD_S / max(mean, 1e-6))))
 
 
 def iterate(step, state, *, start, iterations, history, checkpointing, save, progress, desc):
@@ -370,17 +389,19 @@ def iterate(step, state, *, start, iterations, history, checkpointing, save, pro
     after the last finished iteration (``len(history)``) and the stop signal that came during
     the loop (``None`` when none did).
 
-    Two iterations are in flight (the next is dispatched while the previous computes); the
-    loop waits by polling (``wait_ready``), so a stop signal is seen at once. It then waits at
-    most ``STOP_GRACE_S`` for the oldest iteration in flight and keeps the last finished state.
+    Iterations are dispatched ahead of the one waited for (``Ahead``: about 0.1 s of them, at
+    least 2); the loop waits on an event (``wait_ready``), so a stop signal is seen at once.
+    It then waits at most ``STOP_GRACE_S`` for the oldest iteration in flight and keeps the
+    last finished state.
     ``save(i, state, history)`` writes a checkpoint (``checkpointing``)."""
     last_save = time.perf_counter()
     bar = tqdm(total=iterations, disable=not progress, desc=desc, unit="it", dynamic_ncols=True)
     done, flight = state, []  # the last finished state; (state, metrics) dispatched, oldest first
+    ahead = Ahead(state)
     with deferred_stop() as flag, bar:
         bar.update(start)
         while len(history) < iterations:
-            while len(flight) < 2 and len(history) + len(flight) < iterations:
+            while len(flight) < ahead.depth and len(history) + len(flight) < iterations:
                 if flag["signum"] is not None:
                     break
                 flight.append(step(flight[-1][0] if flight else done))
@@ -389,6 +410,7 @@ def iterate(step, state, *, start, iterations, history, checkpointing, save, pro
             state, metrics = flight.pop(0)
             if not wait_ready(metrics, flag) and not wait_ready(metrics, timeout=STOP_GRACE_S):
                 break
+            ahead.finished()
             done = state
             history.append(metrics)
             i = len(history)
@@ -635,7 +657,8 @@ def run_group(runs: list[Run], opts: GroupOptions | None = None) -> tuple[list[d
 @dataclasses.dataclass
 class _Searched:
     """A group's search, done: its final state, per-iteration metrics, the iteration it
-    started from, and timings (seconds; ``t_start``, ``t_loop``: ``time.perf_counter``)."""
+    started from, and timings (seconds; ``t_start``, ``t_loop`` and ``t_searched``, the end of
+    the loop before its checkpoint is written: ``time.perf_counter``)."""
 
     state: Any
     history: list
@@ -643,6 +666,7 @@ class _Searched:
     compile_s: float
     t_start: float
     t_loop: float
+    t_searched: float
 
 
 def _prepare(runs: list[Run], opts: GroupOptions):
@@ -702,12 +726,13 @@ def _search(runs, opts: GroupOptions, t_start: float):
         progress=opts.progress,
         desc=opts.desc or config.experiment.name,
     )
+    t_searched = time.perf_counter()
     if opts.checkpoint is not None:
         with deferred_stop():  # a signal now stops the group once this is written
             save(len(history), state, history)
     if signum is not None:
         _stop(program, state, len(history), opts, signum)
-    return program, _Searched(state, history, start, compile_s, t_start, t_loop)
+    return program, _Searched(state, history, start, compile_s, t_start, t_loop, t_searched)
 
 
 def _finish_and_evaluate(program: Program, state):
@@ -746,7 +771,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
     polish_s = (polish[0] or {}).get("seconds", 0.0)
     timing = {
         "compile_s": done.compile_s,
-        "loop_s": t_end - done.t_loop + polish_s,
+        "loop_s": done.t_searched - done.t_loop + polish_s,
         "eval_s": time.perf_counter() - t_end - polish_s,
         "runs": len(runs),
         "resumed_from_iteration": done.start or None,

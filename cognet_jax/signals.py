@@ -16,6 +16,7 @@ that comes later (a second Ctrl-C) cuts the stop short.
 from __future__ import annotations
 
 import contextlib
+import queue
 import signal
 import threading
 import time
@@ -112,3 +113,51 @@ def in_background(fn, poll: float = 0.05):
     if "error" in box:
         raise box["error"]
     return box["value"]
+
+
+#: how often a wait (``wait_for``) looks at the stop flag and its timeout (seconds)
+POLL_S = 0.05
+
+
+class _Waiter:
+    """One daemon thread that runs blocking calls (``block(arg)``) handed to it in order and
+    marks each done, so that the main thread can wait on an event instead of blocking: an event
+    wait lets signal handlers run, a blocking call into a C extension does not."""
+
+    def __init__(self):
+        self.jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self.thread: threading.Thread | None = None
+
+    def _serve(self):
+        while True:
+            block, arg, done = self.jobs.get()
+            try:
+                block(arg)
+            except BaseException:  # the caller sees the error when it uses the result
+                pass
+            done.set()
+
+    def wait(self, block, arg, flag=None, timeout: float | None = None) -> bool:
+        if self.thread is None:
+            self.thread = threading.Thread(target=self._serve, daemon=True)
+            self.thread.start()
+        done = threading.Event()
+        self.jobs.put((block, arg, done))
+        t0 = time.monotonic()
+        while not done.wait(POLL_S):
+            if flag is not None and flag["signum"] is not None:
+                return False
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                return False
+        return True
+
+
+_WAITER = _Waiter()
+
+
+def wait_for(block, arg, flag=None, timeout: float | None = None) -> bool:
+    """``block(arg)`` (e.g. ``jax.block_until_ready``) run in a waiter thread while this thread
+    waits on an event: ``True`` once it returned, ``False`` when ``flag["signum"]`` is set (a
+    stop signal, seen within ``POLL_S``) or ``timeout`` seconds pass first. Calls run one after
+    the other, in the order given."""
+    return _WAITER.wait(block, arg, flag, timeout)
