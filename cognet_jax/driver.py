@@ -135,6 +135,28 @@ def take(tree, r: int):
     return jax.tree.map(lambda x: x[r], tree)
 
 
+#: arrays of a single run's params larger than this are arguments of its compiled programs,
+#: not constants: each program holds its own copy of a constant (a 2025-state model's 262 MB
+#: transition table, once in the step, once in the polish, once in the evaluation)
+CONSTANT_BYTES = 16 * 2**20
+
+
+def hoist_large(params):
+    """``(held, rebuild)``: the array leaves of ``params`` larger than ``CONSTANT_BYTES`` and
+    ``rebuild(held) -> params`` with them put back (traced arguments inside a program); the
+    other leaves stay constants."""
+    leaves, treedef = jax.tree.flatten(params)
+    where = [i for i, x in enumerate(leaves) if getattr(x, "nbytes", 0) > CONSTANT_BYTES]
+
+    def rebuild(held):
+        out = list(leaves)
+        for i, x in zip(where, held, strict=True):
+            out[i] = x
+        return jax.tree.unflatten(treedef, out)
+
+    return tuple(leaves[i] for i in where), rebuild
+
+
 def per_run(fn, sharding, num_args: int, **jit_kwargs):
     """``jit`` of ``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output,
     each device running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk
@@ -166,6 +188,8 @@ class Program:
         self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
         padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
         self.algorithm, self.params = build_algorithm(config, lanes=len(padded))
+        # one run: its params are constants of its programs, except the largest arrays
+        self.held, self._rebuild = hoist_large(self.params)
         self.run_params = [params_of(r.config) for r in runs]
         self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
         # the first run's init and run keys (what a single-run program uses)
@@ -193,16 +217,19 @@ class Program:
         _, k_run, _ = split_seed_key(key)
         return self._step(k_run, state, self._params(hyper, env_params))
 
-    def _finish_one(self, state, hyper, env_params):
-        return self.algorithm.finish(state, self._params(hyper, env_params))
+    def _finish_start_one(self, state, hyper, env_params):
+        return self.algorithm.finish_start(state, self._params(hyper, env_params))
+
+    def _finish_advance_one(self, work, hyper, env_params):
+        return self.algorithm.finish_advance(work, self._params(hyper, env_params))
 
     # -- the program ---------------------------------------------------------------------
     def init(self):
         """The initial state (every run's, stacked when batched)."""
         if not self.batched:
-            init = jax.jit(lambda k: self.algorithm.init(k, self.params))
-            trace_checked(init, (self.k_init,), self.memory, "the initial state")
-            return init(self.k_init)
+            init = jax.jit(lambda k, h: self.algorithm.init(k, self._rebuild(h)))
+            trace_checked(init, (self.k_init, self.held), self.memory, "the initial state")
+            return init(self.k_init, self.held)
         return per_run(self._init_one, self.sharding, 3)(*self.data)
 
     @property
@@ -215,8 +242,8 @@ class Program:
         and compiled ahead of time."""
         t0 = time.perf_counter()
         if not self.batched:
-            jitted = jax.jit(lambda k, s: self._step(k, s, self.params))
-            args, what = (self.k_run, state), "one iteration"
+            jitted = jax.jit(lambda k, s, h: self._step(k, s, self._rebuild(h)))
+            args, what = (self.k_run, state, self.held), "one iteration"
         else:
             jitted = per_run(self._step_one, self.sharding, 4)
             keys, hyper, env = self.data
@@ -226,27 +253,46 @@ class Program:
         compiled = traced.lower().compile()
         compile_s = time.perf_counter() - t0
         if not self.batched:
-            return lambda s: compiled(args[0], s), compile_s
+            return lambda s: compiled(args[0], s, self.held), compile_s
         return lambda s: compiled(keys, s, hyper, env), compile_s
 
     def metrics_template(self, state):
         """One iteration's metrics, as shapes (to restore a checkpoint's history)."""
         if not self.batched:
-            step = lambda k, s: self._step(k, s, self.params)  # noqa: E731
-            return jax.eval_shape(step, self.k_run, state)[1]
+            step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
+            return jax.eval_shape(step, self.k_run, state, self.held)[1]
         return jax.eval_shape(jax.vmap(self._step_one), *self._with_state(state))[1]
 
     def _with_state(self, state):
         keys, hyper, env = self.data
         return keys, state, hyper, env
 
-    def finish(self, state):
-        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked)."""
+    def finish(self, state, report=lambda work: None):
+        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run
+        as its steps (``finish_start``, ``finish_advance`` until ``finish_done``,
+        ``finish_end``; the same steps ``make_train`` runs in one ``while_loop``), with
+        ``report(work)`` after each step. Runs that are done stay as they are while the
+        others advance."""
+        alg = self.algorithm
         if not self.batched:
-            return jax.jit(lambda s: self.algorithm.finish(s, self.params))(state)
-        _, hyper, env = self.data
-        state, info = per_run(self._finish_one, self.sharding, 3)(state, hyper, env)
-        return state, info
+            start = jax.jit(lambda s, h: alg.finish_start(s, self._rebuild(h)))
+            advance = jax.jit(lambda w, h: alg.finish_advance(w, self._rebuild(h)))
+            done, end = jax.jit(alg.finish_done), jax.jit(alg.finish_end)
+            args = (self.held,)
+        else:
+            _, hyper, env = self.data
+            args = (hyper, env)
+            start = per_run(self._finish_start_one, self.sharding, 3)
+            advance = per_run(self._finish_advance_one, self.sharding, 3)
+            done = jax.jit(lambda w: jnp.all(jax.vmap(alg.finish_done)(w)))
+            end = per_run(alg.finish_end, self.sharding, 2)
+        if jax.eval_shape(start, state, *args) is None:
+            return state, None
+        work = start(state, *args)
+        while not bool(done(work)):
+            work = advance(work, *args)
+            report(work)
+        return end(state, work)
 
     def best_policies(self, state) -> list:
         """Every run's best policy, on the host."""
@@ -270,16 +316,18 @@ def honest_evaluation(algorithm, config: Config, params: SearchParams):
     evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
     the compiled program (its arrays checked against ``run.memory_gb`` when first traced),
     the mean and standard error summed in float64 on the host."""
-    returns = jax.jit(lambda k, p: honest_returns(algorithm, config.evaluation)(k, p, params))
+    held, rebuild = hoist_large(params)
+    run = honest_returns(algorithm, config.evaluation)
+    returns = jax.jit(lambda k, p, h: run(k, p, rebuild(h)))
     memory = budget_bytes(config.run.memory_gb)
     checked = set()
 
     def evaluate(key, policy):
         shapes = str(jax.tree.map(jnp.shape, policy))
         if shapes not in checked:
-            trace_checked(returns, (key, policy), memory, "the honest evaluation")
+            trace_checked(returns, (key, policy, held), memory, "the honest evaluation")
             checked.add(shapes)
-        return return_summary(returns(key, policy))
+        return return_summary(returns(key, policy, held))
 
     return evaluate
 
@@ -520,6 +568,8 @@ def _polish_records(info, runs: int, seconds: float) -> list:
             "moves_applied": int(pick(info.moves_applied, r)),
             "moves_per_sweep": int(info.moves_per_sweep),
             "best_responses_applied": int(pick(info.responses_applied, r)),
+            "exact_evaluations": int(pick(info.evaluations, r)),
+            "budget": int(info.budget),
             "seconds": seconds,
         }
         for r in range(runs)
@@ -735,14 +785,19 @@ def _search(runs, opts: GroupOptions, t_start: float):
     return program, _Searched(state, history, start, compile_s, t_start, t_loop, t_searched)
 
 
-def _finish_and_evaluate(program: Program, state):
+def _finish_and_evaluate(program: Program, state, progress: bool):
     """``(state, polish records, final values, best policies)``: the algorithm's ``finish``
-    (G-DICE's polish) and every run's honest evaluation, in a worker thread
-    (``signals.in_background``), so a stop signal is obeyed at once."""
+    (G-DICE's polish, with a progress line when ``progress``) and every run's honest
+    evaluation, in a worker thread (``signals.in_background``), so a stop signal is obeyed at
+    once."""
 
     def work():
         t_polish = time.perf_counter()
-        finished, info = jax.block_until_ready(program.finish(state))
+        line = _FinishLine(progress)
+        try:
+            finished, info = jax.block_until_ready(program.finish(state, line.report))
+        finally:
+            line.close()
         polish = _polish_records(info, len(program.runs), time.perf_counter() - t_polish)
         best = program.best_policies(finished)
         finals = []
@@ -756,6 +811,32 @@ def _finish_and_evaluate(program: Program, state):
         return in_background(work)
 
 
+class _FinishLine:
+    """The progress line of ``finish`` (shown with ``progress``, from its first step): for a
+    polish, the moves applied, the best exact value and the exact evaluations spent so far
+    (the largest over runs and candidates), and the time."""
+
+    def __init__(self, progress: bool):
+        self.progress, self.bar = progress, None
+
+    def report(self, work) -> None:
+        if not self.progress:
+            return
+        if self.bar is None:
+            self.bar = tqdm(desc="polish", unit="step", dynamic_ncols=True)
+        self.bar.update(1)
+        fields = ("moves_applied", "value", "spent")
+        if all(hasattr(work, f) for f in fields):
+            moves, value, spent = (np.max(np.asarray(getattr(work, f))) for f in fields)
+            self.bar.set_postfix(
+                moves=int(moves), value=f"{float(value):.6g}", evaluations=int(spent)
+            )
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 def _run(runs, opts: GroupOptions, t_start: float):
     """``(records, timing)`` of the group: search, finish (polish), the honest evaluation of
     every run's best policy, its folder. A stop signal after the search keeps the search's best
@@ -765,7 +846,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
     stacked = stack_history(done.history)  # on the host: a jnp.stack of 500 arrays compiles
     t_end = time.perf_counter()
     try:
-        _, polish, finals, best = _finish_and_evaluate(program, done.state)
+        _, polish, finals, best = _finish_and_evaluate(program, done.state, opts.progress)
     except Stopped as stop:
         _stop(program, done.state, iterations, opts, stop.signum)
     polish_s = (polish[0] or {}).get("seconds", 0.0)

@@ -85,7 +85,12 @@ def _arrays(model: Any) -> _Arrays:
         trans, obs, rew = model.transition, model.observation, model.reward
         b0 = model.initial_belief
         ac, oc = model.action_counts, model.obs_counts
-    trans, obs, rew, b0 = (np.asarray(x, dtype=np.float64) for x in (trans, obs, rew, b0))
+    obs, rew, b0 = (np.asarray(x, dtype=np.float64) for x in (obs, rew, b0))
+    # the largest table keeps its float dtype (float32 from the parser): every product with it
+    # is computed in float64 all the same, and a 2025-state model's copy would take 0.5 GB
+    trans = np.asarray(trans)
+    if trans.dtype not in (np.float32, np.float64):
+        trans = trans.astype(np.float64)
     ac, oc = tuple(int(a) for a in ac), tuple(int(o) for o in oc)
     S = b0.shape[0]
     JA, JO = int(np.prod(ac)), int(np.prod(oc))

@@ -13,3 +13,15 @@ def dpomdp_file(name: str) -> Path:
     if not path.is_file():
         pytest.skip(f"benchmark file not found at {path}")
     return path
+
+
+def compile_cache_env() -> dict:
+    """Environment variables that give a ``cognet-jax`` subprocess this session's compilation
+    cache (``conftest.py``), with the same settings: every program kept."""
+    import jax
+
+    return {
+        "JAX_COMPILATION_CACHE_DIR": jax.config.jax_compilation_cache_dir or "",
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
+    }

@@ -9,9 +9,9 @@ import sys
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
+from shared_files import compile_cache_env
 
 from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
 from cognet_jax.config import ConfigError
@@ -37,9 +37,7 @@ TINY = [
 
 def _env():
     env = dict(os.environ)
-    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
-    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
-    env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
+    env.update(compile_cache_env())
     env["PYTHONPATH"] = str(ROOT)
     return env
 

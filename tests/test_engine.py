@@ -90,13 +90,14 @@ def test_ask_evaluate_tell_is_step(name):
     state = algorithm.init(jax.random.key(0), params)
     key = jax.random.key(5)
 
-    @jax.jit
     def by_hand(key, state):
         asked, policies = algorithm.ask(key, state, params)
         values = algorithm.evaluate(key, policies, params)
         return algorithm.tell(key, state, asked, values, params)
 
-    _same(by_hand(key, state), jax.jit(algorithm.step)(key, state, params))
+    # one program holding both: what is the same computation is compiled once
+    both = jax.jit(lambda k, s: (by_hand(k, s), algorithm.step(k, s, params)))
+    _same(*both(key, state))
 
 
 #: iteration value each algorithm reports when every candidate is valued 0 and ``fresh`` gives 7:
@@ -171,20 +172,25 @@ def test_threshold_winner_is_revalued_on_rollouts_it_was_not_selected_on(name):
         sets.append(f'problem.path="{dpomdp_file("dectiger")}"')
     algorithm, params, _ = make_step(load_config(experiment, sets))
     state = algorithm.init(jax.random.key(0), params)
-    fresh_differs = 0
-    for i in range(6):
-        key = jax.random.key(30 + i)
+
+    @jax.jit
+    def iteration(key, state):
         samples, policies = algorithm.ask(key, state, params)
         values = algorithm.evaluate(key, policies, params)
-        state, metrics = algorithm.tell(key, state, samples, values, params)
-        best = jnp.argmax(values)
-        winner = jax.tree.map(lambda x, best=best: x[best], policies)
-        recorded = float(state.progress.recent[-1])  # the value the anytime best compared
+        state, _ = algorithm.tell(key, state, samples, values, params)
+        winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
+        recorded = state.progress.recent[-1]  # the value the anytime best compared
         fresh = algorithm.fresh_value(streams(key).best, winner, params)
         reused = algorithm.fresh_value(streams(key).evaluate, winner, params)
-        assert recorded == pytest.approx(float(fresh), rel=1e-6)
-        assert float(reused) == pytest.approx(float(values.max()), rel=1e-6)  # in-loop mean
-        fresh_differs += recorded != float(values.max())
+        return state, (recorded, fresh, reused, values.max())
+
+    fresh_differs = 0
+    for i in range(6):
+        state, out = iteration(jax.random.key(30 + i), state)
+        recorded, fresh, reused, in_loop = (float(x) for x in out)
+        assert recorded == pytest.approx(fresh, rel=1e-6)
+        assert reused == pytest.approx(in_loop, rel=1e-6)  # the in-loop mean
+        fresh_differs += recorded != in_loop
     assert fresh_differs >= 1, fresh_differs  # 0 when both come from one key
 
 
@@ -195,19 +201,26 @@ def test_weight_search_values_winner_and_mode_on_their_own_streams():
     sets = [*NOISY, f"algorithm.eval_rollouts={n}", f"algorithm.best_rollouts={n}"]
     algorithm, params, _ = make_step(_config("cognet-dice", sets))
     state = algorithm.init(jax.random.key(0), params)
-    key = jax.random.key(3)
-    samples, policies = algorithm.ask(key, state, params)
-    values = algorithm.evaluate(key, policies, params)
-    new, metrics = algorithm.tell(key, state, samples, values, params)
-    winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
-    mode = algorithm.to_policy(algorithm.mode(new.distribution))
-    s = streams(key)
-    v_winner = algorithm.fresh_value(s.best, winner, params)
-    v_mode = algorithm.fresh_value(s.other, mode, params)
-    assert float(metrics.value) == pytest.approx(float(max(v_winner, v_mode)), rel=1e-6)
-    reused = algorithm.fresh_value(s.evaluate, winner, params)
-    assert float(reused) == pytest.approx(float(values.max()), rel=1e-6)
-    assert float(v_winner) != float(values.max())
+
+    @jax.jit
+    def iteration(key, state):
+        samples, policies = algorithm.ask(key, state, params)
+        values = algorithm.evaluate(key, policies, params)
+        new, metrics = algorithm.tell(key, state, samples, values, params)
+        winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
+        mode = algorithm.to_policy(algorithm.mode(new.distribution))
+        s = streams(key)
+        v_winner = algorithm.fresh_value(s.best, winner, params)
+        v_mode = algorithm.fresh_value(s.other, mode, params)
+        reused = algorithm.fresh_value(s.evaluate, winner, params)
+        return metrics.value, v_winner, v_mode, reused, values.max()
+
+    value, v_winner, v_mode, reused, in_loop = (
+        float(x) for x in iteration(jax.random.key(3), state)
+    )
+    assert value == pytest.approx(max(v_winner, v_mode), rel=1e-6)
+    assert reused == pytest.approx(in_loop, rel=1e-6)
+    assert v_winner != in_loop
 
 
 @pytest.mark.parametrize("name", ["cognet-dice-thesis", "cognet-dice-thesis-separate"])
@@ -216,10 +229,17 @@ def test_thesis_step8_values_the_updated_policy_on_its_own_stream(name):
     the rollouts that trained it (``sample``) or valued the candidates (``evaluate``)."""
     algorithm, params, _ = make_step(_config(name, NOISY))
     state = algorithm.init(jax.random.key(0), params)
-    key = jax.random.key(3)
-    new, metrics = jax.jit(algorithm.step)(key, state, params)
-    s = streams(key)
-    expected = algorithm.fresh_value(s.best, new.policy, params)
-    assert float(metrics.value) == pytest.approx(float(expected), rel=1e-6)
-    for other in (s.sample, s.evaluate):
-        assert float(algorithm.fresh_value(other, new.policy, params)) != float(metrics.value)
+
+    @jax.jit
+    def iteration(key, state):
+        new, metrics = algorithm.step(key, state, params)
+        s = streams(key)
+        values = [
+            algorithm.fresh_value(k, new.policy, params) for k in (s.best, s.sample, s.evaluate)
+        ]
+        return metrics.value, values
+
+    value, (expected, *others) = iteration(jax.random.key(3), state)
+    assert float(value) == pytest.approx(float(expected), rel=1e-6)
+    for other in others:
+        assert float(other) != float(value)

@@ -49,9 +49,11 @@ def test_layered_exact_equals_generic_exact_and_numpy(name, horizon):
         env.num_agents, width * horizon, env.num_actions, env.num_obs, layers=horizon
     )
     dist = ctrl.init_distribution()
-    pols = jax.vmap(lambda k: ctrl.sample(k, dist))(jax.random.split(jax.random.key(3), 16))
-    layered = jax.vmap(lambda p: exact_value_layered(env, params, p, width))(pols)
-    generic = jax.vmap(lambda p: exact_value(env, params, p, width * horizon))(pols)
+    pols = jax.jit(jax.vmap(lambda k: ctrl.sample(k, dist)))(
+        jax.random.split(jax.random.key(3), 16)
+    )
+    layered = jax.jit(jax.vmap(lambda p: exact_value_layered(env, params, p, width)))(pols)
+    generic = jax.jit(jax.vmap(lambda p: exact_value(env, params, p, width * horizon)))(pols)
     ref = [
         exact_numpy(model, np.asarray(a), np.asarray(t), horizon, 1.0)
         for a, t in zip(pols.actions, pols.transitions)
@@ -91,8 +93,8 @@ def test_sparse_rows_exact_equals_dense():
     pols = jax.vmap(lambda k: ctrl.sample(k, ctrl.init_distribution()))(
         jax.random.split(jax.random.key(1), 8)
     )
-    a = jax.vmap(lambda p: exact_value(env, p_dense, p, 3))(pols)
-    b = jax.vmap(lambda p: exact_value(env, p_sparse, p, 3))(pols)
+    a = jax.jit(jax.vmap(lambda p: exact_value(env, p_dense, p, 3)))(pols)
+    b = jax.jit(jax.vmap(lambda p: exact_value(env, p_sparse, p, 3)))(pols)
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
 
 
@@ -183,13 +185,18 @@ def test_hybrid_ranks_the_best_samples_by_rollouts_with_exact_values():
     settings = dataclasses.replace(settings, evaluator="hybrid", exact_top=10)
     algo = GDice(env, settings)
     state = algo.init(jax.random.key(0), params)
-    pols = algo.sample_policies(jax.random.key(1), state.distribution)
-    values = np.asarray(algo.evaluate(jax.random.key(2), pols, params))
-    k_eval = streams(jax.random.key(2)).evaluate
-    means = np.asarray(evaluate_candidates(env, algo.controller, k_eval, 100, params.env, pols))
+
+    @jax.jit
+    def parts(state):
+        pols = algo.sample_policies(jax.random.key(1), state.distribution)
+        values = algo.evaluate(jax.random.key(2), pols, params)
+        k_eval = streams(jax.random.key(2)).evaluate
+        means = evaluate_candidates(env, algo.controller, k_eval, 100, params.env, pols)
+        return values, means, algo.exact_values(pols, params)
+
+    values, means, exact = (np.asarray(x) for x in parts(state))
     top = np.argsort(-means, kind="stable")[:10]
     assert set(np.flatnonzero(np.isfinite(values))) == set(top.tolist())
-    exact = np.asarray(algo.exact_values(pols, params))
     np.testing.assert_array_equal(values[top], exact[top])
     # a step keeps an exact best value, with no fresh rollouts
     state, metrics = jax.jit(algo.step)(jax.random.key(3), state, params)
@@ -218,12 +225,19 @@ def test_explore_search_leaves_the_others_unchanged_and_uses_its_rate():
     s_alone = jax.vmap(alone.init, (0, None))(
         jax.random.split(jax.random.fold_in(key, 2), 1), p_alone
     )
-    for i in range(4):
-        k = jax.random.key(10 + i)
-        s_plain, _ = jax.jit(plain.step)(k, s_plain, params)
-        s_both, _ = jax.jit(both.step)(k, s_both, params)
+    alone_step = jax.vmap(alone.step, (0, 0, None))
+
+    @jax.jit
+    def steps(k, s_plain, s_both, s_alone):  # one program for the three searches' steps
         keys = jax.random.split(jax.random.fold_in(k, 2), 1)
-        s_alone, _ = jax.jit(jax.vmap(alone.step, (0, 0, None)))(keys, s_alone, p_alone)
+        return (
+            plain.step(k, s_plain, params)[0],
+            both.step(k, s_both, params)[0],
+            alone_step(keys, s_alone, p_alone)[0],
+        )
+
+    for i in range(4):
+        s_plain, s_both, s_alone = steps(jax.random.key(10 + i), s_plain, s_both, s_alone)
     for a, b in zip(jax.tree.leaves(s_plain.members), jax.tree.leaves(s_both.members[:2])):
         np.testing.assert_array_equal(a, b)
     for a, b in zip(jax.tree.leaves(s_alone), jax.tree.leaves(s_both.members[2])):
@@ -241,8 +255,9 @@ def test_portfolio_is_a_pure_function_of_the_env_params():
     state = algo.init(jax.random.key(0), params)
     key = jax.random.key(1)
     batched, m = jax.jit(jax.vmap(algo.step, (None, None, 0)))(key, state, both)
+    step = jax.jit(algo.step)
     for r, p in enumerate((params, other)):
-        alone, m_alone = jax.jit(algo.step)(key, state, p)
+        alone, m_alone = step(key, state, p)
         for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(batched)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b)[r], rtol=1e-6)
     assert float(m.best_value[0]) != float(m.best_value[1])

@@ -113,30 +113,31 @@ def test_encoded_controller_reads_the_encoder_mean():
     policy = algorithm.init(jax.random.key(0), params).policy
     rng = np.random.default_rng(0)
     obs = jnp.asarray(rng.uniform(0, 1, (2, 16)), jnp.float32)
-    mu = pipe.vae.encode(obs)[0]
-    np.testing.assert_allclose(np.asarray(pipe.features(obs)), np.asarray(mu), rtol=1e-6)
-    nodes = jnp.array([1, 3])
-    # the encoded controller on patches == the bare networks on the encoder mean
-    np.testing.assert_allclose(
-        np.asarray(ctrl.node_logits(policy.net_params, nodes, pipe.features(obs))),
-        np.asarray(
-            [
-                ctrl.one_net_logits(
-                    jax.tree.map(lambda p, i=i: p[i, nodes[i]], policy.net_params), mu[i]
-                )
-                for i in range(2)
-            ]
-        ),
-        rtol=1e-5,
-        atol=1e-6,
-    )
     u = jnp.asarray(rng.uniform(size=(64, 2)), jnp.float32)
-    probs = jax.nn.softmax(ctrl.node_logits(policy.net_params, nodes, mu), -1)
-    expect = jax.vmap(
-        lambda v: jax.vmap(lambda p, w: jnp.searchsorted(jnp.cumsum(p), w))(probs, v)
-    )(u)
-    got = jax.vmap(lambda v: ctrl.next_node(v, policy, nodes, obs))(u)
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(expect))
+    nodes = jnp.array([1, 3])
+
+    @jax.jit
+    def parts(policy, obs, u):  # one program for every number compared below
+        mu = pipe.vae.encode(obs)[0]
+        bare = [
+            ctrl.one_net_logits(
+                jax.tree.map(lambda p, i=i: p[i, nodes[i]], policy.net_params), mu[i]
+            )
+            for i in range(2)
+        ]
+        probs = jax.nn.softmax(ctrl.node_logits(policy.net_params, nodes, mu), -1)
+        expect = jax.vmap(
+            lambda v: jax.vmap(lambda p, w: jnp.searchsorted(jnp.cumsum(p), w))(probs, v)
+        )(u)
+        got = jax.vmap(lambda v: ctrl.next_node(v, policy, nodes, obs))(u)
+        encoded = ctrl.node_logits(policy.net_params, nodes, pipe.features(obs))
+        return mu, pipe.features(obs), encoded, jnp.stack(bare), got, expect
+
+    mu, features, encoded, bare, got, expect = (np.asarray(x) for x in parts(policy, obs, u))
+    np.testing.assert_allclose(features, mu, rtol=1e-6)
+    # the encoded controller on patches == the bare networks on the encoder mean
+    np.testing.assert_allclose(encoded, bare, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(got, expect)
 
 
 def test_raw_pipeline_keeps_patches_and_hidden_size():

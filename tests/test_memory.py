@@ -84,7 +84,8 @@ def test_shared_network_candidates_are_chunked_too():
             env, ctrl, jax.random.key(3), 100, params, cands, policy_axes=axes, memory=mem
         )
 
-    np.testing.assert_allclose(values(budget), values(None), rtol=1e-6, atol=1e-6)
+    chunked, whole = jax.jit(lambda: (values(budget), values(None)))()  # one program
+    np.testing.assert_allclose(chunked, whole, rtol=1e-6, atol=1e-6)
 
 
 def test_one_candidate_over_the_budget_is_refused_with_the_numbers():

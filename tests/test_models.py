@@ -3,11 +3,16 @@
 reproduces the published optimum at horizon 2 with MADP's rounding, and both parse."""
 
 import importlib.util
+import json
+import os
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_files import compile_cache_env
 
 from cognet_jax.exact import brute_force_optimum
 from cognet_jax.io.dpomdp import parse_dpomdp
@@ -87,3 +92,27 @@ def test_fire_fighting_four_houses_is_the_2025_state_model(models):
     assert len(states.split()) == 1 + 2025
     with pytest.raises(ValueError, match="sum to 1.02"):
         models.fire_fighting(4, 3, madp_rounding=True)
+
+
+def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
+    """Issue 33's case: ``cognet-jax train gdice-dpomdp`` on the 2025-state fire fighting model
+    with 2 iterations of 20 samples, in a fresh process, parse included: at most 60 s wall and
+    1 GB peak RSS (the polish is budgeted by the search's size; the dense transition table is
+    neither copied into every program nor kept beside its sparse rows)."""
+    model = tmp_path / "ff243.dpomdp"
+    model.write_text(models.fire_fighting(4, 3))
+    args = ["train", "gdice-dpomdp", "--set", f"problem.path={str(model)!r}"]
+    args += ["--set", "algorithm.iterations=2", "--set", "algorithm.samples=20"]
+    args += ["--set", "run.plots=false", "--out", str(tmp_path / "run"), "--no-progress"]
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, **compile_cache_env(), "PYTHONPATH": str(root)}
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "cognet_jax", *args], env=env)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    assert os.waitstatus_to_exitcode(status) == 0
+    assert wall <= 60, wall
+    assert usage.ru_maxrss <= 2**20, f"peak RSS {usage.ru_maxrss / 2**10:.0f} MB"  # KiB
+    record = json.loads((tmp_path / "run" / "results.json").read_text())
+    polish = record["polish"]
+    assert polish["exact_evaluations"] <= polish["budget"] == 2 * 20 * 3 // 4

@@ -6,7 +6,6 @@ import dataclasses
 import json
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from shared_files import dpomdp_file as _file
@@ -48,6 +47,7 @@ def test_apply_move_changes_exactly_one_entry_or_every_agents():
 def _search(name: str, horizon: int, **kw):
     model = parse_dpomdp(_file(name), discount=1.0)
     env, env_params = make_tabular(model, horizon)
+    kw = {"polish_budget": 1e9, **kw}  # these tests are about the polish, not its budget
     settings = GDiceSettings(
         nodes=2, iterations=3, samples=32, elites=4, evaluator="exact", layered=True, **kw
     )
@@ -87,12 +87,12 @@ def test_portfolio_polish_never_lowers_the_best_value():
     state, _ = jax.jit(algo.step)(jax.random.key(3), state, params)
     before = float(state.progress.best_value)
     # what each member search's best polishes to on its own
-    search = algo.members[0]
+    search, polish = algo._polish()
     alone = [
         float(
-            search.polish_best(jax.tree.map(lambda x, i=i: x[i], m.best_policy), -jnp.inf, params)[
-                1
-            ]
+            search.polish_policy(
+                jax.tree.map(lambda x, i=i: x[i], m.best_policy), params, polish
+            ).value
         )
         for m in state.members
         for i in range(m.progress.best_value.shape[0])
@@ -130,3 +130,54 @@ def test_train_and_sweep_record_the_polish(tmp_path):
     out = run_sweep("gdice-dpomdp", [0, 1], overrides=sets, log=lambda *_: None)
     for row in out["rows"]:
         assert row["final_value"]["exact"] == pytest.approx(row["polish"]["value_after"], abs=1e-4)
+
+
+def test_polish_budget_bounds_the_exact_evaluations():
+    """The polish spends at most ``polish_budget`` times the search's evaluations: below one
+    sweep it does nothing; with room for k sweeps it does at most k, and says what it spent."""
+    _, env, params, settings = _search("dectiger", 3, polish_sweeps=50)
+    algo = GDice(env, settings)
+    state = algo.init(jax.random.key(1), params)  # a random controller: every sweep improves
+    moves = len(algo.polish_moves())
+    evaluations = settings.iterations * settings.samples  # what the search valued: 96
+    assert moves > evaluations  # so the default budget (1.0) allows no sweep at all
+    for factor, sweeps in ((1.0, 0), (2 * moves / evaluations, 1), (3.5 * moves / evaluations, 3)):
+        tight = GDice(env, dataclasses.replace(settings, polish_budget=factor))
+        assert tight.polish_budget() == int(factor * evaluations)
+        finished, info = jax.jit(tight.finish)(state, params)
+        assert int(info.evaluations) == 1 + sweeps * moves <= info.budget
+        assert int(info.moves_applied) == sweeps  # each sweep from a random controller improves
+    # the budget of a portfolio is shared by its candidates
+    portfolio = GDicePortfolio(
+        env, dataclasses.replace(settings, polish_budget=10.0), shared_restarts=1
+    )
+    _, polish = portfolio._polish()
+    assert polish.budget == 10 * evaluations * 2 // 3  # 2 searches' worth for 3 candidates
+
+
+def test_finish_as_steps_equals_finish_in_one_loop():
+    """The driver's ``finish`` (steps from the host, a progress report after each) gives what
+    the algorithm's ``finish`` (one ``while_loop``, ``make_train``) gives."""
+    from cognet_jax.driver import Program, Run
+    from cognet_jax.registry import load_config
+
+    config = load_config(
+        "gdice-dpomdp",
+        [
+            f"problem.path={str(_file('dectiger'))!r}",
+            "problem.horizon=3",
+            "algorithm.nodes=2",
+            "algorithm.samples=20",
+            "algorithm.polish_budget=1000",
+        ],
+    )
+    program = Program([Run(config=config, seed=0, setting=0)])
+    state = program.init()
+    reports = []
+    stepped, info = program.finish(state, reports.append)
+    looped, info2 = jax.jit(lambda s: program.algorithm.finish(s, program.params))(state)
+    assert len(reports) >= 2 and int(info.moves_applied) > 0 and int(info.responses_applied) >= 0
+    for a, b in zip(
+        jax.tree.leaves((stepped, info)), jax.tree.leaves((looped, info2)), strict=True
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -78,15 +78,18 @@ CASES = _cases()
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_rollouts_equal_the_plain_engine(name):
     env, ctrl, params, policy = CASES[name]
-    key = jax.random.key(11)
-    np.testing.assert_allclose(
-        jax.jit(lambda k: rollouts(env, ctrl, k, 257, params, policy))(key),
-        jax.jit(lambda k: plain_rollouts(env, ctrl, k, 257, params, policy))(key),
-        rtol=1e-6,
-        atol=1e-5,
-    )
-    got = rollouts(env, ctrl, key, 33, params, policy, record=True)
-    want = plain_rollouts(env, ctrl, key, 33, params, policy, record=True)
+
+    @jax.jit
+    def both(k):  # one program: the returns of 257 rollouts and the record of 33
+        return (
+            rollouts(env, ctrl, k, 257, params, policy),
+            plain_rollouts(env, ctrl, k, 257, params, policy),
+            rollouts(env, ctrl, k, 33, params, policy, record=True),
+            plain_rollouts(env, ctrl, k, 33, params, policy, record=True),
+        )
+
+    returns, plain, got, want = both(jax.random.key(11))
+    np.testing.assert_allclose(returns, plain, rtol=1e-6, atol=1e-5)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
         if jnp.issubdtype(a.dtype, jnp.integer):
             np.testing.assert_array_equal(a, b)  # nodes, actions: the same draws

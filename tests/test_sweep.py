@@ -15,6 +15,7 @@ import jax
 import numpy as np
 import pytest
 from flax.serialization import msgpack_restore
+from shared_files import compile_cache_env
 
 from cognet_jax.checkpoint import read_checkpoint
 from cognet_jax.cli import main
@@ -237,7 +238,7 @@ def _start_until_checkpoint(out, every):
     """Start a tiny sweep in a subprocess checkpointing every ``every`` iterations; return it
     and its checkpoint path once the first checkpoint exists."""
     env = _env(1)
-    env["JAX_COMPILATION_CACHE_DIR"] = jax.config.jax_compilation_cache_dir or ""
+    env.update(compile_cache_env())
     proc = subprocess.Popen(
         [sys.executable, "-m", "cognet_jax", *_tiny_args(out), "--checkpoint-every", str(every)],
         env=env,

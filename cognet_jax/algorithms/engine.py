@@ -214,9 +214,33 @@ class Search:
         samples, policies = self.ask(key, state, params)
         return self.tell(key, state, samples, self.evaluate(key, policies, params), params)
 
-    def finish(self, state, params: SearchParams):
-        """After the last iteration: ``(state, info)``; nothing to do here (``info`` None)."""
+    # -- after the last iteration: ``finish``, also as steps ---------------------------------
+    def finish_start(self, state, params: SearchParams):
+        """The work ``finish`` does after the last iteration, as a pytree advanced by
+        ``finish_advance`` until ``finish_done`` (a driver shows progress and obeys signals
+        between steps); ``None``: nothing to do (here)."""
+        return None
+
+    def finish_advance(self, work, params: SearchParams):
+        return work
+
+    def finish_done(self, work) -> jax.Array:
+        return jnp.bool_(True)
+
+    def finish_end(self, state, work):
+        """``(state, info)`` once the work is done."""
         return state, None
+
+    def finish(self, state, params: SearchParams):
+        """After the last iteration (pure, jit-able): ``(state, info)``, the steps of
+        ``finish_start`` in one ``while_loop`` (``info`` None when there is nothing to do)."""
+        work = self.finish_start(state, params)
+        if work is None:
+            return state, None
+        work = jax.lax.while_loop(
+            lambda w: ~self.finish_done(w), lambda w: self.finish_advance(w, params), work
+        )
+        return self.finish_end(state, work)
 
     @staticmethod
     def best_policy(state):

@@ -67,6 +67,7 @@ curve is its best sample's value (the in-loop, optimistic estimate).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Literal
 
 import jax
@@ -92,10 +93,12 @@ from cognet_jax.algorithms.engine import (
     threshold_hyper,
 )
 from cognet_jax.algorithms.polish import (
-    RELATIVE_TOLERANCE,
+    BUDGET_CAP,
+    Polish,
+    PolishState,
     count_moves,
+    improves,
     neighbour_moves,
-    polish,
 )
 from cognet_jax.config import (
     ConfigError,
@@ -164,6 +167,10 @@ class GDiceSection(ThresholdSection):
     #: best response to the others (written into its layers when it fits), each followed by
     #: the single-entry polish (``algorithms.best_response``; 0: none)
     best_response_rounds: int = 0
+    #: the polish (sweeps and best responses) values at most this many times as many
+    #: controllers exactly as the search did (iterations * samples * searches); a sweep or a
+    #: round that would go past it is not started, so a tiny search gets a tiny polish
+    polish_budget: float = 1.0
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates at least: none when exact values may rank the
@@ -180,6 +187,11 @@ class GDiceSection(ThresholdSection):
         for name in ("shared_restarts", "explore_restarts", "polish_sweeps"):
             require(getattr(self, name) >= 0, f"algorithm.{name}", "must be >= 0")
         require(self.best_response_rounds >= 0, "algorithm.best_response_rounds", "must be >= 0")
+        require(
+            math.isfinite(self.polish_budget) and self.polish_budget >= 0,
+            "algorithm.polish_budget",
+            "must be a finite number >= 0",
+        )
         require_probability(self, "algorithm", "explore_entropy_rate")
 
 
@@ -208,13 +220,16 @@ class GDiceState:
 @struct.dataclass
 class PolishInfo:
     """What ``finish`` did: exact values before and after, moves applied, best responses
-    applied (``best_response_rounds``), moves per sweep."""
+    applied (``best_response_rounds``), exact evaluations spent, moves per sweep, and the
+    budget of evaluations (``polish_budget``)."""
 
     before: jax.Array
     after: jax.Array
     moves_applied: jax.Array
     responses_applied: jax.Array
+    evaluations: jax.Array
     moves_per_sweep: int = struct.field(pytree_node=False, default=0)
+    budget: int = struct.field(pytree_node=False, default=0)
 
 
 def _counts(env, name: str):
@@ -389,54 +404,92 @@ class GDice(ThresholdSearch):
                 self.env, params.env, policy, self.settings.nodes, agent
             )
             new = self.exact_value_of(candidate, params)
-            better = fits & (new > value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(value)))
+            better = fits & improves(new, value)
             policy = select_tree(better, candidate, policy)
             value = jnp.where(better, new, value)
             applied = applied + better
         return policy, value, applied
 
-    def polish_best(self, policy, best_value: jax.Array, params: SearchParams):
-        """``(policy, value, PolishInfo)``: ``policy`` improved by exact steepest ascent, then
-        (``best_responds``) by rounds of best responses, each followed by steepest ascent,
-        until a round changes nothing or ``best_response_rounds`` rounds."""
-        moves = self.polish_moves()
-        sweeps = self.settings.polish_sweeps
-        exact = lambda ps: self.exact_values(ps, params)  # noqa: E731
-        before = self.exact_value_of(policy, params)
-        policy, value, applied = polish(exact, policy, moves, sweeps)
-        responses = jnp.int32(0)
+    @property
+    def search_evaluations(self) -> int:
+        """Controllers one search values in all its iterations (``iterations * samples``)."""
+        return self.settings.iterations * self.settings.samples
+
+    def polisher(self, budget: int) -> Polish:
+        """The polish of this search's best controller (``algorithms.polish.Polish``) with at
+        most ``budget`` exact evaluations; a round of best responses costs one evaluation per
+        ``exact_cost`` multiply-adds of each agent's response, plus its exact value."""
+        rounds, round_cost = 0, 0
         if self.best_responds:
-
-            def one_round(carry):
-                policy, value, applied, responses, rounds, _ = carry
-                policy, value, answered = self.respond(policy, value, params)
-                policy, value, more = polish(exact, policy, moves, sweeps)
-                return policy, value, applied + more, responses + answered, rounds + 1, answered > 0
-
-            def keep_going(carry):
-                return carry[5] & (carry[4] < self.settings.best_response_rounds)
-
-            start = (policy, value, applied, responses, jnp.int32(0), jnp.bool_(True))
-            policy, value, applied, responses, _, _ = jax.lax.while_loop(
-                keep_going, one_round, start
-            )
-        info = PolishInfo(
-            before=before,
-            after=value,
-            moves_applied=applied,
-            responses_applied=responses,
-            moves_per_sweep=len(moves),
+            rounds = self.settings.best_response_rounds
+            unit = max(exact_cost(self.env, self.settings.nodes), 1)
+            for agent in range(self.env.num_agents):
+                flops, _ = best_response_cost(self.env, self.settings.nodes, agent)
+                round_cost += -(-flops // unit) + 1
+        return Polish(
+            moves=self.polish_moves(),
+            sweeps=self.settings.polish_sweeps,
+            rounds=rounds,
+            budget=budget,
+            round_cost=round_cost,
         )
-        return policy, jnp.maximum(value, best_value), info
 
-    def finish(self, state: GDiceState, params: SearchParams):
-        """After the last iteration (pure, jit-able): the best policy polished by exact local
-        search when ``polishes``; ``(state, PolishInfo)``, or ``(state, None)``."""
+    def polish_start(self, policy, params, polish: Polish) -> PolishState:
+        return polish.start(policy, self.exact_value_of(policy, params))
+
+    def polish_advance(self, s: PolishState, params, polish: Polish) -> PolishState:
+        return polish.advance(s, *self._polish_functions(params))
+
+    def polish_policy(self, policy, params, polish: Polish) -> PolishState:
+        """``policy`` polished to the end (pure): ``polish_start``, then ``Polish.run``."""
+        return polish.run(
+            self.polish_start(policy, params, polish), *self._polish_functions(params)
+        )
+
+    def _polish_functions(self, params):
+        exact = lambda ps: self.exact_values(ps, params)  # noqa: E731
+        respond = lambda p, v: self.respond(p, v, params)  # noqa: E731
+        return exact, respond
+
+    # -- finish as steps (algorithms.engine): a driver shows progress and stops between them --
+    def finish_start(self, state: GDiceState, params: SearchParams):
+        """The polish of the best policy (``None`` when ``polishes`` is false), with a budget
+        of ``polish_budget`` times the search's evaluations."""
         if not self.polishes:
-            return state, None
-        policy, value, info = self.polish_best(state.best_policy, state.progress.best_value, params)
+            return None
+        return self.polish_start(state.best_policy, params, self.polisher(self.polish_budget()))
+
+    def polish_budget(self, searches: int = 1, candidates: int = 1) -> int:
+        """Exact evaluations each of ``candidates`` polishes may spend: ``polish_budget``
+        times what ``searches`` searches valued, shared equally."""
+        total = self.settings.polish_budget * self.search_evaluations * searches
+        return int(min(total // candidates, BUDGET_CAP))
+
+    def finish_advance(self, work: PolishState, params: SearchParams) -> PolishState:
+        return self.polish_advance(work, params, self.polisher(self.polish_budget()))
+
+    def finish_done(self, work: PolishState) -> jax.Array:
+        return self.polisher(self.polish_budget()).done(work)
+
+    def finish_end(self, state: GDiceState, work: PolishState):
+        """``(state, PolishInfo)``: the polished policy kept, its value the better of the
+        polished one and the search's best."""
+        value = jnp.maximum(work.value, state.progress.best_value)
         progress = state.progress.replace(best_value=value)
-        return state.replace(best_policy=policy, progress=progress), info
+        info = polish_info(work, len(self.polish_moves()), self.polish_budget())
+        return state.replace(best_policy=work.policy, progress=progress), info
+
+
+def polish_info(work: PolishState, moves_per_sweep: int, budget: int) -> PolishInfo:
+    return PolishInfo(
+        before=work.before,
+        after=work.value,
+        moves_applied=work.moves_applied,
+        responses_applied=work.responses_applied,
+        evaluations=work.spent,
+        moves_per_sweep=moves_per_sweep,
+        budget=budget,
+    )
 
 
 @struct.dataclass
@@ -580,29 +633,46 @@ class GDicePortfolio(Search):
     def polishes(self) -> bool:
         return self.members[0].polishes
 
-    def finish(self, state: PortfolioState, params: SearchParams):
+    def _polish(self):
+        """``(member search, Polish)`` of every candidate: the budget of all the searches,
+        shared by the ``1 + restarts`` candidates."""
+        search = self.members[0]
+        searches = sum(self.restarts)
+        return search, search.polisher(search.polish_budget(searches, 1 + searches))
+
+    def finish_start(self, state: PortfolioState, params: SearchParams):
         """Every member search's best policy polished as in :meth:`GDice.finish`, and the best
         polished one kept: the searches often end in different basins, and the one with the
         best value before the polish is not always the one whose basin holds the best local
         optimum (box pushing h 4: a search ending at 75.7 polishes to 97.27 where another
-        member's polishes higher). ``PolishInfo`` describes the kept one."""
+        member's polishes higher). The candidates, ``[1 + all restarts]`` (the portfolio's
+        best first), advance together, each by its own steps."""
         if not self.polishes:
-            return state, None
-        search = self.members[0]
+            return None
+        search, polish = self._polish()
         candidates = jax.tree.map(
             lambda *xs: jnp.concatenate(xs),
             *[jax.tree.map(lambda x: x[None], state.best_policy)],
             *[s.best_policy for s in state.members],
-        )  # [1 + all restarts, ...]: the portfolio's best first
-        polished, values, infos = jax.lax.map(
-            lambda p: search.polish_best(p, jnp.float32(-jnp.inf), params), candidates
         )
-        winner = jnp.argmax(values)  # the first of equal values: the portfolio's best
-        take = lambda tree: jax.tree.map(lambda x: x[winner], tree)  # noqa: E731
-        policy, info = take(polished), take(infos)
-        value = jnp.maximum(values[winner], state.progress.best_value)
+        return jax.lax.map(lambda p: search.polish_start(p, params, polish), candidates)
+
+    def finish_advance(self, work: PolishState, params: SearchParams) -> PolishState:
+        search, polish = self._polish()
+        return jax.lax.map(lambda w: search.polish_advance(w, params, polish), work)
+
+    def finish_done(self, work: PolishState) -> jax.Array:
+        return jnp.all(jax.vmap(self._polish()[1].done)(work))
+
+    def finish_end(self, state: PortfolioState, work: PolishState):
+        """``PolishInfo`` describes the kept candidate (its own evaluations)."""
+        search, polish = self._polish()
+        winner = jnp.argmax(work.value)  # the first of equal values: the portfolio's best
+        kept = jax.tree.map(lambda x: x[winner], work)
+        value = jnp.maximum(kept.value, state.progress.best_value)
         progress = state.progress.replace(best_value=value)
-        return state.replace(best_policy=policy, progress=progress), info
+        info = polish_info(kept, len(polish.moves), polish.budget)
+        return state.replace(best_policy=kept.policy, progress=progress), info
 
     @property
     def searches(self) -> list[dict]:

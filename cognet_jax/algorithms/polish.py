@@ -15,23 +15,28 @@ value)``; ``agent = -1`` changes every agent's entry at once, for identical agen
 
 One sweep evaluates every move exactly and applies the best one if it beats the current value
 by more than ``1e-5 * max(1, |value|)`` (exact values are float32); the search stops after
-``sweeps`` sweeps or when no move improves. What is maximised: the exact expected return of
+``sweeps`` sweeps, when no move improves, or when the next sweep would go past the budget of
+exact evaluations (``Polish``). What is maximised: the exact expected return of
 the joint controller over the horizon (:meth:`cognet_jax.algorithms.gdice.GDice.exact_values`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import select_tree
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy, TabularController
 
 #: relative improvement a move must bring (exact values are float32)
 RELATIVE_TOLERANCE = 1e-5
+#: largest budget and step cost counted (exact evaluations; int32 sums stay exact)
+BUDGET_CAP = 1 << 30
 
 
 def neighbour_moves(
@@ -99,33 +104,126 @@ def apply_move(policy: DeterministicTabularPolicy, move: jax.Array) -> Determini
     )
 
 
-def polish(
-    exact_values: Callable,
-    policy: DeterministicTabularPolicy,
-    moves: np.ndarray,
-    sweeps: int,
-    batch: int = 256,
-) -> tuple[DeterministicTabularPolicy, jax.Array, jax.Array]:
-    """Steepest ascent from ``policy`` over ``moves`` (``[moves, 5]``), at most ``sweeps``
-    moves applied. ``exact_values`` maps policies with a leading ``[C]`` axis to their exact
-    values ``[C]``. Returns ``(policy, value, moves applied)``; jit-able."""
-    moves = jnp.asarray(moves)
+@struct.dataclass
+class PolishState:
+    """Where a polish is (``Polish``): the policy and its exact value, the value it started
+    from, moves applied (in all and since the last best-response round), whether the current
+    phase of sweeps still improves, best responses applied, rounds done, whether the last round
+    applied one, and the exact evaluations spent (``budget``)."""
 
-    def value_of(p):
-        return exact_values(jax.tree.map(lambda x: x[None], p))[0]
+    policy: DeterministicTabularPolicy
+    value: jax.Array
+    before: jax.Array
+    moves_applied: jax.Array
+    phase_moves: jax.Array
+    sweeping: jax.Array
+    responses_applied: jax.Array
+    rounds: jax.Array
+    answered: jax.Array
+    spent: jax.Array
 
-    def sweep(carry):
-        p, value, applied, _ = carry
-        values = jax.lax.map(lambda m: value_of(apply_move(p, m)), moves, batch_size=batch)
+
+@dataclasses.dataclass(frozen=True)
+class Polish:
+    """The exact polish as steps (a state machine over ``PolishState``), so a driver can show
+    progress and stop between them, and ``run`` (a ``while_loop`` of the same steps) is the
+    pure version ``make_train`` compiles.
+
+    A step is one sweep (every move of ``moves [M, 5]`` valued exactly, the best applied when it
+    improves) while the phase improves, at most ``sweeps`` moves per phase; then, with
+    ``rounds > 0``, one round of best responses (``respond(policy, value) -> (policy, value,
+    applied)``), which opens a new phase; rounds stop after ``rounds`` or after one that applies
+    nothing. What is spent is counted in exact evaluations of one controller: ``M`` a sweep,
+    ``round_cost`` a round; a step that would take ``spent`` past ``budget`` is not started.
+    ``exact_values`` maps policies with a leading ``[C]`` axis to their exact values ``[C]``."""
+
+    moves: np.ndarray
+    sweeps: int
+    rounds: int
+    budget: int
+    round_cost: int
+    batch: int = 256
+
+    def start(self, policy, value: jax.Array) -> PolishState:
+        zero = jnp.int32(0)
+        return PolishState(
+            policy=policy,
+            value=value,
+            before=value,
+            moves_applied=zero,
+            phase_moves=zero,
+            sweeping=jnp.bool_(self.sweeps > 0),
+            responses_applied=zero,
+            rounds=zero,
+            answered=jnp.bool_(True),
+            spent=jnp.int32(1),
+        )
+
+    def _affords(self, s: PolishState, cost: int) -> jax.Array:
+        # budget and costs are clamped to 2**30 (``polish_budget``), so the int32 sum is exact
+        return s.spent + min(cost, BUDGET_CAP) <= min(self.budget, BUDGET_CAP)
+
+    def can_sweep(self, s: PolishState) -> jax.Array:
+        return s.sweeping & (s.phase_moves < self.sweeps) & self._affords(s, len(self.moves))
+
+    def can_respond(self, s: PolishState) -> jax.Array:
+        more = (s.rounds < self.rounds) & s.answered & self._affords(s, self.round_cost)
+        return ~self.can_sweep(s) & more
+
+    def done(self, s: PolishState) -> jax.Array:
+        return ~(self.can_sweep(s) | self.can_respond(s))
+
+    def sweep(self, s: PolishState, exact_values: Callable) -> PolishState:
+        moves = jnp.asarray(self.moves)
+
+        def value_of(p):
+            return exact_values(jax.tree.map(lambda x: x[None], p))[0]
+
+        values = jax.lax.map(
+            lambda m: value_of(apply_move(s.policy, m)), moves, batch_size=self.batch
+        )
         best = jnp.argmax(values)
-        better = values[best] > value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(value))
-        p = select_tree(better, apply_move(p, moves[best]), p)
-        return p, jnp.where(better, values[best], value), applied + better, better
+        better = improves(values[best], s.value)
+        return s.replace(
+            policy=select_tree(better, apply_move(s.policy, moves[best]), s.policy),
+            value=jnp.where(better, values[best], s.value),
+            moves_applied=s.moves_applied + better,
+            phase_moves=s.phase_moves + better,
+            sweeping=better,
+            spent=s.spent + len(self.moves),
+        )
 
-    def keep_going(carry):
-        _, _, applied, improved = carry
-        return improved & (applied < sweeps)
+    def respond(self, s: PolishState, respond: Callable) -> PolishState:
+        policy, value, applied = respond(s.policy, s.value)
+        return s.replace(
+            policy=policy,
+            value=value,
+            phase_moves=jnp.int32(0),
+            sweeping=jnp.bool_(self.sweeps > 0),
+            responses_applied=s.responses_applied + applied,
+            rounds=s.rounds + 1,
+            answered=applied > 0,
+            spent=s.spent + self.round_cost,
+        )
 
-    start = (policy, value_of(policy), jnp.int32(0), jnp.bool_(sweeps > 0))
-    policy, value, applied, _ = jax.lax.while_loop(keep_going, sweep, start)
-    return policy, value, applied
+    def advance(self, s: PolishState, exact_values: Callable, respond: Callable) -> PolishState:
+        """One step: a sweep if the phase goes on, else a round if one is due, else nothing."""
+        return jax.lax.cond(
+            self.can_sweep(s),
+            lambda s: self.sweep(s, exact_values),
+            lambda s: jax.lax.cond(
+                self.can_respond(s), lambda s: self.respond(s, respond), lambda s: s, s
+            ),
+            s,
+        )
+
+    def run(self, s: PolishState, exact_values: Callable, respond: Callable) -> PolishState:
+        """Every step until ``done`` (pure, jit-able)."""
+        return jax.lax.while_loop(
+            lambda s: ~self.done(s), lambda s: self.advance(s, exact_values, respond), s
+        )
+
+
+def improves(new: jax.Array, value: jax.Array) -> jax.Array:
+    """Whether ``new`` beats ``value`` by more than ``RELATIVE_TOLERANCE`` (float32 values)."""
+    return new > value + RELATIVE_TOLERANCE * jnp.maximum(1.0, jnp.abs(value))

@@ -55,9 +55,10 @@ class TabularParams:
     as lists: ``successors [S, JA, K]`` int32 (the non-zero columns in increasing order, padded
     with the last one) and ``successor_probs [S, JA, K]`` (0 in the padding); the exact
     evaluator then costs ``S * K`` instead of ``S * S'`` per joint node and step. ``None`` for a
-    dense model."""
+    dense model. A sparse model whose dense table would take more than ``DENSE_BYTES`` keeps
+    the rows only (``transition`` is ``None``; rollouts draw the next state from the rows)."""
 
-    transition: jax.Array
+    transition: jax.Array | None
     observation: jax.Array
     reward: jax.Array
     initial_belief: jax.Array
@@ -132,7 +133,11 @@ class TabularEnv:
         u = _uniforms(u, self.step_noise)
         ja = self.joint_action(actions)
         reward = params.reward[state, ja].astype(jnp.float32)
-        next_state = categorical_from_uniform(u[0], params.transition[state, ja])
+        if params.transition is None:  # sparse rows only: the k-th successor of the row
+            k = categorical_from_uniform(u[0], params.successor_probs[state, ja])
+            next_state = params.successors[state, ja, k]
+        else:
+            next_state = categorical_from_uniform(u[0], params.transition[state, ja])
         jo = categorical_from_uniform(u[1], params.observation[ja, next_state])
         return next_state, self.split_joint_obs(jo), reward
 
@@ -159,8 +164,9 @@ def make_tabular(
     )
     gamma = model.discount if discount is None else float(discount)
     successors, successor_probs = sparse_rows(model.transition)
+    dense = successors is None or model.transition.size * 4 <= DENSE_BYTES
     params = TabularParams(
-        transition=jnp.asarray(model.transition, jnp.float32),
+        transition=jnp.asarray(model.transition, jnp.float32) if dense else None,
         observation=jnp.asarray(model.observation, jnp.float32),
         reward=jnp.asarray(model.reward, jnp.float32),
         initial_belief=jnp.asarray(model.initial_belief, jnp.float32),
@@ -171,23 +177,37 @@ def make_tabular(
     return env, params
 
 
+#: a sparse model's dense transition table is kept (for rollouts) up to this many bytes of
+#: float32; above it only its rows are (``TabularParams``). Models up to this size (every file
+#: of ../shared, box pushing, fire fighting 2-3-3) draw rollouts from the dense rows.
+DENSE_BYTES = 16 * 2**20
+
+
 def sparse_rows(transition: np.ndarray):
     """``(successors [S, JA, K] int32, probs [S, JA, K] float32)`` of the non-zero entries of
     every row of ``transition [S, JA, S']`` (K = the most non-zeros of any row), or
-    ``(None, None)`` when K > S' / 2 (dense enough that the full rows are as cheap)."""
-    nonzero = transition > 0
-    k = max(int(nonzero.sum(-1).max()), 1)
+    ``(None, None)`` when K > S' / 2 (dense enough that the full rows are as cheap). One joint
+    action at a time, so the temporaries stay ``[S, S']`` (a 2025-state model's whole table
+    would take 0.5 GB of sort indices)."""
+    counts = np.stack(
+        [np.count_nonzero(transition[:, ja] > 0, axis=-1) for ja in range(transition.shape[1])], 1
+    )
+    k = max(int(counts.max()), 1)
     if 2 * k > transition.shape[-1]:
         return None, None
-    # column indices of the non-zeros first (stable: increasing s'), then the zeros
-    order = np.argsort(~nonzero, axis=-1, kind="stable")[..., :k]
-    probs = np.take_along_axis(transition, order, -1)
-    # padding entries (probability 0) point at the row's last non-zero column
-    count = nonzero.sum(-1, keepdims=True)
-    last = np.take_along_axis(order, np.maximum(count - 1, 0), -1)
-    pad = np.arange(k) >= count
-    order = np.where(pad, last, order)
-    return jnp.asarray(order, jnp.int32), jnp.asarray(np.where(pad, 0.0, probs), jnp.float32)
+    successors = np.empty(transition.shape[:2] + (k,), np.int32)
+    probs = np.empty(transition.shape[:2] + (k,), np.float32)
+    pad = np.arange(k) >= counts[..., None]  # [S, JA, K]
+    for ja in range(transition.shape[1]):
+        rows = transition[:, ja]  # [S, S']
+        # column indices of the non-zeros first (stable: increasing s'), then the zeros
+        order = np.argsort(~(rows > 0), axis=-1, kind="stable")[:, :k]
+        p = np.take_along_axis(rows, order, -1)
+        # padding entries (probability 0) point at the row's last non-zero column
+        last = np.take_along_axis(order, np.maximum(counts[:, ja, None] - 1, 0), -1)
+        successors[:, ja] = np.where(pad[:, ja], last, order)
+        probs[:, ja] = np.where(pad[:, ja], 0.0, p)
+    return jnp.asarray(successors), jnp.asarray(probs)
 
 
 # ---------------------------------------------------------------------------------------------
