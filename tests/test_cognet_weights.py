@@ -62,9 +62,14 @@ def test_refit_to_identical_elites_concentrates_up_to_the_floors():
 
 def test_common_random_numbers_give_equal_values_to_equal_candidates():
     alg, params = small_algorithm()
-    one = jax.tree.map(lambda x: x[:1], alg.draw(jax.random.key(3), alg.init_distribution(), 1))
-    twice = jax.tree.map(lambda x: jnp.concatenate([x, x]), one)
-    values = alg.evaluate(jax.random.key(4), alg.to_policy(twice), params)
+
+    @jax.jit
+    def values_of_twice():
+        one = alg.draw(jax.random.key(3), alg.init_distribution(), 1)
+        twice = jax.tree.map(lambda x: jnp.concatenate([x[:1], x[:1]]), one)
+        return alg.evaluate(jax.random.key(4), alg.to_policy(twice), params)
+
+    values = values_of_twice()
     assert float(values[0]) == float(values[1])
 
 
@@ -109,9 +114,10 @@ def test_cognet_dice_learns_to_use_observations_on_tagging():
     key = jax.random.key(0)
     state, metrics = jax.jit(make_train(config))(key)
     _, _, k_eval = split_seed_key(key)
-    best = float(alg.returns(k_eval, alg.best_policy(state), 10_000, params).mean())
-    mode = alg.to_policy(alg.mode(state.distribution))
-    mode_value = float(alg.returns(k_eval, mode, 10_000, params).mean())
+    value_of = jax.jit(lambda p: alg.returns(k_eval, p, 10_000, params).mean())
+    best = float(value_of(alg.best_policy(state)))
+    mode = jax.jit(lambda d: alg.to_policy(alg.mode(d)))(state.distribution)
+    mode_value = float(value_of(mode))
     blind = best_open_loop_value(alg, params, jax.random.key(5))
     assert blind < 0.0
     assert best > blind + 16.0, (best, blind)

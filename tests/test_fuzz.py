@@ -18,7 +18,7 @@ from shared_files import DPOMDP_DIR, dpomdp_file
 from cognet_jax.cli import main
 
 #: inputs each kind must try (the four add up to more than 1000)
-COUNTS = {"models": 400, "values": 520, "flags": 260, "folders": 80}
+COUNTS = {"models": 400, "values": 520, "flags": 260, "folders": 48}
 
 
 def _outcome(capsys, argv: list[str]) -> tuple[int, list[str]]:
