@@ -67,11 +67,13 @@ curve is its best sample's value (the in-loop, optimistic estimate).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Literal
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from cognet_jax.algorithms.best_response import best_response, best_response_cost
@@ -380,12 +382,19 @@ class GDice(ThresholdSearch):
         return self.settings.polish_sweeps > 0 and self.settings.evaluator in ("exact", "hybrid")
 
     def polish_moves(self, count: bool = False):
-        """The moves one polish sweep tries, ``[moves, 5]`` (``polish.neighbour_moves``); with
-        ``count``, only their number (``polish.count_moves``)."""
+        """The moves one polish sweep tries, ``[moves, 5]`` (``polish.neighbour_moves``, listed
+        once per search); with ``count``, only their number (``polish.count_moves``)."""
+        if not count:
+            return self._listed_moves
         env = self.env
-        moves = count_moves if count else neighbour_moves
         joint = identical_agents(env) and env.num_agents > 1
-        return moves(self.controller, env.action_counts, env.obs_counts, joint_moves=joint)
+        return count_moves(self.controller, env.action_counts, env.obs_counts, joint_moves=joint)
+
+    @functools.cached_property
+    def _listed_moves(self) -> np.ndarray:
+        env = self.env
+        joint = identical_agents(env) and env.num_agents > 1
+        return neighbour_moves(self.controller, env.action_counts, env.obs_counts, joint)
 
     @property
     def best_responds(self) -> bool:
