@@ -791,9 +791,10 @@ def _finish_and_evaluate(program: Program, state, progress: bool):
     evaluation, in a worker thread (``signals.in_background``), so a stop signal is obeyed at
     once."""
 
+    line = _FinishLine(progress)
+
     def work():
         t_polish = time.perf_counter()
-        line = _FinishLine(progress)
         try:
             finished, info = jax.block_until_ready(program.finish(state, line.report))
         finally:
@@ -808,7 +809,11 @@ def _finish_and_evaluate(program: Program, state, progress: bool):
         return finished, polish, finals, best
 
     with rollout_mesh(program.config):
-        return in_background(work)
+        try:
+            return in_background(work)
+        except Stopped:
+            line.close()  # the stop's line starts on a line of its own
+            raise
 
 
 class _FinishLine:
@@ -833,8 +838,9 @@ class _FinishLine:
             )
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        bar, self.progress = self.bar, False  # no new bar after this (the worker may go on)
+        if bar is not None:
+            bar.close()
 
 
 def _run(runs, opts: GroupOptions, t_start: float):
