@@ -387,14 +387,19 @@ class GDice(ThresholdSearch):
         if not count:
             return self._listed_moves
         env = self.env
-        joint = identical_agents(env) and env.num_agents > 1
-        return count_moves(self.controller, env.action_counts, env.obs_counts, joint_moves=joint)
+        return count_moves(self.controller, env.action_counts, env.obs_counts, self._joint_moves)
+
+    @property
+    def _joint_moves(self) -> bool:
+        """Whether moves that change every agent's entry at once are tried (identical agents)."""
+        return identical_agents(self.env) and self.env.num_agents > 1
 
     @functools.cached_property
     def _listed_moves(self) -> np.ndarray:
         env = self.env
-        joint = identical_agents(env) and env.num_agents > 1
-        return neighbour_moves(self.controller, env.action_counts, env.obs_counts, joint)
+        return neighbour_moves(
+            self.controller, env.action_counts, env.obs_counts, self._joint_moves
+        )
 
     @property
     def best_responds(self) -> bool:
@@ -466,7 +471,7 @@ class GDice(ThresholdSearch):
         of ``polish_budget`` times the search's evaluations."""
         if not self.polishes:
             return None
-        return self.polish_start(state.best_policy, params, self.polisher(self.polish_budget()))
+        return self.polish_start(state.best_policy, params, self._own_polish)
 
     def polish_budget(self, searches: int = 1, candidates: int = 1) -> int:
         """Exact evaluations each of ``candidates`` polishes may spend: ``polish_budget``
@@ -474,11 +479,16 @@ class GDice(ThresholdSearch):
         total = self.settings.polish_budget * self.search_evaluations * searches
         return int(min(total // candidates, BUDGET_CAP))
 
+    @functools.cached_property
+    def _own_polish(self) -> Polish:
+        """The polish ``finish`` runs (this search's own budget), built once."""
+        return self.polisher(self.polish_budget())
+
     def finish_advance(self, work: PolishState, params: SearchParams) -> PolishState:
-        return self.polish_advance(work, params, self.polisher(self.polish_budget()))
+        return self.polish_advance(work, params, self._own_polish)
 
     def finish_done(self, work: PolishState) -> jax.Array:
-        return self.polisher(self.polish_budget()).done(work)
+        return self._own_polish.done(work)
 
     def finish_end(self, state: GDiceState, work: PolishState):
         """``(state, PolishInfo)``: the polished policy kept, its value the better of the
