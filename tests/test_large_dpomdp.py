@@ -110,7 +110,13 @@ def test_large_model_builds_and_short_gdice_run_is_finite(large):
     _, model, _, _ = large
     horizon = 6
     env, env_params = make_tabular(model, horizon)
-    assert env_params.transition.shape == (S, JA, S)
+    # sparse rows (6 non-zeros of 300): only the rows are kept, and they are the model's rows
+    assert env_params.transition is None
+    succ, probs = np.asarray(env_params.successors), np.asarray(env_params.successor_probs)
+    assert succ.shape[:2] == (S, JA) and succ.shape[2] < S // 2
+    dense = np.zeros((S, JA, S))
+    np.add.at(dense, (np.arange(S)[:, None, None], np.arange(JA)[None, :, None], succ), probs)
+    np.testing.assert_allclose(dense, model.transition, atol=1e-6)
     assert env_params.observation.shape == (JA, S, JO)
     settings = GDiceSettings(nodes=3, iterations=3, samples=16, elites=4, eval_rollouts=16)
     algo = GDice(env, settings)
@@ -132,3 +138,30 @@ def test_large_model_builds_and_short_gdice_run_is_finite(large):
     exact = exact_value(model, best.actions, best.transitions, horizon, model.discount)
     assert np.isfinite(mean) and np.isfinite(exact)
     assert abs(mean - exact) < 5 * stderr + 1e-3, (mean, stderr, exact)
+
+
+def test_steps_from_sparse_rows_draw_what_the_dense_rows_draw(large):
+    """The rows-only model steps like the dense table would: with the same uniforms every draw
+    of the next state and observation is the same (inverse CDF over the non-zeros in column
+    order), and the reward too."""
+    _, model, _, _ = large
+    env, sparse = make_tabular(model, 3)
+    dense = sparse.replace(
+        transition=jnp.asarray(model.transition, jnp.float32),
+        successors=None,
+        successor_probs=None,
+    )
+    n = 20_000
+    k_s, k_a, k_u = jax.random.split(jax.random.key(5), 3)
+    states = jax.random.randint(k_s, (n,), 0, S)
+    actions = jax.random.randint(k_a, (n, 2), 0, A)
+    u = jax.random.uniform(k_u, (n, env.step_noise))
+
+    @jax.jit
+    def both(u, s, a):
+        step = jax.vmap(env.step, (0, 0, 0, None))
+        return step(u, s, a, sparse), step(u, s, a, dense)
+
+    got, want = both(u, states, actions)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
