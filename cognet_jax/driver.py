@@ -79,7 +79,7 @@ from cognet_jax.config import Config, ConfigError, apply_overrides, parse_overri
 from cognet_jax.envs.tabular import load_problem
 from cognet_jax.errors import CorruptFileError, InputError, MismatchError, read_json
 from cognet_jax.exact import exact_value
-from cognet_jax.memory import budget_bytes, trace_checked
+from cognet_jax.memory import budget_bytes, peak_rss_bytes, trace_checked
 from cognet_jax.observations import VAE_FILE
 from cognet_jax.registry import config_from_dict, env_entry
 from cognet_jax.reporting import write_plots
@@ -891,6 +891,7 @@ def _write_runs(program, done, stacked, opts, timing, polish, finals, best) -> l
             polish=polish[r],
             wall_s=time.perf_counter() - done.t_start,
             **{k: timing[k] for k in ("compile_s", "loop_s", "eval_s")},
+            peak_rss_bytes=peak_rss_bytes(),
             **history,
         )
         plots = opts.announce and run.config.run.plots

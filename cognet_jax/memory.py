@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 from typing import Any
 
 import jax
@@ -58,6 +59,18 @@ def budget_bytes(memory_gb: float = 0.0) -> int:
     if memory_gb > 0:
         return int(memory_gb * 1e9)
     return int(DEFAULT_MEMORY_SHARE * machine_memory_bytes())
+
+
+def peak_rss_bytes() -> int | None:
+    """The peak resident set size of this process so far (``ru_maxrss``; Linux reports KB,
+    macOS bytes), or None where ``resource`` is missing. It covers the whole process: parsing,
+    compiling, every run it made before."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
 
 
 def gb(num_bytes: float) -> str:

@@ -172,8 +172,10 @@ def test_same_seed_same_results(tmp_path):
         "wall_s",
         "compile_s",
         "values_per_iteration",
+        "peak_rss_bytes",
     ):
         assert key in saved
+    assert saved["peak_rss_bytes"] > 50 * 2**20  # a process with JAX loaded
     assert saved["final_value"]["rollouts"] == 500
 
 
