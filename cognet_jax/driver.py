@@ -81,9 +81,15 @@ from cognet_jax.errors import CorruptFileError, InputError, MismatchError, read_
 from cognet_jax.exact import exact_value
 from cognet_jax.memory import budget_bytes, peak_rss_bytes, trace_checked
 from cognet_jax.observations import VAE_FILE
-from cognet_jax.registry import config_from_dict, env_entry
+from cognet_jax.registry import (
+    BUILTIN_ALGORITHMS,
+    BUILTIN_ENVS,
+    config_from_dict,
+    env_entry,
+)
 from cognet_jax.reporting import write_plots
 from cognet_jax.signals import Stopped, deferred_stop, in_background, wait_for
+from cognet_jax.traced import compile_kept, program_key
 from cognet_jax.vae import save_vae
 
 #: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
@@ -242,19 +248,39 @@ class Program:
         and compiled ahead of time."""
         t0 = time.perf_counter()
         if not self.batched:
-            jitted = jax.jit(lambda k, s, h: self._step(k, s, self._rebuild(h)))
-            args, what = (self.k_run, state, self.held), "one iteration"
-        else:
-            jitted = per_run(self._step_one, self.sharding, 4)
-            keys, hyper, env = self.data
-            args, what = (keys, state, hyper, env), f"one iteration of {len(keys)} runs"
-        traced = trace_checked(jitted, args, self.memory, what)
+            args = (self.k_run, state, self.held)
+
+            def check(jitted, args):
+                trace_checked(jitted, args, self.memory, "one iteration")
+                before_compile()
+
+            compiled = compile_kept(
+                lambda k, s, h: self._step(k, s, self._rebuild(h)),
+                args,
+                self._program_key("step", args),
+                check,
+            )
+            return lambda s: compiled(args[0], s, self.held), time.perf_counter() - t0
+        jitted = per_run(self._step_one, self.sharding, 4)
+        keys, hyper, env = self.data
+        traced = trace_checked(
+            jitted, (keys, state, hyper, env), self.memory, f"one iteration of {len(keys)} runs"
+        )
         before_compile()
         compiled = traced.lower().compile()
-        compile_s = time.perf_counter() - t0
-        if not self.batched:
-            return lambda s: compiled(args[0], s, self.held), compile_s
-        return lambda s: compiled(keys, s, hyper, env), compile_s
+        return lambda s: compiled(keys, s, hyper, env), time.perf_counter() - t0
+
+    def _program_key(self, what: str, args) -> str | None:
+        """The ``traced.program_key`` of a single run's program (None for a simulator or
+        algorithm registered from outside the package: its source is not in the key)."""
+        config = self.config
+        if (
+            config.env.name not in BUILTIN_ENVS
+            or config.experiment.algorithm not in BUILTIN_ALGORITHMS
+        ):
+            return None
+        identity = {"config": config.to_dict(), "memory": self.memory}
+        return program_key(what, identity, self.params, args)
 
     def metrics_template(self, state):
         """One iteration's metrics, as shapes (to restore a checkpoint's history)."""

@@ -20,3 +20,5 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 def pytest_sessionfinish(session):
     shutil.rmtree(_CACHE, ignore_errors=True)
+    # the traced programs kept beside it (cognet_jax.traced.trace_cache_dir)
+    shutil.rmtree(_CACHE.with_name(_CACHE.name + "-traced"), ignore_errors=True)

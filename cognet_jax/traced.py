@@ -1,0 +1,168 @@
+"""Programs kept traced between processes, so a repeated run neither traces nor lowers again.
+
+JAX's persistent compilation cache (turned on by the command line, ``cli.use_compile_cache``)
+skips XLA's compilation of a program it has seen, but not the Python tracing and the lowering
+that come first and give the cache its key: for the default experiment they take 1.0 of the
+1.3 s a warm ``cognet-jax train`` spends before its loop. This module keeps the traced program
+as well, with JAX's own serialization (:mod:`jax.export`): the first run traces the program,
+exports it to ``<cache folder>-traced/<key>.bin`` and compiles the exported program; a later run
+with the same key reads that file and compiles the same exported program, which JAX's
+compilation cache then loads. First and later runs compile the very same program, so they give
+the same numbers.
+
+The key is a SHA-256 of everything the traced program depends on: the source of every module
+of the package, the JAX, jaxlib and Python versions, the JAX settings that change tracing
+(64-bit mode, the PRNG implementation and its partitioning), the config, the model arrays
+baked in as constants, the memory budget the program was checked against, and the shapes and
+types of the arguments. A program of a simulator or algorithm registered from outside the
+package (``--import``) is never kept: its source is not in the key. Off together with the
+compilation cache (``--no-compile-cache``, ``COGNET_JAX_CACHE=off``). A file that cannot be
+read is traced afresh and written again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import platform
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import numpy as np
+
+#: JAX settings that change what a function traces to
+TRACE_SETTINGS = ("jax_enable_x64", "jax_default_prng_impl", "jax_threefry_partitionable")
+
+
+def trace_cache_dir() -> Path | None:
+    """``<JAX's compilation cache folder>-traced``, or None when that cache is off."""
+    folder = jax.config.jax_compilation_cache_dir
+    if not folder:
+        return None
+    folder = Path(folder)
+    return folder.with_name(folder.name + "-traced")
+
+
+_SOURCE_DIGEST: list[str] = []
+
+
+def source_digest() -> str:
+    """SHA-256 of every ``.py`` file of the package (names and bytes), computed once."""
+    if not _SOURCE_DIGEST:
+        root = Path(__file__).resolve().parent
+        h = hashlib.sha256()
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root)).encode())
+            h.update(path.read_bytes())
+        _SOURCE_DIGEST.append(h.hexdigest())
+    return _SOURCE_DIGEST[0]
+
+
+def _array_digest(tree) -> str:
+    """SHA-256 of a pytree's structure and its array leaves' dtypes, shapes and bytes."""
+    leaves, treedef = jax.tree.flatten(tree)
+    h = hashlib.sha256(str(treedef).encode())
+    for x in leaves:
+        if jax.dtypes.issubdtype(getattr(x, "dtype", None), jax.dtypes.prng_key):
+            x = jax.random.key_data(x)
+        a = np.asarray(x)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _avals(args) -> str:
+    leaves, treedef = jax.tree.flatten(args)
+    shapes = [f"{getattr(x, 'dtype', type(x))}{getattr(x, 'shape', ())}" for x in leaves]
+    return f"{treedef}|{','.join(shapes)}"
+
+
+def program_key(what: str, identity: dict, constants, args) -> str:
+    """The file name (hex digest) of a program ``what`` traced from ``identity`` (a JSON-able
+    dict: config, budget, ...), ``constants`` (the pytree of arrays baked into the program) and
+    arguments shaped like ``args``."""
+    settings = {s: str(getattr(jax.config, s)) for s in TRACE_SETTINGS}
+    versions = [jax.__version__, jax.lib.__version__, platform.python_version(), sys.platform]
+    h = hashlib.sha256()
+    for part in (
+        what,
+        source_digest(),
+        json.dumps(versions),
+        json.dumps(settings, sort_keys=True),
+        json.dumps(identity, sort_keys=True, default=str),
+        _array_digest(constants),
+        _avals(args),
+    ):
+        h.update(part.encode())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def _load(path: Path):
+    """``(exported, out_tree)`` from ``path``, or None when it is missing or unreadable."""
+    try:
+        with path.open("rb") as f:
+            blob, out_tree = pickle.load(f)
+        return jax.export.deserialize(blob), out_tree
+    except FileNotFoundError:
+        return None
+    except Exception:  # a torn or foreign file: trace afresh and write it again
+        return None
+
+
+def _save(path: Path, exported, out_tree) -> None:
+    """Written to a temporary name first, so a reader never sees half a file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        with tmp.open("wb") as f:
+            pickle.dump((exported.serialize(), out_tree), f)
+        os.replace(tmp, path)
+    except (OSError, ImportError):  # a read-only or full disk, or no flatbuffers: not kept
+        pass
+
+
+def compile_kept(
+    fn: Callable, args: tuple, key: str | None, check: Callable[[Callable, tuple], None]
+) -> Callable:
+    """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)``.
+
+    ``key``: the program's ``program_key`` (None: not kept; traced and compiled as usual).
+    ``check(jitted, args)`` runs before a program is traced afresh (the memory check); a kept
+    program passed it when it was traced."""
+    folder = trace_cache_dir()
+    if key is None or folder is None:
+        jitted = jax.jit(fn)
+        check(jitted, args)
+        compiled = jitted.lower(*args).compile()
+        return lambda *a: compiled(*a)
+    leaves, in_tree = jax.tree.flatten(args)
+    path = folder / f"{key}.bin"
+    kept = _load(path)
+    if kept is None:
+        check(jax.jit(fn), args)
+        out_trees = []
+
+        def flat(*xs):
+            out = fn(*jax.tree.unflatten(in_tree, xs))
+            out_leaves, out_tree = jax.tree.flatten(out)
+            out_trees.append(out_tree)
+            return out_leaves
+
+        exported = jax.export.export(jax.jit(flat))(*leaves)
+        kept = (exported, out_trees[0])
+        _save(path, *kept)
+    exported, out_tree = kept
+    compiled = jax.jit(exported.call).lower(*leaves).compile()
+
+    def call(*a):
+        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(a)))
+
+    return call
+
+
+__all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]

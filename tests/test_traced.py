@@ -1,0 +1,95 @@
+"""Programs kept traced between processes (cognet_jax/traced.py): a kept program is read back
+instead of traced, gives the same numbers, and every input of the trace is in its key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax import traced
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    folder = tmp_path / "xla-traced"
+    monkeypatch.setattr(traced, "trace_cache_dir", lambda: folder)
+    return folder
+
+
+def _program(traces: list, table):
+    def fn(key, x):
+        traces.append(1)  # runs only while tracing
+        noise = jax.random.normal(key, x.shape)
+        return {"y": jnp.cumsum(x * table[0] + noise), "n": jnp.sum(x)}
+
+    return fn
+
+
+def _no_check(jitted, args):
+    return None
+
+
+def test_kept_program_is_read_back_not_traced_and_gives_the_same_numbers(cache):
+    table = jnp.arange(3.0) + 0.5
+    args = (jax.random.key(3), jnp.linspace(0.0, 1.0, 64))
+    key = traced.program_key("p", {"a": 1}, table, args)
+    traces: list = []
+    first = traced.compile_kept(_program(traces, table), args, key, _no_check)(*args)
+    assert len(traces) > 0 and (cache / f"{key}.bin").is_file()
+    before = len(traces)
+    checks: list = []
+    again = traced.compile_kept(_program(traces, table), args, key, lambda j, a: checks.append(1))(
+        *args
+    )
+    assert len(traces) == before and not checks  # neither traced nor checked again
+    direct = jax.jit(_program([], table))(*args)
+    for out in (first, again):
+        assert set(out) == {"y", "n"}
+        np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(direct["y"]))
+        assert float(out["n"]) == float(direct["n"])
+
+
+def test_every_input_of_the_trace_changes_the_key():
+    table = jnp.arange(3.0)
+    args = (jax.random.key(0), jnp.zeros(8))
+    base = traced.program_key("p", {"a": 1}, table, args)
+    assert base == traced.program_key("p", {"a": 1}, jnp.arange(3.0), args)
+    others = [
+        traced.program_key("q", {"a": 1}, table, args),
+        traced.program_key("p", {"a": 2}, table, args),
+        traced.program_key("p", {"a": 1}, table.at[1].set(7.0), args),
+        traced.program_key("p", {"a": 1}, table, (jax.random.key(0), jnp.zeros(9))),
+        traced.program_key("p", {"a": 1}, table, (jax.random.key(0), jnp.zeros(8, jnp.int32))),
+    ]
+    assert len({base, *others}) == len(others) + 1
+    # another key's value is an argument, not part of the program: the same key
+    assert base == traced.program_key("p", {"a": 1}, table, (jax.random.key(5), jnp.ones(8)))
+
+
+def test_a_torn_file_is_traced_again_and_rewritten(cache):
+    table = jnp.ones(3)
+    args = (jax.random.key(1), jnp.ones(4))
+    key = traced.program_key("p", {}, table, args)
+    cache.mkdir(parents=True)
+    (cache / f"{key}.bin").write_bytes(b"not a program")
+    traces: list = []
+    out = traced.compile_kept(_program(traces, table), args, key, _no_check)(*args)
+    assert traces and np.all(np.isfinite(np.asarray(out["y"])))
+    assert (cache / f"{key}.bin").stat().st_size > 100
+
+
+def test_the_kept_programs_sit_beside_the_compilation_cache(monkeypatch):
+    folder = jax.config.jax_compilation_cache_dir  # the test session's (tests/conftest.py)
+    assert traced.trace_cache_dir() == Path(folder).with_name(Path(folder).name + "-traced")
+
+
+def test_without_a_compilation_cache_nothing_is_kept(monkeypatch):
+    monkeypatch.setattr(traced, "trace_cache_dir", lambda: None)
+    checks: list = []
+    args = (jax.random.key(1), jnp.ones(4))
+    traced.compile_kept(_program([], jnp.ones(3)), args, "k", lambda j, a: checks.append(1))
+    assert checks == [1]
