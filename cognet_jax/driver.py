@@ -280,7 +280,10 @@ class Program:
         ):
             return None
         identity = {"config": config.to_dict(), "memory": self.memory}
-        return program_key(what, identity, self.params, args)
+        # the held arrays are arguments (in ``args``), the rest are the program's constants
+        held = {id(x) for x in self.held}
+        constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
+        return program_key(what, identity, constants, args)
 
     def metrics_template(self, state):
         """One iteration's metrics, as shapes (to restore a checkpoint's history)."""

@@ -114,3 +114,90 @@ def exact_value_layered(
     v_last = jnp.zeros((width**n, env.num_states), jnp.float32)
     v0, _ = jax.lax.scan(backup, v_last, (acts, local), reverse=True)
     return v0[0] @ params.initial_belief
+
+
+def _layer_tables(env: TabularEnv, policy: DeterministicTabularPolicy, width: int):
+    """A layered controller's per-layer local tables: ``acts [h, agents, W]`` and ``local
+    [h, agents, W, obs]`` (next nodes as indices into the next layer; the last layer's are
+    never used and read as 0)."""
+    h, n = env.horizon, env.num_agents
+    acts = jnp.moveaxis(policy.actions.reshape(n, h, width), 1, 0)
+    trans = policy.transitions.reshape(n, h, width, -1)
+    first_of_next = jnp.minimum(jnp.arange(h) + 1, h - 1) * width  # [h]
+    local = jnp.clip(trans - first_of_next[None, :, None, None], 0, width - 1)
+    return acts, jnp.moveaxis(local, 1, 0)
+
+
+def _occupancy_step(params: TabularParams, alpha, ja, nxt):
+    """``alpha' [Q', S']``: the probability of joint node and state one step after ``alpha
+    [Q, S]``, with joint actions ``ja [Q]`` and next joint nodes ``nxt [Q, JO]``."""
+    q_count, s_count = alpha.shape
+    if params.successors is None:
+        trans = jnp.moveaxis(params.transition[:, ja, :], 1, 0)  # [Q, S, S']
+        mass = jnp.einsum("qs,qsp->qp", alpha, trans)
+    else:
+        nxt_s = jnp.moveaxis(params.successors[:, ja, :], 1, 0)  # [Q, S, K]
+        probs = jnp.moveaxis(params.successor_probs[:, ja, :], 1, 0) * alpha[..., None]
+        rows = jnp.broadcast_to(jnp.arange(q_count)[:, None, None], nxt_s.shape)
+        mass = jnp.zeros((q_count, s_count), alpha.dtype).at[rows, nxt_s].add(probs)
+    split = mass[:, :, None] * params.observation[ja]  # [Q, S', JO]
+    return jnp.zeros_like(alpha).at[nxt].add(jnp.moveaxis(split, 2, 1))
+
+
+def layered_move_values(
+    env: TabularEnv,
+    params: TabularParams,
+    policy: DeterministicTabularPolicy,
+    width: int,
+    moves: jax.Array,
+    batch: int = 16,
+) -> jax.Array:
+    """Exact values ``[M]`` of ``policy`` (a layered controller, ``exact_value_layered``) with
+    each one of ``moves [M, 5]`` applied (rows ``(kind, agent, node, obs, value)`` of
+    :func:`cognet_jax.algorithms.polish.neighbour_moves`; ``agent = -1``: every agent).
+
+    A move in layer t changes only what happens from time t on, and only through layer t's
+    tables, so with the current controller's occupancy ``alpha_t [Q, S]`` (probability of
+    joint node and state at time t), its rewards before t and its values ``V_{t+1}``, the
+    changed controller's value is ``sum_{t'<t} gamma^t' E[r_t'] + gamma^t sum alpha_t V'_t``
+    where ``V'_t`` is one backup of the changed layer: one layer per move instead of the
+    whole horizon (the same numbers as evaluating each changed controller, up to float32
+    rounding)."""
+    h, n = env.horizon, env.num_agents
+    acts, local = _layer_tables(env, policy, width)
+    ja, nxt = jax.vmap(lambda a, t: _joint_tables(env, DeterministicTabularPolicy(a, t), width))(
+        acts, local
+    )  # [h, Q], [h, Q, JO]
+    gamma = jnp.asarray(params.discount, jnp.float32)
+    q_count = width**n
+
+    def backward(v_next, layer):
+        v = _backup(params, layer[0], layer[1], v_next, gamma)
+        return v, v_next
+
+    zero = jnp.zeros((q_count, env.num_states), jnp.float32)
+    _, v_after = jax.lax.scan(backward, zero, (ja, nxt), reverse=True)  # [h]: V_{t+1}
+
+    def forward(alpha, layer):
+        return _occupancy_step(params, alpha, layer[0], layer[1]), alpha
+
+    alpha0 = zero.at[0].set(params.initial_belief.astype(jnp.float32))
+    _, alphas = jax.lax.scan(forward, alpha0, (ja, nxt))  # [h]: alpha_t
+    rewards = jnp.einsum("tqs,tqs->t", alphas, jax.vmap(lambda a: params.reward[:, a].T)(ja))
+    powers = gamma ** jnp.arange(h, dtype=jnp.float32)
+    before = jnp.cumsum(powers * rewards) - powers * rewards  # [h]: sum over t' < t
+
+    def value_of(move):
+        kind, agent, node, obs, target = move[0], move[1], move[2], move[3], move[4]
+        t, at = node // width, node % width
+        rows = (agent < 0) | (jnp.arange(n) == agent)  # [agents]
+        here = rows[:, None] & (jnp.arange(width) == at)[None, :]  # [agents, W]
+        a_t = jnp.where((kind == 0) & here, target, acts[t])
+        first = jnp.minimum(t + 1, h - 1) * width
+        changed = here[..., None] & (jnp.arange(local.shape[-1]) == obs)
+        l_t = jnp.where((kind == 1) & changed, jnp.clip(target - first, 0, width - 1), local[t])
+        ja_t, nxt_t = _joint_tables(env, DeterministicTabularPolicy(a_t, l_t), width)
+        v_t = _backup(params, ja_t, nxt_t, v_after[t], gamma)
+        return before[t] + powers[t] * jnp.sum(alphas[t] * v_t)
+
+    return jax.lax.map(value_of, moves, batch_size=batch)

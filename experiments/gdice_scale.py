@@ -160,8 +160,12 @@ def _row(problem: str, horizon: int, runs: list, optimum: float, counts: dict) -
     counts["time"] = counts.get("time", 0) + fast
     counts["runs"] = counts.get("runs", 0) + len(values)
     evaluator = runs[0][0].get("resolved", {}).get("evaluator", "")
+    before = [(r.get("polish") or {}).get("value_before") for r, _ in runs]
+    responses = [(r.get("polish") or {}).get("best_responses_applied", 0) for r, _ in runs]
     return (
         f"| {problem} | {horizon} | {optimum} | {', '.join(f'{v:.4f}' for v in values)} "
+        f"| {', '.join('' if b is None else f'{b:.3f}' for b in before)} "
+        f"| {', '.join(str(n) for n in responses)} "
         f"| {pct} | {100 * share:.0f}% | {hits} of {len(values)} "
         f"| {', '.join(f'{w:.0f}' for w in walls)} | {limit:.0f} | {fast} of {len(walls)} "
         f"| {peak:.2f} | {evaluator} |"
@@ -169,9 +173,10 @@ def _row(problem: str, horizon: int, runs: list, optimum: float, counts: dict) -
 
 
 HEADER = [
-    "| problem | h | optimum | exact value per seed | worst seed % of optimum | target "
-    "| reached | process wall s per seed | limit s | within | peak RSS GB | evaluator |",
-    "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    "| problem | h | optimum | exact value per seed | search's best (before polish) "
+    "| best responses applied | worst seed % of optimum | target | reached "
+    "| process wall s per seed | limit s | within | peak RSS GB | evaluator |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
 ]
 
 

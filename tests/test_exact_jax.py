@@ -95,3 +95,47 @@ def test_exact_evaluator_config_errors(tmp_path):
     )
     with pytest.raises(ConfigError, match="algorithm.evaluator"):  # no exact tagging model
         build_algorithm(load_config(str(toml)))
+
+
+def _check_move_values(env, params, width: int, seed: int, joint: bool, count: int = 60):
+    """``layered_move_values`` against valuing every changed controller in full."""
+    from cognet_jax.algorithms.polish import apply_move, neighbour_moves
+    from cognet_jax.controllers.tabular import TabularController
+    from cognet_jax.exact_jax import exact_value_layered, layered_move_values
+
+    controller = TabularController(
+        num_agents=env.num_agents,
+        num_nodes=width * env.horizon,
+        num_actions=max(env.action_counts),
+        num_obs=max(env.obs_counts),
+        action_counts=tuple(env.action_counts),
+        obs_counts=tuple(env.obs_counts),
+        layers=env.horizon,
+    )
+    moves = neighbour_moves(controller, env.action_counts, env.obs_counts, joint)
+    rng = np.random.default_rng(seed)
+    moves = jnp.asarray(moves[rng.choice(len(moves), min(count, len(moves)), replace=False)])
+    policy = controller.sample(jax.random.key(seed), controller.init_distribution())
+
+    @jax.jit
+    def both(policy, moves):
+        fast = layered_move_values(env, params, policy, width, moves)
+        full = jax.vmap(lambda m: exact_value_layered(env, params, apply_move(policy, m), width))(
+            moves
+        )
+        return fast, full
+
+    fast, full = both(policy, moves)
+    np.testing.assert_allclose(np.asarray(fast), np.asarray(full), rtol=1e-5, atol=1e-4)
+    assert int(jnp.argmax(fast)) == int(jnp.argmax(full)) or np.isclose(
+        float(fast.max()), float(full.max()), rtol=1e-6
+    )
+
+
+@pytest.mark.parametrize("name,horizon,discount", [("dectiger", 4, 0.9), ("GridSmall", 3, None)])
+def test_one_layer_move_values_equal_full_evaluations(name, horizon, discount):
+    """The polish's sweep values (a move in layer t: occupancy up to t, one backup, V_{t+1})
+    equal the exact values of the changed controllers, joint moves of identical agents too."""
+    model = _model(name, discount)
+    env, params = make_tabular(model, horizon, discount)
+    _check_move_values(env, params, width=3, seed=2, joint=name == "dectiger")

@@ -165,3 +165,14 @@ def test_steps_from_sparse_rows_draw_what_the_dense_rows_draw(large):
     got, want = both(u, states, actions)
     for g, w in zip(got, want):
         np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+
+
+def test_one_layer_move_values_on_sparse_rows(large):
+    """The polish's one-layer move values on a rows-only model (occupancy pushed along the
+    sparse rows) equal full exact evaluations of the changed controllers."""
+    from test_exact_jax import _check_move_values
+
+    _, model, _, _ = large
+    env, params = make_tabular(model, 3)
+    assert params.successors is not None
+    _check_move_values(env, params, width=2, seed=4, joint=False, count=40)

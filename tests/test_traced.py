@@ -93,3 +93,10 @@ def test_without_a_compilation_cache_nothing_is_kept(monkeypatch):
     args = (jax.random.key(1), jnp.ones(4))
     traced.compile_kept(_program([], jnp.ones(3)), args, "k", lambda j, a: checks.append(1))
     assert checks == [1]
+
+
+def test_programs_with_large_constants_are_not_kept():
+    args = (jax.random.key(0), jnp.zeros(8))
+    small = jnp.zeros(traced.KEPT_CONSTANT_BYTES // 4, jnp.float32)
+    assert traced.program_key("p", {}, small, args) is not None
+    assert traced.program_key("p", {}, jnp.zeros(small.size + 1), args) is None

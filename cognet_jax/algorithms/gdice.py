@@ -101,6 +101,7 @@ from cognet_jax.algorithms.polish import (
     count_moves,
     improves,
     neighbour_moves,
+    values_by_evaluation,
 )
 from cognet_jax.config import (
     ConfigError,
@@ -116,7 +117,12 @@ from cognet_jax.controllers.tabular import (
     TabularDistribution,
 )
 from cognet_jax.envs.tabular import TabularEnv
-from cognet_jax.exact_jax import exact_cost, exact_value, exact_value_layered
+from cognet_jax.exact_jax import (
+    exact_cost,
+    exact_value,
+    exact_value_layered,
+    layered_move_values,
+)
 from cognet_jax.memory import budget_bytes
 from cognet_jax.registry import fields_from, register_algorithm
 
@@ -461,9 +467,19 @@ class GDice(ThresholdSearch):
         )
 
     def _polish_functions(self, params):
-        exact = lambda ps: self.exact_values(ps, params)  # noqa: E731
+        """``(move_values, respond)`` of ``Polish.advance``: a layered controller values a
+        sweep's moves by one-layer updates (``exact_jax.layered_move_values``, 4-8x faster
+        at h 4-5 than evaluating every changed controller), a free one changed by changed."""
+        if self.settings.layered:
+            width = self.settings.nodes
+
+            def move_values(policy, moves):
+                return layered_move_values(self.env, params.env, policy, width, moves)
+
+        else:
+            move_values = values_by_evaluation(lambda ps: self.exact_values(ps, params))
         respond = lambda p, v: self.respond(p, v, params)  # noqa: E731
-        return exact, respond
+        return move_values, respond
 
     # -- finish as steps (algorithms.engine): a driver shows progress and stops between them --
     def finish_start(self, state: GDiceState, params: SearchParams):
@@ -497,6 +513,15 @@ class GDice(ThresholdSearch):
         progress = state.progress.replace(best_value=value)
         info = polish_info(work, len(self.polish_moves()), self.polish_budget())
         return state.replace(best_policy=work.policy, progress=progress), info
+
+
+def _repeats_an_earlier(policies) -> jax.Array:
+    """``[C]`` bool: whether policy c (leaves with a leading ``[C]`` axis) equals one before it."""
+    flat = jnp.concatenate(
+        [x.reshape(x.shape[0], -1) for x in jax.tree.leaves(policies)], axis=1
+    )  # [C, entries]
+    same = jnp.all(flat[:, None, :] == flat[None, :, :], axis=-1)  # [C, C]
+    return jnp.any(jnp.tril(same, k=-1), axis=1)
 
 
 def polish_info(work: PolishState, moves_per_sweep: int, budget: int) -> PolishInfo:
@@ -665,7 +690,9 @@ class GDicePortfolio(Search):
         best value before the polish is not always the one whose basin holds the best local
         optimum (box pushing h 4: a search ending at 75.7 polishes to 97.27 where another
         member's polishes higher). The candidates, ``[1 + all restarts]`` (the portfolio's
-        best first), advance together, each by its own steps."""
+        best first), advance together, each by its own steps. A candidate equal to an earlier
+        one (the portfolio's best is always some member's) starts done: its twin's polish is
+        the same, and the twin, coming first, is the one kept."""
         if not self.polishes:
             return None
         search, polish = self._polish()
@@ -674,7 +701,9 @@ class GDicePortfolio(Search):
             *[jax.tree.map(lambda x: x[None], state.best_policy)],
             *[s.best_policy for s in state.members],
         )
-        return jax.lax.map(lambda p: search.polish_start(p, params, polish), candidates)
+        work = jax.lax.map(lambda p: search.polish_start(p, params, polish), candidates)
+        copy = _repeats_an_earlier(candidates)
+        return work.replace(sweeping=work.sweeping & ~copy, answered=work.answered & ~copy)
 
     def finish_advance(self, work: PolishState, params: SearchParams) -> PolishState:
         search, polish = self._polish()

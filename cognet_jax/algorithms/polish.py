@@ -135,14 +135,15 @@ class Polish:
     applied)``), which opens a new phase; rounds stop after ``rounds`` or after one that applies
     nothing. What is spent is counted in exact evaluations of one controller: ``M`` a sweep,
     ``round_cost`` a round; a step that would take ``spent`` past ``budget`` is not started.
-    ``exact_values`` maps policies with a leading ``[C]`` axis to their exact values ``[C]``."""
+    ``move_values(policy, moves [M, 5])`` gives the exact value ``[M]`` of ``policy`` with each
+    move applied (:func:`values_by_evaluation`, or for a layered controller the one-layer
+    update of :func:`cognet_jax.exact_jax.layered_move_values`)."""
 
     moves: np.ndarray
     sweeps: int
     rounds: int
     budget: int
     round_cost: int
-    batch: int = 256
 
     def start(self, policy, value: jax.Array) -> PolishState:
         zero = jnp.int32(0)
@@ -173,15 +174,9 @@ class Polish:
     def done(self, s: PolishState) -> jax.Array:
         return ~(self.can_sweep(s) | self.can_respond(s))
 
-    def sweep(self, s: PolishState, exact_values: Callable) -> PolishState:
+    def sweep(self, s: PolishState, move_values: Callable) -> PolishState:
         moves = jnp.asarray(self.moves)
-
-        def value_of(p):
-            return exact_values(jax.tree.map(lambda x: x[None], p))[0]
-
-        values = jax.lax.map(
-            lambda m: value_of(apply_move(s.policy, m)), moves, batch_size=self.batch
-        )
+        values = move_values(s.policy, moves)
         best = jnp.argmax(values)
         better = improves(values[best], s.value)
         return s.replace(
@@ -206,22 +201,37 @@ class Polish:
             spent=s.spent + self.round_cost,
         )
 
-    def advance(self, s: PolishState, exact_values: Callable, respond: Callable) -> PolishState:
+    def advance(self, s: PolishState, move_values: Callable, respond: Callable) -> PolishState:
         """One step: a sweep if the phase goes on, else a round if one is due, else nothing."""
         return jax.lax.cond(
             self.can_sweep(s),
-            lambda s: self.sweep(s, exact_values),
+            lambda s: self.sweep(s, move_values),
             lambda s: jax.lax.cond(
                 self.can_respond(s), lambda s: self.respond(s, respond), lambda s: s, s
             ),
             s,
         )
 
-    def run(self, s: PolishState, exact_values: Callable, respond: Callable) -> PolishState:
+    def run(self, s: PolishState, move_values: Callable, respond: Callable) -> PolishState:
         """Every step until ``done`` (pure, jit-able)."""
         return jax.lax.while_loop(
-            lambda s: ~self.done(s), lambda s: self.advance(s, exact_values, respond), s
+            lambda s: ~self.done(s), lambda s: self.advance(s, move_values, respond), s
         )
+
+
+def values_by_evaluation(exact_values: Callable, batch: int = 256) -> Callable:
+    """``move_values(policy, moves) -> [M]`` that applies each move (:func:`apply_move`) and
+    values the changed controller with ``exact_values`` (policies with a leading ``[C]`` axis
+    to ``[C]``), ``batch`` moves at a time."""
+
+    def move_values(policy, moves):
+        def value_of(move):
+            changed = apply_move(policy, move)
+            return exact_values(jax.tree.map(lambda x: x[None], changed))[0]
+
+        return jax.lax.map(value_of, moves, batch_size=batch)
+
+    return move_values
 
 
 def improves(new: jax.Array, value: jax.Array) -> jax.Array:
