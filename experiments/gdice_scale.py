@@ -193,6 +193,7 @@ def table() -> list[str]:
         f"{counts.get('runs', 0)} runs, the time limit on {counts.get('time', 0)} of "
         f"{counts.get('runs', 0)}.",
     ]
+    rows += _notes()
     for tag in _tags():
         tagged, other = list(HEADER), {}
         for problem, optima in OPTIMA.items():
@@ -203,6 +204,57 @@ def table() -> list[str]:
         settings = [o for o in _saved_overrides(tag) if not o.startswith("problem.")]
         rows += ["", f"With `{' '.join(settings)}` (`{tag}`, not the defaults):", "", *tagged]
     return rows
+
+
+def _notes() -> list[str]:
+    """Generated sentences on the defaults' misses (and what the other settings say of them)
+    and on values above a listed optimum."""
+    out = []
+    for problem, optima in OPTIMA.items():
+        for horizon, optimum in optima.items():
+            runs = _saved(problem, horizon, "")
+            values = [r["final_value"]["exact"] for r, _ in runs]
+            share = share_target(horizon)
+            missed = [
+                (r["seed"], v) for (r, _), v in zip(runs, values) if not reached(v, optimum, share)
+            ]
+            if missed:
+                hit = [r["seed"] for (r, _), v in zip(runs, values) if reached(v, optimum, share)]
+                text = (
+                    f"{problem} h {horizon}: missed on seed(s) "
+                    + ", ".join(f"{s} ({v:.4f})" for s, v in missed)
+                    + f" against {optimum}; "
+                    + (
+                        f"seed(s) {', '.join(map(str, hit))} reach it with the same controller "
+                        "size, so the size does not limit it"
+                        if hit
+                        else "no seed reaches it"
+                    )
+                )
+                for tag in _tags():
+                    other = [r["final_value"]["exact"] for r, _ in _saved(problem, horizon, tag)]
+                    if other:
+                        n_hit = sum(reached(v, optimum, share) for v in other)
+                        text += (
+                            f"; with `{tag}` {n_hit} of {len(other)} seeds reach it "
+                            f"(best {max(other):.4f})"
+                        )
+                if runs[0][0].get("resolved", {}).get("evaluator") == "exact":
+                    text += (
+                        "; every sample was valued exactly, so what limits it is the search "
+                        "(the local optimum a seed's searches and polish end in)"
+                    )
+                out += ["", text + "."]
+            above = [v for v in values if v > optimum + 1e-3 * abs(optimum)]
+            if above:
+                out += [
+                    "",
+                    f"{problem} h {horizon}: exact values up to {max(above):.4f}, above the "
+                    f"listed optimum {optimum} (the values are exact dynamic-programming values "
+                    "of the controllers on this file, so the listed number is not this model's "
+                    "optimum at this horizon).",
+                ]
+    return out
 
 
 def _saved_overrides(tag: str) -> list[str]:
