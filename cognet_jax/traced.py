@@ -130,8 +130,27 @@ def _save(path: Path, exported, out_tree) -> None:
         with tmp.open("wb") as f:
             pickle.dump((exported.serialize(), out_tree), f)
         os.replace(tmp, path)
-    except (OSError, ImportError):  # a read-only or full disk, or no flatbuffers: not kept
-        pass
+    except Exception:  # a read-only or full disk, no flatbuffers, a type JAX cannot serialize
+        pass  # (a PRNG implementation of one's own): not kept
+
+
+def _export(fn: Callable, args: tuple):
+    """``(exported, out_tree)`` of ``fn`` at ``args`` as a function of flat leaves, or None
+    when JAX cannot export it."""
+    leaves, in_tree = jax.tree.flatten(args)
+    out_trees = []
+
+    def flat(*xs):
+        out = fn(*jax.tree.unflatten(in_tree, xs))
+        out_leaves, out_tree = jax.tree.flatten(out)
+        out_trees.append(out_tree)
+        return out_leaves
+
+    try:
+        exported = jax.export.export(jax.jit(flat))(*leaves)
+    except Exception:
+        return None
+    return exported, out_trees[0]
 
 
 def compile_kept(
@@ -143,27 +162,16 @@ def compile_kept(
     ``check(jitted, args)`` runs before a program is traced afresh (the memory check); a kept
     program passed it when it was traced."""
     folder = trace_cache_dir()
-    if key is None or folder is None:
+    kept = None if key is None or folder is None else _load(folder / f"{key}.bin")
+    if kept is None:
         jitted = jax.jit(fn)
         check(jitted, args)
-        compiled = jitted.lower(*args).compile()
-        return lambda *a: compiled(*a)
-    leaves, in_tree = jax.tree.flatten(args)
-    path = folder / f"{key}.bin"
-    kept = _load(path)
-    if kept is None:
-        check(jax.jit(fn), args)
-        out_trees = []
-
-        def flat(*xs):
-            out = fn(*jax.tree.unflatten(in_tree, xs))
-            out_leaves, out_tree = jax.tree.flatten(out)
-            out_trees.append(out_tree)
-            return out_leaves
-
-        exported = jax.export.export(jax.jit(flat))(*leaves)
-        kept = (exported, out_trees[0])
-        _save(path, *kept)
+        kept = _export(fn, args) if key is not None and folder is not None else None
+        if kept is None:  # not to be kept, or not exportable: compiled as usual
+            compiled = jitted.lower(*args).compile()
+            return lambda *a: compiled(*a)
+        _save(folder / f"{key}.bin", *kept)
+    leaves = jax.tree.leaves(args)
     exported, out_tree = kept
     compiled = jax.jit(exported.call).lower(*leaves).compile()
 

@@ -100,3 +100,15 @@ def test_programs_with_large_constants_are_not_kept():
     small = jnp.zeros(traced.KEPT_CONSTANT_BYTES // 4, jnp.float32)
     assert traced.program_key("p", {}, small, args) is not None
     assert traced.program_key("p", {}, jnp.zeros(small.size + 1), args) is None
+
+
+def test_a_program_jax_cannot_serialize_still_runs(cache):
+    """A key type of one's own PRNG implementation (tests/test_prng.py's hash): the export
+    cannot be written, the run goes on with the same numbers."""
+    from cognet_jax.prng import HASH_IMPL
+
+    args = (jax.random.key(1, impl=HASH_IMPL), jnp.ones(4))
+    key = traced.program_key("p", {}, jnp.ones(3), args)
+    out = traced.compile_kept(_program([], jnp.ones(3)), args, key, _no_check)(*args)
+    direct = jax.jit(_program([], jnp.ones(3)))(*args)
+    np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(direct["y"]))
