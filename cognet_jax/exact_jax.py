@@ -98,12 +98,7 @@ def exact_value_layered(
     ``width`` nodes (``TabularController(layers=horizon)``): the recursion at time t runs over
     the ``width^agents`` joint nodes of layer t only, so one evaluation costs
     ``h * width^agents * S * (S' + JO)`` instead of ``h * (h * width)^agents * ...``."""
-    h, n = env.horizon, env.num_agents
-    acts = jnp.moveaxis(policy.actions.reshape(n, h, width), 1, 0)  # [h, agents, W]
-    trans = policy.transitions.reshape(n, h, width, -1)
-    first_of_next = jnp.minimum(jnp.arange(h) + 1, h - 1) * width  # [h]
-    local = jnp.clip(trans - first_of_next[None, :, None, None], 0, width - 1)
-    local = jnp.moveaxis(local, 1, 0)  # [h, agents, W, obs]
+    acts, local = _layer_tables(env, policy, width)  # [h, agents, W], [h, agents, W, obs]
     gamma = jnp.asarray(params.discount, jnp.float32)
 
     def backup(v_next, layer):
@@ -111,7 +106,7 @@ def exact_value_layered(
         ja, nxt = _joint_tables(env, DeterministicTabularPolicy(a_t, t_t), width)
         return _backup(params, ja, nxt, v_next, gamma), None
 
-    v_last = jnp.zeros((width**n, env.num_states), jnp.float32)
+    v_last = jnp.zeros((width**env.num_agents, env.num_states), jnp.float32)
     v0, _ = jax.lax.scan(backup, v_last, (acts, local), reverse=True)
     return v0[0] @ params.initial_belief
 
