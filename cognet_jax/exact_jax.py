@@ -123,18 +123,18 @@ def _layer_tables(env: TabularEnv, policy: DeterministicTabularPolicy, width: in
     return acts, jnp.moveaxis(local, 1, 0)
 
 
+def push_belief(params: TabularParams, belief: jax.Array, ja: jax.Array) -> jax.Array:
+    """``sum_s belief[s] T[s, ja, s']`` ``[S']`` for one joint action (dense or sparse rows)."""
+    if params.successors is None:
+        return belief @ params.transition[:, ja, :]
+    probs = params.successor_probs[:, ja, :] * belief[:, None]  # [S, K]
+    return jnp.zeros_like(belief).at[params.successors[:, ja, :]].add(probs)
+
+
 def _occupancy_step(params: TabularParams, alpha, ja, nxt):
     """``alpha' [Q', S']``: the probability of joint node and state one step after ``alpha
     [Q, S]``, with joint actions ``ja [Q]`` and next joint nodes ``nxt [Q, JO]``."""
-    q_count, s_count = alpha.shape
-    if params.successors is None:
-        trans = jnp.moveaxis(params.transition[:, ja, :], 1, 0)  # [Q, S, S']
-        mass = jnp.einsum("qs,qsp->qp", alpha, trans)
-    else:
-        nxt_s = jnp.moveaxis(params.successors[:, ja, :], 1, 0)  # [Q, S, K]
-        probs = jnp.moveaxis(params.successor_probs[:, ja, :], 1, 0) * alpha[..., None]
-        rows = jnp.broadcast_to(jnp.arange(q_count)[:, None, None], nxt_s.shape)
-        mass = jnp.zeros((q_count, s_count), alpha.dtype).at[rows, nxt_s].add(probs)
+    mass = jax.vmap(lambda b, a: push_belief(params, b, a))(alpha, ja)  # [Q, S']
     split = mass[:, :, None] * params.observation[ja]  # [Q, S', JO]
     return jnp.zeros_like(alpha).at[nxt].add(jnp.moveaxis(split, 2, 1))
 

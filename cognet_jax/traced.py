@@ -22,6 +22,7 @@ read is traced afresh and written again.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -51,19 +52,15 @@ def trace_cache_dir() -> Path | None:
     return folder.with_name(folder.name + "-traced")
 
 
-_SOURCE_DIGEST: list[str] = []
-
-
+@functools.cache
 def source_digest() -> str:
     """SHA-256 of every ``.py`` file of the package (names and bytes), computed once."""
-    if not _SOURCE_DIGEST:
-        root = Path(__file__).resolve().parent
-        h = hashlib.sha256()
-        for path in sorted(root.rglob("*.py")):
-            h.update(str(path.relative_to(root)).encode())
-            h.update(path.read_bytes())
-        _SOURCE_DIGEST.append(h.hexdigest())
-    return _SOURCE_DIGEST[0]
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 def _array_digest(tree) -> str:
@@ -116,9 +113,7 @@ def _load(path: Path):
         with path.open("rb") as f:
             blob, out_tree = pickle.load(f)
         return jax.export.deserialize(blob), out_tree
-    except FileNotFoundError:
-        return None
-    except Exception:  # a torn or foreign file: trace afresh and write it again
+    except Exception:  # missing, torn or foreign: trace afresh and write it again
         return None
 
 

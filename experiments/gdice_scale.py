@@ -98,7 +98,9 @@ def run_one(path: Path, horizon: int, seed: int, out: Path, extra: list[str]) ->
         cmd += ["--set", o]
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    code = subprocess.run(cmd, stdout=subprocess.DEVNULL).returncode
+    if code != 0:  # a stop signal (Ctrl-C reaches the child too) or an error it printed
+        sys.exit(f"{out.name}: cognet-jax train exited with {code}; the runs before it are kept")
     wall = time.perf_counter() - t0
     (out / "process.json").write_text(json.dumps({"command": cmd, "process_wall_s": wall}))
     value = json.loads((out / "results.json").read_text())["final_value"]["exact"]

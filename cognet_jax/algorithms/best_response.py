@@ -37,6 +37,7 @@ import numpy as np
 
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import TabularEnv, TabularParams
+from cognet_jax.exact_jax import push_belief
 
 #: paths pushed forward together in one ``lax.map`` batch
 PATH_BATCH = 64
@@ -98,14 +99,6 @@ def _other_tables(env: TabularEnv, policy: DeterministicTabularPolicy, width: in
     return ja, nxt, split[:, agent], r_count
 
 
-def _push(params: TabularParams, belief: jax.Array, ja: jax.Array) -> jax.Array:
-    """``sum_s belief[s] T[s, ja, s']`` ``[S']`` for one joint action (dense or sparse rows)."""
-    if params.successors is None:
-        return belief @ params.transition[:, ja, :]
-    probs = params.successor_probs[:, ja, :] * belief[:, None]  # [S, K]
-    return jnp.zeros_like(belief).at[params.successors[:, ja, :]].add(probs)
-
-
 def _merge_layer(acts, children, reach, width: int):
     """Greedy classes of one layer's histories: ``acts [U]``, ``children [U, Z]`` (child class
     or -1 for a child of zero probability), ``reach [U]``. Returns ``(cls [U]`` (-1 when
@@ -155,7 +148,7 @@ def _path_expansion(env: TabularEnv, params: TabularParams, tables, agent: int):
         if t == h - 1:
             return imm, None
         pre = jax.vmap(
-            lambda a: jax.vmap(lambda r: _push(params, belief[:, r], ja_t[r, a]))(
+            lambda a: jax.vmap(lambda r: push_belief(params, belief[:, r], ja_t[r, a]))(
                 jnp.arange(r_count)
             )
         )(jnp.arange(a_count))  # [A, r, S']
