@@ -233,9 +233,16 @@ def settings_class(
 # --------------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------------
+def _type_name(annotation: Any) -> str:
+    """``int``, ``'auto'`` (a ``Literal``'s choices), ... for error messages."""
+    if typing.get_origin(annotation) is Literal:
+        return " or ".join(repr(c) for c in typing.get_args(annotation))
+    return getattr(annotation, "__name__", str(annotation))
+
+
 def _check_type(field: str, value: Any, annotation: Any) -> Any:
     """Convert/validate one value against a simple annotation (int, float, bool, str, X|None,
-    ``Literal[...]`` of strings)."""
+    ``Literal[...]`` of strings, a union of them such as ``int | Literal["auto"]``)."""
     origin = typing.get_origin(annotation)
     if origin is Literal:
         choices = typing.get_args(annotation)
@@ -248,7 +255,15 @@ def _check_type(field: str, value: Any, annotation: Any) -> Any:
         if value is None and type(None) in options:
             return None
         inner = [o for o in options if o is not type(None)]
-        return _check_type(field, value, inner[0])
+        if len(inner) == 1:
+            return _check_type(field, value, inner[0])
+        for option in inner:  # e.g. ``int | Literal["auto"]``: the first that fits
+            try:
+                return _check_type(field, value, option)
+            except ConfigError:
+                pass
+        names = " or ".join(_type_name(o) for o in inner)
+        raise ConfigError(field, f"expected {names}, got {type(value).__name__} {value!r}")
     if annotation is bool:
         if isinstance(value, bool):
             return value

@@ -261,3 +261,105 @@ def test_portfolio_is_a_pure_function_of_the_env_params():
         for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(batched)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b)[r], rtol=1e-6)
     assert float(m.best_value[0]) != float(m.best_value[1])
+
+
+def test_layered_draws_read_only_the_next_layer_and_equal_full_rows():
+    """A layered controller draws each next node from its next layer's ``layer_width``
+    entries only; with probabilities whose sums are exact (multiples of 1/4), the draws equal
+    the inverse-CDF draws over the whole rows with the same uniforms, for independent and
+    shared controllers."""
+    from cognet_jax.controllers.base import sample_categorical
+
+    for shared in (False, True):
+        ctrl = TabularController(2, 12, 3, 2, layers=4, shared=shared)
+        support = np.asarray(ctrl.transition_support())
+        weights = jax.random.randint(jax.random.key(0), (2, 12, 2, 12), 0, 4)
+        probs = np.where(support, np.asarray(weights, np.float32), 0.0)
+        empty = probs.sum(-1, keepdims=True) == 0
+        probs = np.where(empty, support.astype(np.float32), probs) / 4.0
+        dist = ctrl.init_distribution().replace(transition_probs=jnp.asarray(probs))
+        keys = jax.random.split(jax.random.key(1), 500)
+        drawn = jax.vmap(lambda k, c=ctrl, d=dist: c.sample(k, d).transitions)(keys)
+        rows = probs[:1] if shared else probs
+
+        def full(k, rows=rows):
+            u = jax.random.uniform(jax.random.split(k)[1], rows.shape[:-1])
+            return sample_categorical(u, jnp.asarray(rows))
+
+        expected = np.broadcast_to(np.asarray(jax.vmap(full)(keys)), drawn.shape)
+        np.testing.assert_array_equal(np.asarray(drawn), expected)
+        assert len(np.unique(np.asarray(drawn))) > 4  # not a constant draw
+
+
+def _dpomdp_config(name, horizon, *sets):
+    from cognet_jax.registry import load_config
+
+    path = f"problem.path={str(_file(name))!r}"
+    return load_config("gdice-dpomdp", [path, f"problem.horizon={horizon}", *sets])
+
+
+@pytest.mark.parametrize(
+    "name,horizon,sets,expected",
+    [
+        ("dectiger", 10, (), 8),  # cheap exact values: the most repeats
+        ("GridSmall", 2, (), 6),  # 6 x 3 searches x 4.8e7 multiply-adds <= 3e8
+        ("GridSmall", 5, (), 2),
+        ("GridSmall", 8, (), 1),
+        ("dectiger", 4, ("algorithm.evaluator='hybrid'",), 1),  # not every sample exact
+        ("dectiger", 4, ("algorithm.repeats=3",), 3),
+    ],
+)
+def test_repeats_follow_the_exact_limit(name, horizon, sets, expected):
+    """``repeats = "auto"`` repeats every search as often as one iteration's exact values stay
+    within ``EXACT_AUTO_LIMIT`` (at most ``AUTO_REPEATS_MAX``), and the evaluator stays
+    exact; results.json's ``resolved`` shows the count and every member's restarts."""
+    from cognet_jax.algorithms.gdice import (
+        AUTO_REPEATS_MAX,
+        EXACT_AUTO_LIMIT,
+        exact_iteration_cost,
+    )
+    from cognet_jax.api import build_algorithm, build_env
+    from cognet_jax.driver import _settings_dict
+
+    config = _dpomdp_config(name, horizon, *sets)
+    algo, _ = build_algorithm(config)
+    assert algo.settings.repeats == expected
+    assert algo.restarts == (expected,) * 3
+    assert [s["restarts"] for s in _settings_dict(algo)["searches"]] == [expected] * 3
+    if config.algorithm.repeats == "auto" and algo.settings.evaluator == "exact":
+        env, env_params = build_env(config)
+        once = exact_iteration_cost(env, config.algorithm, env_params)  # 3 searches
+        assert expected * once <= EXACT_AUTO_LIMIT
+        assert expected == AUTO_REPEATS_MAX or (expected + 1) * once > EXACT_AUTO_LIMIT
+
+
+def test_repeats_settings_are_checked():
+    from cognet_jax.config import ConfigError
+
+    with pytest.raises(ConfigError, match="algorithm.repeats.*must be >= 1"):
+        _dpomdp_config("dectiger", 3, "algorithm.repeats=0")
+    with pytest.raises(ConfigError, match="algorithm.repeats.*expected int or 'auto'"):
+        _dpomdp_config("dectiger", 3, "algorithm.repeats=twice")
+
+
+def test_repeated_searches_include_the_unrepeated_ones():
+    """With ``repeats = 2`` the first search of every kind keeps its keys, so it runs exactly
+    the search of ``repeats = 1``; the repeated portfolio's best is at least as good."""
+    from cognet_jax.api import build_algorithm, iteration_step
+
+    sets = ("algorithm.iterations=4", "algorithm.samples=64", "algorithm.elites=8")
+    states = []
+    for repeats in (1, 2):
+        config = _dpomdp_config("dectiger", 3, *sets, f"algorithm.repeats={repeats}")
+        algo, params = build_algorithm(config)
+        step = jax.jit(iteration_step(algo))
+        state = algo.init(jax.random.key(0), params)
+        for _ in range(4):
+            state, _ = step(jax.random.key(1), state, params)
+        states.append(state)
+    once, twice = states
+    for m_once, m_twice in zip(once.members, twice.members):
+        first = jax.tree.map(lambda x: x[:1], m_twice)
+        for a, b in zip(jax.tree.leaves(m_once), jax.tree.leaves(first)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
+    assert float(twice.progress.best_value) >= float(once.progress.best_value) - 1e-6

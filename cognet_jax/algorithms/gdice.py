@@ -134,6 +134,10 @@ EXACT_AUTO_LIMIT = 300_000_000
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
 #: ``GDice.polish_moves``); above it the polish is skipped.
 POLISH_SWEEP_LIMIT = 3_000_000_000
+#: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: one
+#: search of each kind ends at the optimum on 1 to 3 seeds of 8, so 3 searches leave seeds
+#: below it; experiments/README.md, "G-DICE at scale")
+AUTO_REPEATS_MAX = 8
 #: Largest working set (float32 numbers) of one agent's best response in the polish
 #: (``algorithms.best_response.best_response_cost``); above it, or above
 #: ``POLISH_SWEEP_LIMIT`` multiply-adds, the best responses are skipped.
@@ -168,6 +172,11 @@ class GDiceSection(ThresholdSection):
     #: of uniform (a strong rate escapes local optima that the usual rate settles in)
     explore_restarts: int = 0
     explore_entropy_rate: float = 0.2
+    #: every search above (``restarts``, ``shared_restarts``, ``explore_restarts``) runs this
+    #: many times with its own keys; "auto": as many times as the exact values of one
+    #: iteration stay within ``EXACT_AUTO_LIMIT`` multiply-adds, at most ``AUTO_REPEATS_MAX``
+    #: (1 where the samples are not all valued exactly; ``auto_repeats``)
+    repeats: int | Literal["auto"] = 1
     #: after the last iteration, at most this many single-entry changes of the best controller
     #: by exact steepest ascent (exact or hybrid evaluator only; 0: none, as in SPEC)
     polish_sweeps: int = 0
@@ -192,6 +201,7 @@ class GDiceSection(ThresholdSection):
     def check(self, config) -> None:
         super().check(config)
         require_positive(self, "algorithm", "restarts", "exact_top")
+        require(self.repeats == "auto" or self.repeats >= 1, "algorithm.repeats", "must be >= 1")
         for name in ("shared_restarts", "explore_restarts", "polish_sweeps"):
             require(getattr(self, name) >= 0, f"algorithm.{name}", "must be >= 0")
         require(self.best_response_rounds >= 0, "algorithm.best_response_rounds", "must be >= 0")
@@ -741,6 +751,37 @@ def exact_iteration_cost(env, section, env_params=None) -> int:
     return exact_cost(env, section.nodes, env_params) * section.samples * searches
 
 
+def auto_repeats(env, section, env_params) -> int:
+    """How many times ``repeats = "auto"`` runs every search: as many as keep one iteration's
+    exact values of every sample within ``EXACT_AUTO_LIMIT`` multiply-adds (the limit that
+    makes ``evaluator = "auto"`` exact), at most ``AUTO_REPEATS_MAX``; 1 where the samples are
+    not all valued exactly (``rollouts``, ``hybrid``, or ``auto`` resolving to either). So the
+    search grows where it is cheap (Dec-Tiger: 8 at every horizon; GridSmall: 6 at h 2, 2 at
+    h 5, 1 from h 7) and stays as it is on the larger models."""
+    if section.evaluator not in ("exact", "auto") or not isinstance(env, TabularEnv):
+        return 1
+    cost = exact_iteration_cost(env, section, env_params)
+    return max(1, min(AUTO_REPEATS_MAX, EXACT_AUTO_LIMIT // cost))
+
+
+def with_repeats(env, section, env_params):
+    """``section`` with ``repeats`` resolved to a number and every search count
+    (``restarts``, ``shared_restarts``, ``explore_restarts``) multiplied by it. The first
+    search of each kind keeps its keys (``GDicePortfolio._member_keys`` splits one key per
+    member, and a split's i-th key does not depend on the count), so the repeated portfolio
+    runs the unrepeated one's searches and more."""
+    repeats = section.repeats
+    if repeats == "auto":
+        repeats = auto_repeats(env, section, env_params)
+    return dataclasses.replace(
+        section,
+        repeats=repeats,
+        restarts=section.restarts * repeats,
+        shared_restarts=section.shared_restarts * repeats,
+        explore_restarts=section.explore_restarts * repeats,
+    )
+
+
 def resolve_evaluator(env, section, env_params) -> str:
     """``section.evaluator`` with ``"auto"`` resolved from the model's exact cost
     (``EXACT_AUTO_LIMIT``); ``ConfigError`` when exact values would cost more than
@@ -794,10 +835,10 @@ def affordable_polish(env, settings, env_params):
 
 
 def build(config, env, env_params, memory: int | None = None) -> GDice | GDicePortfolio:
-    """The search of ``config`` (``experiment.algorithm = "gdice"``): the evaluator resolved
-    (``resolve_evaluator``), the polish kept where affordable (``affordable_polish``), a
-    portfolio when more than one search runs."""
-    a = config.algorithm
+    """The search of ``config`` (``experiment.algorithm = "gdice"``): the searches repeated
+    (``with_repeats``), the evaluator resolved (``resolve_evaluator``), the polish kept where
+    affordable (``affordable_polish``), a portfolio when more than one search runs."""
+    a = with_repeats(env, config.algorithm, env_params)
     evaluator = resolve_evaluator(env, a, env_params)
     settings = affordable_polish(
         env, fields_from(GDiceSettings, a, evaluator=evaluator), env_params
