@@ -218,7 +218,7 @@ def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iter
     try:
         traced = jitted.trace(*args)
     except OverflowError as err:  # a count past int32, e.g. nodes x layers
-        found = re.search(r"value (-?\d+)", str(err))
+        found = re.search(r"(?:value|integer) (-?\d+)", str(err))
         size = f"a size of {found.group(1)}" if found else "a size"
         raise ResourceError(
             f"{what}: {size} does not fit the 32-bit integers arrays are indexed with; lower "

@@ -14,7 +14,7 @@ import pytest
 from flax.serialization import msgpack_restore
 from shared_files import dpomdp_file
 
-from cognet_jax.api import make_evaluate, make_train, seed_key
+from cognet_jax.api import build_algorithm, make_evaluate, make_train, seed_key
 from cognet_jax.cli import main
 from cognet_jax.driver import train
 from cognet_jax.registry import load_config
@@ -40,6 +40,7 @@ CASES = {
         "algorithm.iterations=4",
         "algorithm.samples=60",
         "algorithm.nodes=2",
+        "algorithm.repeats=2",  # repeated searches (the default "auto" gives 8 here)
         "evaluation.rollouts=2000",
     ],
     # the default COGNet-DICE: a policy of network weights
@@ -130,14 +131,19 @@ def test_readme_domain_randomisation_example():
     levels, metrics, mean = namespace["levels"], namespace["metrics"], namespace["mean"]
     assert mean.shape == (4,) and np.all(np.isfinite(np.asarray(mean)))
     config = namespace["config"]
+    iterations = f"algorithm.iterations={config.algorithm.iterations}"  # the README's
+    as_data = jax.jit(make_train(config))  # one program: each level's params as an argument
     for i, level in enumerate(np.asarray(levels)):
-        alone = load_config(
-            "tagging-thesis-n3", ["algorithm.iterations=60", f"env.obs_noise={level}"]
-        )
-        _, m = jax.jit(make_train(alone))(namespace["key"])
+        alone = load_config("tagging-thesis-n3", [iterations, f"env.obs_noise={level}"])
+        _, m = as_data(namespace["key"], build_algorithm(alone)[1])
         np.testing.assert_allclose(
             np.asarray(metrics.value[i]), np.asarray(m.value), rtol=1e-4, atol=1e-3
         )
+    # and the noisiest level as `cognet-jax train` compiles it (its params as constants)
+    _, m = jax.jit(make_train(alone))(namespace["key"])
+    np.testing.assert_allclose(
+        np.asarray(metrics.value[-1]), np.asarray(m.value), rtol=1e-4, atol=1e-3
+    )
     assert config.env.obs_noise == 0.0
     # the noise reaches the searches: a noisy level ends with another value than a clean one
     assert float(mean[0]) != float(mean[3])

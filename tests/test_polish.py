@@ -118,6 +118,7 @@ def test_train_and_sweep_record_the_polish(tmp_path):
         "algorithm.iterations=3",
         "algorithm.samples=50",
         "algorithm.polish_sweeps=5",
+        "algorithm.repeats=1",  # the record, not the search, is under test
         "run.progress=false",
         "run.plots=false",
         "evaluation.rollouts=1000",

@@ -25,7 +25,6 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from cognet_jax.controllers.base import sample_categorical, uniform_distribution
@@ -116,13 +115,19 @@ class TabularController:
         is most of an iteration's sampling."""
         if not self.layers:
             return sample_categorical(u, transition_probs)
+        # index arrays as jnp ops, not numpy constants: a size refused while the initial
+        # state is traced must not be built in host memory first. Node ids are int32: more
+        # nodes raise OverflowError here (memory.trace_checked makes it a one-line error)
+        jnp.asarray(self.num_nodes - 1, jnp.int32)
         layers, w = self.layers, self.layer_width
         agents, obs = transition_probs.shape[0], transition_probs.shape[2]
-        target = np.minimum(np.arange(layers) + 1, layers - 1)  # the next layer of each layer
+        layer = jnp.arange(layers, dtype=jnp.int32)
+        target = jnp.minimum(layer + 1, layers - 1)  # the next layer of each layer
         blocks = transition_probs.reshape(agents, layers, w, obs, layers, w)
-        window = jnp.moveaxis(blocks[:, np.arange(layers), :, :, target, :], 0, 1)
+        window = jnp.moveaxis(blocks[:, layer, :, :, target, :], 0, 1)
         local = sample_categorical(u, window.reshape(agents, self.num_nodes, obs, w))
-        first = np.repeat(target * w, w).astype(np.int32)  # [nodes]: first node of the window
+        node_layer = jnp.arange(self.num_nodes, dtype=jnp.int32) // w
+        first = jnp.minimum(node_layer + 1, layers - 1) * w  # [nodes]: the window's first node
         return local + first[None, :, None]
 
     def act(self, u, policy: DeterministicTabularPolicy, nodes):
