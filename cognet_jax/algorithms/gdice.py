@@ -134,9 +134,9 @@ EXACT_AUTO_LIMIT = 300_000_000
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
 #: ``GDice.polish_moves``); above it the polish is skipped.
 POLISH_SWEEP_LIMIT = 3_000_000_000
-#: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: one
-#: search of each kind ends at the optimum on 1 to 3 seeds of 8, so 3 searches leave seeds
-#: below it; experiments/README.md, "G-DICE at scale")
+#: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: a single
+#: search ends at the optimum in 0-12% (independent) and 23-45% (shared) of 64 tries, so
+#: one of each leaves seeds below it; experiments/results/gdice-members/)
 AUTO_REPEATS_MAX = 8
 #: Largest working set (float32 numbers) of one agent's best response in the polish
 #: (``algorithms.best_response.best_response_cost``); above it, or above
