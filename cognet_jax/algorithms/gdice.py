@@ -135,7 +135,7 @@ EXACT_AUTO_LIMIT = 300_000_000
 #: ``GDice.polish_moves``); above it the polish is skipped.
 POLISH_SWEEP_LIMIT = 3_000_000_000
 #: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: a single
-#: search ends at the optimum in 0-12% (independent) and 23-45% (shared) of 64 tries, so
+#: search ends at the optimum in 5-13% (independent) and 23-45% (shared) of 64 tries, so
 #: one of each leaves seeds below it; experiments/results/gdice-members/)
 AUTO_REPEATS_MAX = 8
 #: Largest working set (float32 numbers) of one agent's best response in the polish
