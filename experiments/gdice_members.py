@@ -22,13 +22,13 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from gdice_scale import DPOMDP_DIR
 
 from cognet_jax import api
 from cognet_jax.registry import load_config
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "gdice-members"
-SHARED = HERE.parents[1] / "shared" / "dpomdp"
 
 
 def member_values(config, seeds: int):
@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     for horizon in args.horizons:
-        path = SHARED / f"{args.model}.dpomdp"
+        path = DPOMDP_DIR / f"{args.model}.dpomdp"
         sets = [f"problem.path={str(path)!r}", f"problem.horizon={horizon}", "problem.discount=1"]
         config = load_config("gdice-dpomdp", sets)
         out = RESULTS / f"{args.model}-h{horizon}.jsonl"

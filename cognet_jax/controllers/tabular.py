@@ -65,14 +65,18 @@ class TabularController:
         """Nodes per layer (all nodes for a free FSC)."""
         return self.num_nodes // self.layers if self.layers else self.num_nodes
 
+    def _layers_of_nodes(self) -> tuple[jax.Array, jax.Array]:
+        """``(layer, target)`` ``[nodes]`` int32 of a layered controller: each node's layer and
+        the layer it moves to, ``min(layer + 1, L - 1)``."""
+        layer = jnp.arange(self.num_nodes, dtype=jnp.int32) // self.layer_width
+        return layer, jnp.minimum(layer + 1, self.layers - 1)
+
     def transition_support(self) -> jax.Array | None:
         """Allowed next nodes ``[nodes, 1, nodes]`` bool of a layered controller (``None`` for
         a free FSC): node q of layer t may move to layer ``min(t + 1, L - 1)`` only."""
         if not self.layers:
             return None
-        w = self.layer_width
-        layer = jnp.arange(self.num_nodes) // w
-        target = jnp.minimum(layer + 1, self.layers - 1)
+        layer, target = self._layers_of_nodes()
         return (layer[None, :] == target[:, None])[:, None, :]
 
     def init_distribution(self) -> TabularDistribution:
@@ -121,14 +125,12 @@ class TabularController:
         jnp.asarray(self.num_nodes - 1, jnp.int32)
         layers, w = self.layers, self.layer_width
         agents, obs = transition_probs.shape[0], transition_probs.shape[2]
-        layer = jnp.arange(layers, dtype=jnp.int32)
-        target = jnp.minimum(layer + 1, layers - 1)  # the next layer of each layer
+        _, target = self._layers_of_nodes()  # [nodes]
         blocks = transition_probs.reshape(agents, layers, w, obs, layers, w)
-        window = jnp.moveaxis(blocks[:, layer, :, :, target, :], 0, 1)
+        # [agents, layers, w, obs, w]: each layer's rows over its next layer's nodes
+        window = jnp.moveaxis(blocks[:, jnp.arange(layers), :, :, target[::w], :], 0, 1)
         local = sample_categorical(u, window.reshape(agents, self.num_nodes, obs, w))
-        node_layer = jnp.arange(self.num_nodes, dtype=jnp.int32) // w
-        first = jnp.minimum(node_layer + 1, layers - 1) * w  # [nodes]: the window's first node
-        return local + first[None, :, None]
+        return local + (target * w)[None, :, None]  # + the first node of the next layer
 
     def act(self, u, policy: DeterministicTabularPolicy, nodes):
         return policy.actions[jnp.arange(self.num_agents), nodes]
