@@ -136,6 +136,7 @@ def test_portfolio_skips_shared_search_for_different_agents(tmp_path):
     assert float(state.progress.best_value) == pytest.approx(2.0)  # (1, 2) twice
 
 
+@pytest.mark.optimised
 def test_default_gdice_reaches_dectiger_h4_optimum():
     """``gdice-dpomdp`` as shipped, with fewer iterations: Dec-Tiger h 4 (optimum 4.802755),
     where the earlier defaults (SPEC settings, ``gdice-dpomdp-spec``) ended at -3.40."""

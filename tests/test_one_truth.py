@@ -122,6 +122,7 @@ def _readme_block(title: str) -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.optimised
 def test_readme_domain_randomisation_example():
     """The README's block, run as written: one program searches four noise levels, and the
     search of each level is the search a config with that noise level runs (its params as

@@ -14,6 +14,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from cognet_jax.checkpoint import CHECKPOINT_NAME
 from cognet_jax.driver import resume_target, train
 from cognet_jax.registry import load_config
@@ -84,6 +86,7 @@ def test_sigterm_while_compiling_ends_at_once_and_leaves_no_folder(tmp_path):
         assert rest[-1] == "error: stopped by SIGTERM" and not out.exists(), rest
 
 
+@pytest.mark.optimised
 def test_sigint_during_the_final_evaluation_keeps_the_search_then_resume_finishes_it(tmp_path):
     """The search has finished (its checkpoint is written) and the honest evaluation of 20
     million rollouts runs: Ctrl-C keeps the search's best policy and checkpoint; ``--resume``
