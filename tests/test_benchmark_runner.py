@@ -26,3 +26,19 @@ def test_full_runs_and_updates_write_the_published_table(flags):
 def test_out_overrides(tmp_path: Path):
     assert output_dir(_args(quick=True, out=tmp_path)) == tmp_path
     assert output_dir(_args(full=True, out=tmp_path)) == tmp_path
+
+
+def test_torch_headline_is_the_least_favourable_size():
+    from benchmarks.report import smallest_torch_ratio
+
+    rows = [
+        {"impl": "jax", "nodes": 3, "rollouts": 100_000, "rate": 84.0},
+        {"impl": "torch-compiled", "nodes": 3, "rollouts": 100_000, "rate": 16.8},
+        {"impl": "torch-vectorized", "nodes": 3, "rollouts": 100_000, "rate": 5.0},
+        {"impl": "jax", "nodes": 6, "rollouts": 100_000, "rate": 69.0},
+        {"impl": "torch-compiled", "nodes": 6, "rollouts": 100_000, "rate": 4.6},
+        {"impl": "jax", "nodes": 6, "rollouts": 10_000, "rate": 1.0},
+    ]
+    ratio, nodes, best, each = smallest_torch_ratio(rows, "jax", 100_000)
+    assert (round(ratio, 6), nodes, best["impl"]) == (5.0, 3, "torch-compiled")
+    assert each == "3 nodes 5.0x, 6 nodes 15.0x"
