@@ -41,6 +41,17 @@ CASES = [
         ['run.prng_impl="threefry2x32"'],
     ),
     ("`run.memory_gb = 0.05`, hash", "tagging-paper-cognet-full", ['run.prng_impl="hash"']),
+    (
+        "COG-DICE, 2000 x 1000, all samples at once",
+        "tagging-paper-cogdice-full",
+        ["run.memory_gb=0"],
+    ),
+    (
+        "COG-DICE, 2000 x 1000, `run.memory_gb = 0.02` (the experiment's setting)",
+        "tagging-paper-cogdice-full",
+        [],
+    ),
+    ("the same, `run.memory_gb = 0.05`", "tagging-paper-cogdice-full", ["run.memory_gb=0.05"]),
 ]
 
 
