@@ -1,0 +1,214 @@
+"""Cycles per agent-step of each part of a rollout, alone and together, for the paper-budget
+and 3-node rooflines of benchmarks/NOTES.md.
+
+    python -m benchmarks.paper_roofline                 # COGNet-DICE and COG-DICE, paper setting
+    python -m benchmarks.paper_roofline --rollouts 3 6  # the rollout benchmark (h 3, 1e5)
+
+Each part runs alone as a compiled ``lax.scan`` over the horizon on the batch the search rolls
+out (candidates x rollouts, or the rollout benchmark's 1e5), with what it reads carried from
+step to step so that XLA cannot hoist it out of the loop:
+
+- **random numbers**: the per-step block of uniforms ``[rollouts, 2 agents + noise]`` the
+  rollouts draw (``rollout.rollouts``; shared by all candidates, common random numbers);
+- **action draw**: ``controller.act`` for every agent;
+- **network and node draw**: ``controller.next_node`` (COGNet-DICE: every member network of the
+  agent, softmax, inverse-CDF draw; COG-DICE: the region of the observation and its next node);
+- **simulator**: the tagging step;
+- **rollouts**: the real thing (``rollout.evaluate_candidates``), and **iteration**: one
+  compiled ``step`` of the search (the rest is selection and update).
+
+Cycles are ``seconds x logical CPUs x clock / agent-steps`` at the clock /proc/cpuinfo reports.
+The parts alone need not add up to the rollouts: in the rollouts XLA fuses them (less memory
+traffic) and schedules them on both cores together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+
+#: (label, experiment, overrides): one chunk of candidates of each -full experiment as its
+#: iteration evaluates them (run.memory_gb)
+EXPERIMENTS = [
+    ("COGNet-DICE", "tagging-paper-cognet-full", []),
+    ("COG-DICE", "tagging-paper-cogdice-full", []),
+]
+
+
+def clock_hz() -> float:
+    """The clock /proc/cpuinfo reports (first core), 0 when unknown."""
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("cpu MHz"):
+                return float(line.split(":")[1]) * 1e6
+    except OSError:
+        pass
+    return 0.0
+
+
+def median_seconds(fn, args, calls: int) -> float:
+    """Median seconds of ``calls`` calls of ``jax.jit(fn)`` after a warm-up call."""
+    compiled = jax.jit(fn).lower(*args).compile()
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(calls):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def parts(env, ctrl, params, policies, candidates: int, num: int) -> dict:
+    """Functions ``key -> result`` of each part alone, over ``candidates x num`` rollouts
+    (``policies``: leading ``[candidates]`` axis, or one policy when ``candidates`` is 0)."""
+    from cognet_jax.prng import fast_key
+    from cognet_jax.rollout import evaluate_candidates, rollouts
+
+    n, h = env.num_agents, env.horizon
+    width = 2 * n + env.step_noise
+    batch = (candidates,) if candidates else ()
+
+    def batched(f, axes):
+        """``f`` over rollouts (``axes``), then over candidates (the uniforms shared)."""
+        f = jax.vmap(f, axes)
+        if candidates:
+            f = jax.vmap(f, (None,) + (0,) * (len(axes) - 1))
+        return f
+
+    def scan(body, init, key):
+        return jax.lax.scan(lambda c, k: (body(c, k), None), init, jax.random.split(key, h))[0]
+
+    u = jax.random.uniform(jax.random.key(7), (num, width))  # shared by the candidates
+    reset_u = jax.random.uniform(jax.random.key(8), (num, env.reset_noise))
+    states = jax.vmap(env.reset, (0, None))(reset_u, params)
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (*batch, *x.shape)), states)
+    zeros = jnp.zeros((*batch, num, n), jnp.int32)
+    obs = jnp.broadcast_to(u[:, n : 2 * n] - 0.5, (*batch, num, n))
+
+    def act(nodes, k):
+        f = batched(lambda uu, p, q: ctrl.act(uu, p, q), (0, None, 0))
+        return f(u[:, :n], policies, nodes) % ctrl.num_nodes
+
+    def next_node(carry, k):
+        nodes, o = carry
+        f = batched(lambda uu, p, q, z: ctrl.next_node(uu, p, q, z), (0, None, 0, 0))
+        return f(u[:, n : 2 * n], policies, nodes, o), -o
+
+    def simulate(carry, k):
+        s, actions = carry
+        f = batched(lambda uu, st, a: env.step(uu, st, a, params), (0, 0, 0))
+        s, _, reward = f(u[:, 2 * n :], s, actions)
+        return s, (actions + 1 + (reward > 0)[..., None]) % env.num_actions
+
+    def draw(block, k):
+        return jax.random.uniform(fast_key(k), (num, width)) + block[0, 0] * 0
+
+    def roll(k):
+        if candidates:
+            return evaluate_candidates(env, ctrl, k, num, params, policies, memory=2**62)
+        return rollouts(env, ctrl, k, num, params, policies)
+
+    return {
+        "random numbers": lambda k: scan(draw, jnp.zeros((num, width)), k),
+        "action draw": lambda k: scan(act, zeros, k),
+        "network and node draw": lambda k: scan(next_node, (zeros, obs), k),
+        "simulator": lambda k: scan(simulate, (states, zeros), k),
+        "rollouts": roll,
+    }
+
+
+def measure_parts(label, env, ctrl, params, policies, candidates, num, calls, hz) -> list[str]:
+    """Table rows ``| label: part | ms | cycles per agent-step |`` of every part."""
+    steps = max(candidates, 1) * num * env.horizon * env.num_agents
+    cores = os.cpu_count() or 1
+    rows = []
+    for name, fn in parts(env, ctrl, params, policies, candidates, num).items():
+        seconds = median_seconds(fn, (jax.random.key(1),), calls)
+        cycles = f"{seconds * cores * hz / steps:.1f}" if hz else "-"
+        rows.append(f"| {label}: {name} | {seconds * 1e3:.1f} | {cycles} |")
+        print(f"  {rows[-1]}", flush=True)
+    return rows
+
+
+def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: float) -> list[str]:
+    """Every part of one chunk of candidates of ``experiment``'s iteration, and the iteration."""
+    from cognet_jax.api import build_algorithm
+    from cognet_jax.memory import candidate_chunk
+    from cognet_jax.registry import load_config
+    from cognet_jax.rollout import rollouts
+
+    algorithm, params = build_algorithm(load_config(experiment, sets))
+    state = algorithm.init(jax.random.key(0), params)
+    _, policies = algorithm.ask(jax.random.key(1), state, params)
+    env, ctrl, s = algorithm.env, algorithm.controller, algorithm.settings
+    count = jax.tree.leaves(policies)[0].shape[0]
+    chunk = candidate_chunk(
+        lambda k, p, n, e: rollouts(env, ctrl, k, n, e, p),
+        params.env,
+        jax.tree.map(lambda x: x[0], policies),
+        count,
+        s.eval_rollouts,
+        algorithm.memory,
+    )
+    chunk = min(chunk, count)
+    sub = jax.tree.map(lambda x: x[:chunk], policies)
+    rows = measure_parts(
+        f"{label} ({chunk} candidates x {s.eval_rollouts})",
+        env,
+        ctrl,
+        params.env,
+        sub,
+        chunk,
+        s.eval_rollouts,
+        calls,
+        hz,
+    )
+    seconds = median_seconds(
+        lambda k, st: algorithm.step(k, st, params), (jax.random.key(1), state), calls
+    )
+    steps = algorithm.rollouts_per_iteration * env.horizon * env.num_agents
+    cycles = f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
+    rows.append(
+        f"| {label}: whole iteration ({count} candidates) | {seconds * 1e3:.1f} | {cycles} |"
+    )
+    print(f"  {rows[-1]}", flush=True)
+    return rows
+
+
+def rollout_rows(nodes: int, calls: int, hz: float) -> list[str]:
+    """Every part of the rollout benchmark's case (benchmarks.jax_cases.rollout_throughput)."""
+    from cognet_jax.controllers.neural import NeuralController
+    from cognet_jax.envs.tagging import make_tagging
+
+    env, params = make_tagging("thesis")
+    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
+    policy = ctrl.init(jax.random.key(0))
+    label = f"rollouts, {nodes} nodes, h 3, 1e5"
+    return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calls", type=int, default=5)
+    parser.add_argument("--set", action="append", default=[], help="a config override, both")
+    parser.add_argument("--rollouts", type=int, nargs="+", metavar="NODES")
+    args = parser.parse_args()
+    hz = clock_hz()
+    lines = ["| part | ms per call | cycles per agent-step |", "|---|---|---|"]
+    if args.rollouts:
+        for nodes in args.rollouts:
+            lines += rollout_rows(nodes, max(args.calls, 15), hz)
+    else:
+        for label, experiment, sets in EXPERIMENTS:
+            lines += paper_rows(label, experiment, [*sets, *args.set], args.calls, hz)
+    print(f"\n{os.cpu_count()} logical CPUs at {hz / 1e9:.2f} GHz (/proc/cpuinfo)\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
