@@ -91,12 +91,12 @@ def parts(env, ctrl, params, policies, candidates: int, num: int) -> dict:
     obs = jnp.broadcast_to(u[:, n : 2 * n] - 0.5, (*batch, num, n))
 
     def act(nodes, k):
-        f = batched(lambda uu, p, q: ctrl.act(uu, p, q), (0, None, 0))
+        f = batched(ctrl.act, (0, None, 0))
         return f(u[:, :n], policies, nodes) % ctrl.num_nodes
 
     def next_node(carry, k):
         nodes, o = carry
-        f = batched(lambda uu, p, q, z: ctrl.next_node(uu, p, q, z), (0, None, 0, 0))
+        f = batched(ctrl.next_node, (0, None, 0, 0))
         return f(u[:, n : 2 * n], policies, nodes, o), -o
 
     def simulate(carry, k):

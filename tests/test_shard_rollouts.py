@@ -43,7 +43,9 @@ assert "num_partitions=2" in text, "step not partitioned"
 
 
 def test_sharded_rollouts_give_the_same_run(tmp_path):
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    # (the suite's XLA flags kept: conftest.py)
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"
+    env = dict(os.environ, XLA_FLAGS=flags.strip())
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     proc = subprocess.run(
         [sys.executable, "-c", SCRIPT, str(tmp_path), *SMALL],
