@@ -11,8 +11,8 @@ is removed at the end of the session.
 ``XLA_FLAGS``, inherited by the ``cognet-jax`` processes the tests start). Most tests compile
 far more than they run: on the 2-core CPU, backend compiles took 927 s of the 1,613 s the tests
 spent (summed over both workers), and level 0 halves them (509 s). The flag changes how LLVM
-optimises the machine code, not what it computes: every test passes with it, those comparing
-runs bit for bit with saved results included. Compiled code then runs up to 27x slower (one
+optimises the machine code, not what it computes: every test passes with it, the bit-for-bit
+comparisons of runs included. Compiled code then runs up to 27x slower (one
 COGNet-DICE thesis iteration: 8 ms -> 213 ms), so the few tests whose time is execution are
 marked ``optimised``: each runs in a child pytest with the machine's own ``XLA_FLAGS``
 (``pytest_pyfunc_call`` below), as a user's run compiles it.
