@@ -26,14 +26,14 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from shared_files import LEVEL_0, without_level_0
 
 #: set in the child pytest that runs an ``optimised`` test
 _CHILD = "COGNET_JAX_TEST_OPTIMISED"
-_LEVEL_0 = "--xla_backend_optimization_level=0"
 # (an xdist worker inherits the flag from the pytest process that started it)
-_USER_XLA_FLAGS = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if f != _LEVEL_0)
+_USER_XLA_FLAGS = without_level_0(os.environ.get("XLA_FLAGS", ""))
 if not os.environ.get(_CHILD):
-    os.environ["XLA_FLAGS"] = f"{_USER_XLA_FLAGS} {_LEVEL_0}".strip()
+    os.environ["XLA_FLAGS"] = f"{_USER_XLA_FLAGS} {LEVEL_0}".strip()
 
 import jax  # noqa: E402
 
