@@ -26,17 +26,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
 
 import jax
 import jax.numpy as jnp
 
-#: (label, experiment, overrides): one chunk of candidates of each -full experiment as its
-#: iteration evaluates them (run.memory_gb)
+from benchmarks.timing import time_jax
+
+#: (label, experiment): one chunk of candidates of each -full experiment as its iteration
+#: evaluates them (run.memory_gb)
 EXPERIMENTS = [
-    ("COGNet-DICE", "tagging-paper-cognet-full", []),
-    ("COG-DICE", "tagging-paper-cogdice-full", []),
+    ("COGNet-DICE", "tagging-paper-cognet-full"),
+    ("COG-DICE", "tagging-paper-cogdice-full"),
 ]
 
 
@@ -49,18 +49,6 @@ def clock_hz() -> float:
     except OSError:
         pass
     return 0.0
-
-
-def median_seconds(fn, args, calls: int) -> float:
-    """Median seconds of ``calls`` calls of ``jax.jit(fn)`` after a warm-up call."""
-    compiled = jax.jit(fn).lower(*args).compile()
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def parts(env, ctrl, params, policies, candidates: int, num: int) -> dict:
@@ -122,17 +110,23 @@ def parts(env, ctrl, params, policies, candidates: int, num: int) -> dict:
     }
 
 
+def timed_row(name: str, fn, args: tuple, steps: int, calls: int, hz: float) -> str:
+    """``| name | ms | cycles per agent-step |`` of the median call of ``jax.jit(fn)`` (after
+    the benchmark runner's warm-up, ``timing.time_jax``); printed as it is measured."""
+    seconds = time_jax(fn, *args, runs=calls).median_s
+    cycles = f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
+    row = f"| {name} | {seconds * 1e3:.1f} | {cycles} |"
+    print(f"  {row}", flush=True)
+    return row
+
+
 def measure_parts(label, env, ctrl, params, policies, candidates, num, calls, hz) -> list[str]:
     """Table rows ``| label: part | ms | cycles per agent-step |`` of every part."""
     steps = max(candidates, 1) * num * env.horizon * env.num_agents
-    cores = os.cpu_count() or 1
-    rows = []
-    for name, fn in parts(env, ctrl, params, policies, candidates, num).items():
-        seconds = median_seconds(fn, (jax.random.key(1),), calls)
-        cycles = f"{seconds * cores * hz / steps:.1f}" if hz else "-"
-        rows.append(f"| {label}: {name} | {seconds * 1e3:.1f} | {cycles} |")
-        print(f"  {rows[-1]}", flush=True)
-    return rows
+    return [
+        timed_row(f"{label}: {name}", fn, (jax.random.key(1),), steps, calls, hz)
+        for name, fn in parts(env, ctrl, params, policies, candidates, num).items()
+    ]
 
 
 def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: float) -> list[str]:
@@ -168,15 +162,10 @@ def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: flo
         calls,
         hz,
     )
-    seconds = median_seconds(
-        lambda k, st: algorithm.step(k, st, params), (jax.random.key(1), state), calls
-    )
     steps = algorithm.rollouts_per_iteration * env.horizon * env.num_agents
-    cycles = f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
-    rows.append(
-        f"| {label}: whole iteration ({count} candidates) | {seconds * 1e3:.1f} | {cycles} |"
-    )
-    print(f"  {rows[-1]}", flush=True)
+    iteration = lambda k, st: algorithm.step(k, st, params)  # noqa: E731
+    name = f"{label}: whole iteration ({count} candidates)"
+    rows.append(timed_row(name, iteration, (jax.random.key(1), state), steps, calls, hz))
     return rows
 
 
@@ -204,8 +193,8 @@ def main() -> None:
         for nodes in args.rollouts:
             lines += rollout_rows(nodes, max(args.calls, 15), hz)
     else:
-        for label, experiment, sets in EXPERIMENTS:
-            lines += paper_rows(label, experiment, [*sets, *args.set], args.calls, hz)
+        for label, experiment in EXPERIMENTS:
+            lines += paper_rows(label, experiment, args.set, args.calls, hz)
     print(f"\n{os.cpu_count()} logical CPUs at {hz / 1e9:.2f} GHz (/proc/cpuinfo)\n")
     print("\n".join(lines))
 
