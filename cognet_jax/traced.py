@@ -129,23 +129,30 @@ def _save(path: Path, exported, out_tree) -> None:
         pass  # (a PRNG implementation of one's own): not kept
 
 
-def _export(fn: Callable, args: tuple):
-    """``(exported, out_tree)`` of ``fn`` at ``args`` as a function of flat leaves, or None
-    when JAX cannot export it."""
+def _flat(fn: Callable, args: tuple):
+    """``(jitted, leaves, out_trees)``: ``fn`` jitted as a function of ``args``' flat leaves
+    returning flat leaves; ``out_trees`` receives the output's tree when it is traced."""
     leaves, in_tree = jax.tree.flatten(args)
     out_trees = []
 
     def flat(*xs):
-        out = fn(*jax.tree.unflatten(in_tree, xs))
-        out_leaves, out_tree = jax.tree.flatten(out)
+        out_leaves, out_tree = jax.tree.flatten(fn(*jax.tree.unflatten(in_tree, xs)))
         out_trees.append(out_tree)
         return out_leaves
 
+    return jax.jit(flat), tuple(leaves), out_trees
+
+
+def _export(jitted, leaves: tuple):
+    """JAX's export of ``jitted`` at ``leaves``, or None when JAX cannot export it."""
     try:
-        exported = jax.export.export(jax.jit(flat))(*leaves)
+        return jax.export.export(jitted)(*leaves)
     except Exception:
         return None
-    return exported, out_trees[0]
+
+
+def _caller(compiled, out_tree) -> Callable:
+    return lambda *a: jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(a)))
 
 
 def compile_kept(
@@ -155,25 +162,21 @@ def compile_kept(
 
     ``key``: the program's ``program_key`` (None: not kept; traced and compiled as usual).
     ``check(jitted, args)`` runs before a program is traced afresh (the memory check); a kept
-    program passed it when it was traced."""
+    program passed it when it was traced. A program traced afresh is traced once: the export
+    reads the trace the check made (JAX keeps it with the jitted function)."""
     folder = trace_cache_dir()
-    kept = None if key is None or folder is None else _load(folder / f"{key}.bin")
+    keep = key is not None and folder is not None
+    kept = _load(folder / f"{key}.bin") if keep else None
     if kept is None:
-        jitted = jax.jit(fn)
-        check(jitted, args)
-        kept = _export(fn, args) if key is not None and folder is not None else None
-        if kept is None:  # not to be kept, or not exportable: compiled as usual
-            compiled = jitted.lower(*args).compile()
-            return lambda *a: compiled(*a)
+        jitted, leaves, out_trees = _flat(fn, args)
+        check(jitted, leaves)
+        exported = _export(jitted, leaves) if keep else None
+        if exported is None:  # not to be kept, or not exportable: compiled as usual
+            return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+        kept = (exported, out_trees[0])
         _save(folder / f"{key}.bin", *kept)
-    leaves = jax.tree.leaves(args)
     exported, out_tree = kept
-    compiled = jax.jit(exported.call).lower(*leaves).compile()
-
-    def call(*a):
-        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(a)))
-
-    return call
+    return _caller(jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile(), out_tree)
 
 
 __all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]
