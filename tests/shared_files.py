@@ -25,12 +25,3 @@ def compile_cache_env() -> dict:
         "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
         "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
     }
-
-
-#: the suite's XLA flag (conftest.py): backend optimisation level 0, for faster compiles
-LEVEL_0 = "--xla_backend_optimization_level=0"
-
-
-def without_level_0(flags: str) -> str:
-    """``XLA_FLAGS`` as a user's process has them: the suite's ``LEVEL_0`` taken out."""
-    return " ".join(f for f in flags.split() if f != LEVEL_0)

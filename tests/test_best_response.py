@@ -47,10 +47,16 @@ def _layered_controller(env, width, horizon):
     )
 
 
-def _check_response(model, env, params, policy, width, agent, horizon):
-    """The agent's response is worth the best of its enumerated trees, its layers play that
-    value exactly, and the other agent's rows are untouched; returns the new policy."""
-    new, value, fits = jax.jit(lambda p: best_response(env, params, p, width, agent))(policy)
+def _responders(env, params, width) -> dict:
+    """Agent -> its best response, compiled (one program per agent, whatever the policy)."""
+    return {a: jax.jit(lambda p, a=a: best_response(env, params, p, width, a)) for a in (0, 1)}
+
+
+def _check_response(model, respond, policy, agent, horizon):
+    """The agent's response (``respond[agent]``) is worth the best of its enumerated trees, its
+    layers play that value exactly, and the other agent's rows are untouched; returns the new
+    policy."""
+    new, value, fits = respond[agent](policy)
     other = 1 - agent
     trees = _tree_values(
         model,
@@ -74,10 +80,11 @@ def test_best_response_is_the_best_tree_and_its_layers_play_it(name, horizon, wi
     model = parse_dpomdp(_file(name), discount=1.0)
     env, params = make_tabular(model, horizon)
     ctrl = _layered_controller(env, width, horizon)
+    respond = _responders(env, params, width)
     for seed in range(3):
         policy = ctrl.sample(jax.random.key(seed), ctrl.init_distribution())
         for agent in (0, 1):  # 2 observations: at most 4 histories in the last layer
-            _check_response(model, env, params, policy, width, agent, horizon)
+            _check_response(model, respond, policy, agent, horizon)
 
 
 def test_a_response_that_needs_more_nodes_than_a_layer_has_is_refused():
@@ -127,7 +134,8 @@ def test_best_response_of_agents_with_different_action_and_observation_counts():
     env, params = make_tabular(model, horizon)
     ctrl = _layered_controller(env, width, horizon)
     policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
+    respond = _responders(env, params, width)
     for agent in (0, 1):  # at most 9 histories in a layer
-        new = _check_response(model, env, params, policy, width, agent, horizon)
+        new = _check_response(model, respond, policy, agent, horizon)
         # the agent's actions stay within its own action count
         assert int(np.asarray(new.actions[agent]).max()) < model.action_counts[agent]

@@ -14,6 +14,7 @@ import pytest
 from shared_files import compile_cache_env
 
 from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
+from cognet_jax.cli import main
 from cognet_jax.config import ConfigError
 from cognet_jax.driver import resume_target
 from cognet_jax.driver import train as run_training
@@ -122,7 +123,7 @@ def test_sigterm_and_sighup_stop_like_sigint_then_resume_is_identical(reference,
     _same_results(ref, resumed, ref_dir, tmp_path)
 
 
-def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, tmp_path):
+def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, tmp_path, capsys):
     ref, ref_dir = reference
     proc = _start(tmp_path)
     ckpt = tmp_path / CHECKPOINT_NAME
@@ -145,33 +146,22 @@ def test_sigkill_leaves_an_intact_checkpoint_and_resume_is_identical(reference, 
     leftovers = [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
     assert len(leftovers) <= 1  # at most the temp file the kill interrupted
 
-    # resume through the command line
-    res = subprocess.run(
-        [sys.executable, "-m", "cognet_jax", "train", "--resume", str(tmp_path), "--no-progress"],
-        cwd=ROOT,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert res.returncode == 0, res.stderr
-    assert f"at iteration {n}/{ITERATIONS}" in res.stdout
+    # resume through the command line's entry point (in this process)
+    capsys.readouterr()
+    assert main(["train", "--resume", str(tmp_path), "--no-progress"]) == 0
+    assert f"at iteration {n}/{ITERATIONS}" in capsys.readouterr().out
     resumed = json.loads((tmp_path / "results.json").read_text())
     _same_results(ref, resumed, ref_dir, tmp_path)
 
 
-def test_checkpoints_by_time_by_default_then_sigkill_and_resume_is_identical(tmp_path):
+def test_checkpoints_by_time_by_default_then_sigkill_and_resume_is_identical(reference, tmp_path):
     """No ``--checkpoint-every``: the state is still written every ``run.checkpoint_seconds``
-    (60 s by default; 0.2 s here), so a SIGKILL loses at most that much and the resumed run
-    gives the uninterrupted run's numbers."""
+    (60 s by default; 0.05 s here), so a SIGKILL loses at most that much and the resumed run
+    gives the uninterrupted run's numbers (the ``run`` section is not part of the search)."""
     assert load_config("tagging-thesis-spec-n3").run.checkpoint_seconds == 60.0
-    long = [f"algorithm.iterations={10 * ITERATIONS}"]
-    config = load_config("tagging-thesis-spec-n3", TINY + long)
-    ref_dir = tmp_path / "ref"
-    ref = run_training(config, 3, ref_dir, log=lambda *_: None)
+    ref, ref_dir = reference
     out = tmp_path / "cut"
-    sets = [x for o in long + ["run.checkpoint_seconds=0.2"] for x in ("--set", o)]
-    proc = _start(out, extra=sets)
+    proc = _start(out, extra=["--set", "run.checkpoint_seconds=0.05"])
     ckpt = out / CHECKPOINT_NAME
     _wait_for_checkpoint(proc, ckpt)
     first = read_checkpoint(ckpt)["iteration"]
@@ -182,7 +172,7 @@ def test_checkpoints_by_time_by_default_then_sigkill_and_resume_is_identical(tmp
     proc.kill()
     proc.wait(timeout=60)
     n = read_checkpoint(ckpt)["iteration"]
-    assert 0 < first < n < 10 * ITERATIONS
+    assert 0 < first < n < ITERATIONS
     config, seed = resume_target(out)
     resumed = run_training(config, seed, out, resume=True, log=lambda *_: None)
     assert resumed["resumed_from_iteration"] == n

@@ -197,8 +197,20 @@ def test_readme_embedding_example_runs():
     text = (Path(__file__).parents[1] / "README.md").read_text()
     section = text.split("## In your own JAX code", 1)[1]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    code = code.replace("algorithm.iterations=100", "algorithm.iterations=2")
-    assert "algorithm.iterations=2" in code and "controller_step" in code
+    small = [  # the block as written, on a smaller search (its code is under test, not values)
+        "algorithm.iterations=2",
+        "algorithm.candidates=16",
+        "algorithm.eval_rollouts=32",
+        "algorithm.best_rollouts=64",
+        "evaluation.rollouts=500",
+    ]
+    for old, new in (
+        ('"algorithm.iterations=100"', ", ".join(f'"{x}"' for x in small)),
+        ("jax.random.key(0), 8)", "jax.random.key(0), 2)"),
+    ):
+        assert old in code
+        code = code.replace(old, new)
+    assert "controller_step" in code
     namespace = {}
     exec(compile(code, "README.md", "exec"), namespace)
     assert np.isfinite(np.asarray(namespace["returns"])).all()

@@ -3,6 +3,8 @@
 through ``tell``; the iteration's random streams are independent, so a winner's fresh
 rollouts never reuse the rollouts it was selected on."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -83,21 +85,34 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
     assert jnp.isfinite(metrics.threshold)
 
 
+@functools.cache
+def _driven_by_hand(name):
+    """One iteration of case ``name`` three ways, in one program (what is the same computation
+    is compiled once): ``ask``, ``evaluate`` and ``tell`` by hand; ``step``; and by hand with
+    every candidate valued 0 and ``fresh_value`` giving 7. Returns ``(algorithm, outputs)``."""
+    algorithm, params, _ = make_step(_config(name))
+    state = algorithm.init(jax.random.key(0), params)
+
+    def by_hand(key, state, own_values=False):
+        asked, policies = algorithm.ask(key, state, params)
+        values = algorithm.evaluate(key, policies, params)
+        if not own_values:
+            return algorithm.tell(key, state, asked, values, params)
+        values = jax.tree.map(jnp.zeros_like, values)
+        seven = lambda k, p: jnp.float32(7.0)  # noqa: E731
+        return algorithm.tell(key, state, asked, values, params, fresh_value=seven)
+
+    def three(key, state):
+        return by_hand(key, state), algorithm.step(key, state, params), by_hand(key, state, True)
+
+    return algorithm, jax.jit(three)(jax.random.key(5), state)
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_ask_evaluate_tell_is_step(name):
     """A search driven by hand with one iteration key draws exactly what ``step`` draws."""
-    algorithm, params, _ = make_step(_config(name))
-    state = algorithm.init(jax.random.key(0), params)
-    key = jax.random.key(5)
-
-    def by_hand(key, state):
-        asked, policies = algorithm.ask(key, state, params)
-        values = algorithm.evaluate(key, policies, params)
-        return algorithm.tell(key, state, asked, values, params)
-
-    # one program holding both: what is the same computation is compiled once
-    both = jax.jit(lambda k, s: (by_hand(k, s), algorithm.step(k, s, params)))
-    _same(*both(key, state))
+    _, (by_hand, step, _) = _driven_by_hand(name)
+    _same(by_hand, step)
 
 
 #: iteration value each algorithm reports when every candidate is valued 0 and ``fresh`` gives 7:
@@ -116,19 +131,9 @@ OWN_VALUE = {
 def test_ask_evaluate_tell_with_own_values_and_fresh(name):
     """Values of one's own go through ``tell``: with every candidate valued 0 and
     ``fresh_value`` giving 7, the anytime best value is 7."""
-    algorithm, params, _ = make_step(_config(name))
+    algorithm, (_, _, (_, metrics)) = _driven_by_hand(name)
     if name == "gdice-portfolio":
         assert len(algorithm.members) == 3  # independent, shared, exploring
-    state = algorithm.init(jax.random.key(0), params)
-
-    @jax.jit
-    def iteration(key, state):
-        asked, policies = algorithm.ask(key, state, params)
-        values = jax.tree.map(jnp.zeros_like, algorithm.evaluate(key, policies, params))
-        seven = lambda k, p: jnp.float32(7.0)  # noqa: E731
-        return algorithm.tell(key, state, asked, values, params, fresh_value=seven)
-
-    state, metrics = iteration(jax.random.key(5), state)
     assert float(metrics.best_value) == 7.0
     assert float(metrics.value) == OWN_VALUE[name]
 

@@ -107,22 +107,25 @@ def test_portfolio_polish_never_lowers_the_best_value():
     assert exact == pytest.approx(value, abs=1e-5)
 
 
-def test_train_and_sweep_record_the_polish(tmp_path):
-    from cognet_jax.driver import train
-    from cognet_jax.registry import load_config
-    from cognet_jax.sweep import run_sweep
-
-    sets = [
+def _polished() -> list[str]:
+    """A small G-DICE run on Dec-Tiger whose polish has room for several sweeps."""
+    return [
         f"problem.path={str(_file('dectiger'))!r}",
         "problem.horizon=2",
         "algorithm.iterations=3",
         "algorithm.samples=50",
         "algorithm.polish_sweeps=5",
+        "algorithm.polish_budget=1000",
         "algorithm.repeats=1",  # the record, not the search, is under test
-        "run.progress=false",
-        "run.plots=false",
-        "evaluation.rollouts=1000",
     ]
+
+
+def test_train_and_sweep_record_the_polish(tmp_path):
+    from cognet_jax.driver import train
+    from cognet_jax.registry import load_config
+    from cognet_jax.sweep import run_sweep
+
+    sets = [*_polished(), "run.progress=false", "run.plots=false", "evaluation.rollouts=1000"]
     train(load_config("gdice-dpomdp", sets), 0, tmp_path / "train", log=lambda *_: None)
     results = json.loads((tmp_path / "train" / "results.json").read_text())
     polish = results["polish"]
@@ -162,16 +165,7 @@ def test_finish_as_steps_equals_finish_in_one_loop():
     from cognet_jax.driver import Program, Run
     from cognet_jax.registry import load_config
 
-    config = load_config(
-        "gdice-dpomdp",
-        [
-            f"problem.path={str(_file('dectiger'))!r}",
-            "problem.horizon=3",
-            "algorithm.nodes=2",
-            "algorithm.samples=20",
-            "algorithm.polish_budget=1000",
-        ],
-    )
+    config = load_config("gdice-dpomdp", _polished())  # train's programs in the test above
     program = Program([Run(config=config, seed=0, setting=0)])
     state = program.init()
     reports = []

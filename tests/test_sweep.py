@@ -157,7 +157,7 @@ def _free_port() -> int:
 def _env(devices: int = 1) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
     flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}"
-    env["XLA_FLAGS"] = flags.strip()  # (the suite's XLA flags kept: conftest.py)
+    env["XLA_FLAGS"] = flags.strip()  # (the suite's JAX settings kept: conftest.py)
     return env
 
 
