@@ -19,18 +19,36 @@ marked ``optimised``: for them the flag is off, in this process and in the proce
 start (``pytest_runtest_call`` below), as a user's run compiles them. Fixtures are set up
 with the flag on: a program compiled then and called again keeps its code (the same numbers,
 slower).
+
+**Two XLA flags** (``shared_files.SUITE_XLA_FLAGS``, in ``XLA_FLAGS`` here and in the
+processes the tests start): XLA's CPU backend without its MLIR fusion emitters, and each
+program in one LLVM module instead of split for parallel code generation. At level 0 they
+compile the default COGNet-DICE iteration in 2.2-2.6 s instead of 3.2-3.6 s, and it then runs
+in 61-65 ms instead of 190-250 ms (2-core CPU; the suite went 519 -> 406 s). The older
+emitters may round differently where two forms of one computation are compared bit for bit:
+such a test is marked ``default_emitters`` and runs in a child pytest without those two flags
+(``pytest_pyfunc_call`` below).
 """
 
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
 import pytest
+from shared_files import SUITE_XLA_FLAGS, without_suite_xla_flags
 
 #: JAX's flag (and its environment variable, read when JAX is imported and by subprocesses)
 FAST_COMPILE = "JAX_DISABLE_MOST_OPTIMIZATIONS"
+#: set in the child pytest that runs a ``default_emitters`` test
+_CHILD = "COGNET_JAX_TEST_DEFAULT_EMITTERS"
+_IN_CHILD = bool(os.environ.get(_CHILD))
 os.environ[FAST_COMPILE] = "1"
+if not _IN_CHILD:
+    _flags = os.environ.get("XLA_FLAGS", "").split()
+    os.environ["XLA_FLAGS"] = " ".join([*_flags, *(f for f in SUITE_XLA_FLAGS if f not in _flags)])
 
 import jax  # noqa: E402
 
@@ -47,6 +65,27 @@ def pytest_configure(config):
         "optimised: its time is execution, not compilation: run with XLA's default "
         "optimisation (conftest.py)",
     )
+    config.addinivalue_line(
+        "markers",
+        "default_emitters: asserts bit for bit what XLA's default emitters compute: run in a "
+        "child pytest without the suite's XLA flags (conftest.py)",
+    )
+
+
+def pytest_pyfunc_call(pyfuncitem):
+    """A ``default_emitters`` test runs in a child pytest without ``SUITE_XLA_FLAGS``; its
+    result is the child's (whose output is shown when it fails)."""
+    if _IN_CHILD or pyfuncitem.get_closest_marker("default_emitters") is None:
+        return None
+    env = {**without_suite_xla_flags(dict(os.environ)), _CHILD: "1"}
+    command = [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider"]
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [*command, pyfuncitem.nodeid], cwd=root, env=env, capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        pytest.fail(f"the child run failed:\n{done.stdout[-6000:]}{done.stderr[-2000:]}")
+    return True
 
 
 @pytest.hookimpl(wrapper=True)

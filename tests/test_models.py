@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_files import as_a_user
 
 from cognet_jax.exact import brute_force_optimum
 from cognet_jax.io.dpomdp import parse_dpomdp
@@ -117,8 +118,7 @@ def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
     args += ["--set", "algorithm.iterations=2", "--set", "algorithm.samples=20"]
     args += ["--set", "run.plots=false", "--out", str(tmp_path / "run"), "--no-progress"]
     root = Path(__file__).resolve().parents[1]
-    # as a user's run compiles: none of the suite's JAX settings (conftest.py)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env = as_a_user(dict(os.environ))  # as a user's run compiles (conftest.py)
     env.update(JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(root))
     t0 = time.perf_counter()
     proc = subprocess.run(

@@ -13,8 +13,13 @@ from cognet_jax.envs.tagging import make_tagging
 from cognet_jax.rollout import rollouts
 
 
-@pytest.mark.parametrize(("nodes", "obs_shape"), [(4, ()), (6, ()), (5, (3,))])
-def test_unrolled_and_scan_node_logits_are_identical(nodes, obs_shape):
+@pytest.mark.default_emitters  # (one child pytest for the three cases)
+def test_unrolled_and_scan_node_logits_are_identical():
+    for nodes, obs_shape in [(4, ()), (6, ()), (5, (3,))]:
+        _unrolled_and_scan_node_logits_are_identical(nodes, obs_shape)
+
+
+def _unrolled_and_scan_node_logits_are_identical(nodes, obs_shape):
     ctrl = NeuralController(2, nodes, 3, obs_shape=obs_shape)
     assert ctrl.unrolled and nodes >= UNROLL_MIN_NODES
     params = ctrl.init(jax.random.key(0)).net_params
