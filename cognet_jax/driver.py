@@ -250,8 +250,8 @@ class Program:
         if not self.batched:
             args = (self.k_run, state, self.held)
 
-            def check(jitted, args):
-                trace_checked(jitted, args, self.memory, "one iteration")
+            def check(jitted, leaves):
+                trace_checked(jitted, leaves, self.memory, "one iteration")
                 before_compile()
 
             compiled = compile_kept(

@@ -161,9 +161,10 @@ def compile_kept(
     """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)``.
 
     ``key``: the program's ``program_key`` (None: not kept; traced and compiled as usual).
-    ``check(jitted, args)`` runs before a program is traced afresh (the memory check); a kept
-    program passed it when it was traced. A program traced afresh is traced once: the export
-    reads the trace the check made (JAX keeps it with the jitted function)."""
+    ``check(jitted, leaves)`` runs before a program is traced afresh (the memory check), with
+    ``fn`` jitted as a function of the flat leaves of ``args``; a kept program passed it when it
+    was traced. When ``check`` traces (the memory check does), the export reads that trace
+    (JAX keeps it with the jitted function) instead of tracing again."""
     folder = trace_cache_dir()
     keep = key is not None and folder is not None
     kept = _load(folder / f"{key}.bin") if keep else None

@@ -14,17 +14,19 @@ Most tests compile far more than they run: on the 2-core CPU, backend compiles t
 the 1,613 s the tests spent (summed over both workers), and level 0 halves them (509 s). It
 changes how LLVM optimises the machine code, not what it computes: every test passes with it,
 the bit-for-bit comparisons of runs included. Compiled code then runs up to 27x slower (one
-COGNet-DICE thesis iteration: 8 ms -> 213 ms), so the few tests whose time is execution are
+COGNet-DICE thesis iteration: 8 ms -> 213 ms; 61-65 ms with the two flags below), so the few
+tests whose time is execution are
 marked ``optimised``: for them the flag is off, in this process and in the processes they
-start (``pytest_runtest_call`` below), as a user's run compiles them. Fixtures are set up
-with the flag on: a program compiled then and called again keeps its code (the same numbers,
+start (``pytest_runtest_call`` below), so they compile at XLA's default optimisation level
+(the two XLA flags below stay: XLA reads them once per process). A program compiled earlier
+in the worker (fixtures included) keeps its code when called again (the same numbers,
 slower).
 
 **Two XLA flags** (``shared_files.SUITE_XLA_FLAGS``, in ``XLA_FLAGS`` here and in the
 processes the tests start): XLA's CPU backend without its MLIR fusion emitters, and each
 program in one LLVM module instead of split for parallel code generation. At level 0 they
 compile the default COGNet-DICE iteration in 2.2-2.6 s instead of 3.2-3.6 s, and it then runs
-in 61-65 ms instead of 190-250 ms (2-core CPU; the suite went 519 -> 406 s). The older
+in 61-65 ms instead of 190-250 ms (2-core CPU; the suite went 519 s -> 414-460 s). The older
 emitters may round differently where two forms of one computation are compared bit for bit:
 such a test is marked ``default_emitters`` and runs in a child pytest without those two flags
 (``pytest_pyfunc_call`` below).
@@ -62,8 +64,8 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 def pytest_configure(config):
     config.addinivalue_line(
         "markers",
-        "optimised: its time is execution, not compilation: run with XLA's default "
-        "optimisation (conftest.py)",
+        "optimised: its time is execution, not compilation: run at XLA's default "
+        "optimisation level (conftest.py)",
     )
     config.addinivalue_line(
         "markers",
@@ -90,7 +92,8 @@ def pytest_pyfunc_call(pyfuncitem):
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item):
-    """An ``optimised`` test runs with XLA's default optimisation, here and in its subprocesses."""
+    """An ``optimised`` test runs at XLA's default optimisation level, here and in its
+    subprocesses."""
     if item.get_closest_marker("optimised") is None:
         return (yield)
     jax.config.update("jax_disable_most_optimizations", False)

@@ -1,5 +1,6 @@
 """The two forms of ``NeuralController.node_logits`` (scan over the nodes, members written out)
-give the same numbers bit for bit, alone and inside the rollout engine."""
+give the same numbers bit for bit with XLA's default CPU emitters, alone and inside the rollout
+engine."""
 
 from __future__ import annotations
 

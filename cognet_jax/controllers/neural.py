@@ -155,7 +155,8 @@ class NeuralController:
         no per-rollout copy of the weights is made (benchmarks/NOTES.md: on the heatmap's
         16 -> 160 -> 4 networks the gather is about 4x slower).
 
-        Two forms of the same arithmetic, the same numbers bit for bit (tests/test_neural.py):
+        Two forms of the same arithmetic, the same numbers bit for bit with XLA's default CPU
+        emitters (tests/test_neural.py):
         ``lax.scan`` over the nodes (``scan_node_logits``), whose carry is written to memory
         after each member, or the members written out one after the other
         (``unrolled_node_logits``), which XLA computes in one fused loop and writes once. The
