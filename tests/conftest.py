@@ -15,12 +15,11 @@ the 1,613 s the tests spent (summed over both workers), and level 0 halves them 
 changes how LLVM optimises the machine code, not what it computes: every test passes with it,
 the bit-for-bit comparisons of runs included. Compiled code then runs up to 27x slower (one
 COGNet-DICE thesis iteration: 8 ms -> 213 ms; 61-65 ms with the two flags below), so the few
-tests whose time is execution are
-marked ``optimised``: for them the flag is off, in this process and in the processes they
-start (``pytest_runtest_call`` below), so they compile at XLA's default optimisation level
-(the two XLA flags below stay: XLA reads them once per process). A program compiled earlier
-in the worker (fixtures included) keeps its code when called again (the same numbers,
-slower).
+tests whose time is execution are marked ``optimised``: for them the flag is off, in this
+process and in the processes they start (``pytest_runtest_call`` below), so they compile at
+XLA's default optimisation level (the two XLA flags below stay: XLA reads them once per
+process). A program compiled earlier in the worker (fixtures included) keeps its code when
+called again (the same numbers, slower).
 
 **Two XLA flags** (``shared_files.SUITE_XLA_FLAGS``, in ``XLA_FLAGS`` here and in the
 processes the tests start): XLA's CPU backend without its MLIR fusion emitters, and each
@@ -40,7 +39,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from shared_files import SUITE_XLA_FLAGS, without_suite_xla_flags
+from shared_files import with_suite_xla_flags, without_suite_xla_flags
 
 #: JAX's flag (and its environment variable, read when JAX is imported and by subprocesses)
 FAST_COMPILE = "JAX_DISABLE_MOST_OPTIMIZATIONS"
@@ -49,8 +48,7 @@ _CHILD = "COGNET_JAX_TEST_DEFAULT_EMITTERS"
 _IN_CHILD = bool(os.environ.get(_CHILD))
 os.environ[FAST_COMPILE] = "1"
 if not _IN_CHILD:
-    _flags = os.environ.get("XLA_FLAGS", "").split()
-    os.environ["XLA_FLAGS"] = " ".join([*_flags, *(f for f in SUITE_XLA_FLAGS if f not in _flags)])
+    os.environ.update(with_suite_xla_flags(dict(os.environ)))
 
 import jax  # noqa: E402
 

@@ -36,6 +36,12 @@ SUITE_XLA_FLAGS = (
 )
 
 
+def with_suite_xla_flags(env: dict) -> dict:
+    """``env`` with ``SUITE_XLA_FLAGS`` added to its ``XLA_FLAGS`` (once)."""
+    flags = env.get("XLA_FLAGS", "").split()
+    return {**env, "XLA_FLAGS": " ".join([*flags, *(f for f in SUITE_XLA_FLAGS if f not in flags)])}
+
+
 def without_suite_xla_flags(env: dict) -> dict:
     """``env`` without ``SUITE_XLA_FLAGS`` in its ``XLA_FLAGS``."""
     flags = [f for f in env.get("XLA_FLAGS", "").split() if f not in SUITE_XLA_FLAGS]

@@ -123,14 +123,7 @@ def _readme_block(title: str) -> str:
 
 
 #: the README block's search, smaller (its code and the equalities are under test, not values)
-README_SMALL = [
-    "algorithm.iterations=5",
-    "algorithm.candidates=24",
-    "algorithm.elites=4",
-    "algorithm.eval_rollouts=40",
-    "algorithm.best_rollouts=80",
-    "evaluation.rollouts=2000",
-]
+README_SMALL = CASES["tagging-thesis-n3"]
 
 
 def test_readme_domain_randomisation_example():
