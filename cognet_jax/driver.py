@@ -163,19 +163,51 @@ def hoist_large(params):
     return tuple(leaves[i] for i in where), rebuild
 
 
-def per_run(fn, sharding, num_args: int, **jit_kwargs):
-    """``jit`` of ``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output,
-    each device running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk
-    to each other, so the program holds no collective."""
+def per_run(fn, sharding, num_args: int):
+    """``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output, each device
+    running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk to each
+    other, so the program holds no collective. (Not jitted: ``Program.compiled`` is.)"""
     spec = sharding.spec
-    mapped = jax.shard_map(
+    return jax.shard_map(
         jax.vmap(fn),
         mesh=sharding.mesh,
         in_specs=(spec,) * num_args,
         out_specs=spec,
         check_vma=False,  # carries start as constants; runs are independent anyway
     )
-    return jax.jit(mapped, **jit_kwargs)
+
+
+#: ``run`` fields that only drive a run (progress, plots, checkpoints): left out of the keys of
+#: its programs, which do not depend on them
+DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
+
+
+def program_identity(config: Config, **extra) -> dict:
+    """What a program of ``config`` depends on besides its constants and argument shapes: the
+    config without its ``DRIVING_FIELDS``, its memory budget in bytes, and ``extra``."""
+    sections = config.to_dict()
+    sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
+    return {"config": sections, "memory": budget_bytes(config.run.memory_gb), **extra}
+
+
+def compiled_program(
+    config: Config, what: str, fn, args: tuple, constants, identity: dict, before_compile=None
+):
+    """``fn(*args)`` compiled once (``traced.compile_kept``: kept in this process and, traced,
+    between processes), ``what`` naming it in the memory check's refusal (``before_compile()``
+    is called once the check passed, when it is compiled afresh); ``constants`` are the arrays
+    of ``config``'s params baked into it. A simulator or algorithm registered from outside the
+    package is compiled afresh each time (its source is not in the key)."""
+    before_compile = before_compile or (lambda: None)
+    builtin = config.env.name in BUILTIN_ENVS and config.experiment.algorithm in BUILTIN_ALGORITHMS
+    key = program_key(what, identity, constants, args) if builtin else None
+    memory = budget_bytes(config.run.memory_gb)
+
+    def check(jitted, leaves):
+        trace_checked(jitted, leaves, memory, what)
+        before_compile()
+
+    return compile_kept(fn, args, key, check)
 
 
 class Program:
@@ -193,7 +225,8 @@ class Program:
         mesh = Mesh(np.array(jax.local_devices()), ("runs",)) if self.batched else None
         self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
         padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
-        self.algorithm, self.params = build_algorithm(config, lanes=len(padded))
+        self.lanes = len(padded)
+        self.algorithm, self.params = build_algorithm(config, lanes=self.lanes)
         # one run: its params are constants of its programs, except the largest arrays
         self.held, self._rebuild = hoist_large(self.params)
         self.run_params = [params_of(r.config) for r in runs]
@@ -229,72 +262,56 @@ class Program:
     def _finish_advance_one(self, work, hyper, env_params):
         return self.algorithm.finish_advance(work, self._params(hyper, env_params))
 
-    # -- the program ---------------------------------------------------------------------
+    # -- the programs --------------------------------------------------------------------
+    def compiled(self, what: str, fn, args: tuple, before_compile=None):
+        """``fn(*args)`` compiled once (``compiled_program``): one run's ``fn`` takes the
+        held arrays last and gets its params rebuilt (``hoist_large``), the others are
+        constants; several runs' ``fn`` is mapped over them (``per_run``), the first run's
+        env params constants when all runs share them."""
+        if not self.batched:
+            held = {id(x) for x in self.held}
+            constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
+            identity = program_identity(self.config)
+        else:
+            constants = self.params.env if self.shared_env else []
+            fn = per_run(fn, self.sharding, len(args))
+            devices = [d.id for d in self.sharding.mesh.devices.flat]
+            identity = program_identity(self.config, devices=devices, shared=self.shared_env)
+        return compiled_program(self.config, what, fn, args, constants, identity, before_compile)
+
+    def _one(self, method):
+        """``method(*args, params)`` as a function of a single run's arguments and the held
+        arrays (last)."""
+        return lambda *args: method(*args[:-1], self._rebuild(args[-1]))
+
     def init(self):
         """The initial state (every run's, stacked when batched)."""
         if not self.batched:
-            init = jax.jit(lambda k, h: self.algorithm.init(k, self._rebuild(h)))
-            trace_checked(init, (self.k_init, self.held), self.memory, "the initial state")
-            return init(self.k_init, self.held)
-        return per_run(self._init_one, self.sharding, 3)(*self.data)
-
-    @property
-    def memory(self) -> int:
-        return budget_bytes(self.config.run.memory_gb)
+            init = self._one(self.algorithm.init)
+            return self.compiled("the initial state", init, (self.k_init, self.held))(
+                self.k_init, self.held
+            )
+        return self.compiled("the initial states", self._init_one, self.data)(*self.data)
 
     def compile_step(self, state, before_compile=lambda: None):
         """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
         checked against the memory budget (``before_compile()`` is called once that passed)
-        and compiled ahead of time."""
+        and compiled ahead of time; ``step.metrics_shapes``: one iteration's metrics, as
+        shapes (to restore a checkpoint's history)."""
         t0 = time.perf_counter()
         if not self.batched:
             args = (self.k_run, state, self.held)
-
-            def check(jitted, leaves):
-                trace_checked(jitted, leaves, self.memory, "one iteration")
-                before_compile()
-
-            compiled = compile_kept(
-                lambda k, s, h: self._step(k, s, self._rebuild(h)),
-                args,
-                self._program_key("step", args),
-                check,
-            )
-            return lambda s: compiled(args[0], s, self.held), time.perf_counter() - t0
-        jitted = per_run(self._step_one, self.sharding, 4)
-        keys, hyper, env = self.data
-        traced = trace_checked(
-            jitted, (keys, state, hyper, env), self.memory, f"one iteration of {len(keys)} runs"
-        )
-        before_compile()
-        compiled = traced.lower().compile()
-        return lambda s: compiled(keys, s, hyper, env), time.perf_counter() - t0
-
-    def _program_key(self, what: str, args) -> str | None:
-        """The ``traced.program_key`` of a single run's program (None for a simulator or
-        algorithm registered from outside the package: its source is not in the key)."""
-        config = self.config
-        if (
-            config.env.name not in BUILTIN_ENVS
-            or config.experiment.algorithm not in BUILTIN_ALGORITHMS
-        ):
-            return None
-        identity = {"config": config.to_dict(), "memory": self.memory}
-        # the held arrays are arguments (in ``args``), the rest are the program's constants
-        held = {id(x) for x in self.held}
-        constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
-        return program_key(what, identity, constants, args)
-
-    def metrics_template(self, state):
-        """One iteration's metrics, as shapes (to restore a checkpoint's history)."""
-        if not self.batched:
-            step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
-            return jax.eval_shape(step, self.k_run, state, self.held)[1]
-        return jax.eval_shape(jax.vmap(self._step_one), *self._with_state(state))[1]
-
-    def _with_state(self, state):
-        keys, hyper, env = self.data
-        return keys, state, hyper, env
+            fn = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
+            compiled = self.compiled("one iteration", fn, args, before_compile)
+            step = lambda s: compiled(args[0], s, self.held)  # noqa: E731
+        else:
+            keys, hyper, env = self.data
+            what = f"one iteration of {len(keys)} runs"
+            args = (keys, state, hyper, env)
+            compiled = self.compiled(what, self._step_one, args, before_compile)
+            step = lambda s: compiled(keys, s, hyper, env)  # noqa: E731
+        step.metrics_shapes = compiled.out_shapes[1]
+        return step, time.perf_counter() - t0
 
     def finish(self, state, report=lambda work: None):
         """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run
@@ -304,24 +321,22 @@ class Program:
         others advance."""
         alg = self.algorithm
         if not self.batched:
-            start = jax.jit(lambda s, h: alg.finish_start(s, self._rebuild(h)))
-            advance = jax.jit(lambda w, h: alg.finish_advance(w, self._rebuild(h)))
-            done, end = jax.jit(alg.finish_done), jax.jit(alg.finish_end)
             args = (self.held,)
+            start_fn, advance_fn = self._one(alg.finish_start), self._one(alg.finish_advance)
         else:
             _, hyper, env = self.data
             args = (hyper, env)
-            start = per_run(self._finish_start_one, self.sharding, 3)
-            advance = per_run(self._finish_advance_one, self.sharding, 3)
-            done = jax.jit(lambda w: jnp.all(jax.vmap(alg.finish_done)(w)))
-            end = per_run(alg.finish_end, self.sharding, 2)
-        if jax.eval_shape(start, state, *args) is None:
+            start_fn, advance_fn = self._finish_start_one, self._finish_advance_one
+        shapes = jax.eval_shape(jax.vmap(start_fn) if self.batched else start_fn, state, *args)
+        if shapes is None:
             return state, None
-        work = start(state, *args)
-        while not bool(done(work)):
+        work = self.compiled("the polish", start_fn, (state, *args))(state, *args)
+        advance = self.compiled("a polish step", advance_fn, (work, *args))
+        done = self.compiled("the polish's end", alg.finish_done, (work,))
+        while not np.all(np.asarray(done(work))):
             work = advance(work, *args)
             report(work)
-        return end(state, work)
+        return self.compiled("the polished state", alg.finish_end, (state, work))(state, work)
 
     def best_policies(self, state) -> list:
         """Every run's best policy, on the host."""
@@ -335,28 +350,34 @@ class Program:
         params = self.run_params[r]
         found = [fn for env, fn in self._evaluations if _same_tree(env, params.env)]
         if not found:
-            found = [honest_evaluation(self.algorithm, self.runs[r].config, params)]
+            config = self.runs[r].config
+            found = [honest_evaluation(self.algorithm, config, params, self.lanes)]
             self._evaluations.append((params.env, found[0]))
         return found[0](self.seed_keys[r], policy)
 
 
-def honest_evaluation(algorithm, config: Config, params: SearchParams):
+def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: int = 1):
     """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
     evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
-    the compiled program (its arrays checked against ``run.memory_gb`` when first traced),
-    the mean and standard error summed in float64 on the host."""
+    the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first
+    traced, compiled once per process), the mean and standard error summed in float64 on the
+    host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
     held, rebuild = hoist_large(params)
     run = honest_returns(algorithm, config.evaluation)
-    returns = jax.jit(lambda k, p, h: run(k, p, rebuild(h)))
-    memory = budget_bytes(config.run.memory_gb)
-    checked = set()
+    returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
+    held_ids = {id(x) for x in held}
+    constants = [x for x in jax.tree.leaves(params) if id(x) not in held_ids]
+    identity = program_identity(config, lanes=lanes)
+    compiled: dict = {}  # by the policy's shapes
 
     def evaluate(key, policy):
-        shapes = str(jax.tree.map(jnp.shape, policy))
-        if shapes not in checked:
-            trace_checked(returns, (key, policy, held), memory, "the honest evaluation")
-            checked.add(shapes)
-        return return_summary(returns(key, policy, held))
+        args = (key, jax.tree.map(jnp.asarray, policy), held)
+        shapes = str(jax.tree.map(jnp.shape, args[1]))
+        if shapes not in compiled:
+            compiled[shapes] = compiled_program(
+                config, "the honest evaluation", returns, args, constants, identity
+            )
+        return return_summary(compiled[shapes](*args))
 
     return evaluate
 
@@ -567,8 +588,9 @@ def _current_meta(meta: dict, path) -> dict:
 
 
 def _restore(program: Program, state, path: Path):
-    """``(state, history, iteration)`` from the checkpoint at ``path``; ``MismatchError`` when
-    another group (configs, seeds or generator) wrote it."""
+    """``(state, raw, iteration)`` from the checkpoint at ``path`` (``raw``: what
+    ``read_checkpoint`` read, whose history ``restore_history`` restores); ``MismatchError``
+    when another group (configs, seeds or generator) wrote it."""
     raw = read_checkpoint(path)
     raw["meta"] = _current_meta(raw["meta"], path)
     if _without_run_section(raw["meta"]) != _without_run_section(_meta(program.runs)):
@@ -578,10 +600,9 @@ def _restore(program: Program, state, path: Path):
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
         raise MismatchError(f"{path}: stored run keys do not match the seeds")
     restored = restore_state(jax.device_get(state), raw)
-    state = jax.device_put(restored, program.sharding) if program.batched else restored
-    state = jax.tree.map(jnp.asarray, state) if not program.batched else state
-    history = restore_history(program.metrics_template(state), raw)
-    return state, history, int(raw["iteration"])
+    # laid out as the initial state (its programs are compiled for that layout)
+    state = jax.tree.map(lambda x, like: jax.device_put(x, like.sharding), restored, state)
+    return state, raw, int(raw["iteration"])
 
 
 def _polish_records(info, runs: int, seconds: float) -> list:
@@ -766,9 +787,9 @@ def _prepare(runs: list[Run], opts: GroupOptions):
     def prepare():
         with rollout_mesh(config):
             program = Program(runs)
-            state, history, start = program.init(), [], 0
+            state, raw, start = program.init(), None, 0
             if opts.resume and opts.checkpoint is not None and opts.checkpoint.exists():
-                state, history, start = _restore(program, state, opts.checkpoint)
+                state, raw, start = _restore(program, state, opts.checkpoint)
                 total = config.algorithm.iterations
                 opts.log(f"resuming {config.experiment.name} at iteration {start}/{total}")
             what = f"{config.experiment.name}" + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
@@ -776,6 +797,7 @@ def _prepare(runs: list[Run], opts: GroupOptions):
                 state, lambda: print(f"compiling {what} ...", file=sys.stderr, flush=True)
             )
             print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
+            history = [] if raw is None else restore_history(step.metrics_shapes, raw)
         return program, state, history, start, step, compile_s
 
     return in_background(prepare)

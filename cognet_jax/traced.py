@@ -18,6 +18,13 @@ types of the arguments. A program of a simulator or algorithm registered from ou
 package (``--import``) is never kept: its source is not in the key. Off together with the
 compilation cache (``--no-compile-cache``, ``COGNET_JAX_CACHE=off``). A file that cannot be
 read is traced afresh and written again.
+
+Within one process a kept program is compiled once: the compiled program is kept in memory by
+its key and JAX's settings that change compilation (``jax_disable_most_optimizations`` and
+the optimisation efforts), so a second run of the same program in the process (a resumed run,
+``cognet-jax evaluate`` after ``train`` in one Python session, the runs of a sweep's groups)
+neither traces, nor lowers, nor reads the compilation cache. The ``KEPT_IN_PROCESS`` programs
+used last are kept.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import os
 import pickle
 import platform
 import sys
+from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
@@ -41,6 +49,15 @@ import numpy as np
 KEPT_CONSTANT_BYTES = 2**20
 #: JAX settings that change what a function traces to
 TRACE_SETTINGS = ("jax_enable_x64", "jax_default_prng_impl", "jax_threefry_partitionable")
+#: JAX settings that change how a traced program is compiled (keys of the in-process programs)
+COMPILE_SETTINGS = (
+    "jax_disable_most_optimizations",
+    "jax_exec_time_optimization_effort",
+    "jax_memory_fitting_effort",
+)
+#: compiled programs kept in one process (the ones used last)
+KEPT_IN_PROCESS = 64
+_COMPILED: OrderedDict[str, Callable] = OrderedDict()
 
 
 def trace_cache_dir() -> Path | None:
@@ -77,8 +94,13 @@ def _array_digest(tree) -> str:
 
 
 def _avals(args) -> str:
+    """The tree, and every leaf's dtype, shape, weak type and sharding (where it has one)."""
     leaves, treedef = jax.tree.flatten(args)
-    shapes = [f"{getattr(x, 'dtype', type(x))}{getattr(x, 'shape', ())}" for x in leaves]
+    shapes = [
+        f"{getattr(x, 'dtype', type(x))}{getattr(x, 'shape', ())}"
+        f"{'w' if getattr(x, 'weak_type', False) else ''}{getattr(x, 'sharding', '')}"
+        for x in leaves
+    ]
     return f"{treedef}|{','.join(shapes)}"
 
 
@@ -152,30 +174,64 @@ def _export(jitted, leaves: tuple):
 
 
 def _caller(compiled, out_tree) -> Callable:
-    return lambda *a: jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(a)))
+    """``call(*args)`` of a compiled flat program, with ``call.out_shapes``: its output's
+    shapes (``jax.ShapeDtypeStruct`` leaves)."""
+
+    def call(*args):
+        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(args)))
+
+    call.out_shapes = jax.tree.unflatten(out_tree, compiled.out_info)
+    return call
 
 
 def compile_kept(
     fn: Callable, args: tuple, key: str | None, check: Callable[[Callable, tuple], None]
 ) -> Callable:
-    """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)``.
+    """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)`` (with
+    ``call.out_shapes``, the output's shapes).
 
     ``key``: the program's ``program_key`` (None: not kept; traced and compiled as usual).
     ``check(jitted, leaves)`` runs before a program is traced afresh (the memory check), with
     ``fn`` jitted as a function of the flat leaves of ``args``; a kept program passed it when it
     was traced. When ``check`` traces (the memory check does), the export reads that trace
-    (JAX keeps it with the jitted function) instead of tracing again."""
+    (JAX keeps it with the jitted function) instead of tracing again. A program compiled
+    earlier in this process is returned as it is (see the module docstring)."""
     folder = trace_cache_dir()
     keep = key is not None and folder is not None
-    kept = _load(folder / f"{key}.bin") if keep else None
+    if not keep:
+        jitted, leaves, out_trees = _flat(fn, args)
+        check(jitted, leaves)
+        return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+    in_process = _in_process_key(key)
+    if in_process in _COMPILED:
+        _COMPILED.move_to_end(in_process)
+        return _COMPILED[in_process]
+    caller = _compiled_from_file(fn, args, folder / f"{key}.bin", check)
+    _COMPILED[in_process] = caller
+    while len(_COMPILED) > KEPT_IN_PROCESS:
+        _COMPILED.popitem(last=False)
+    return caller
+
+
+def _in_process_key(key: str) -> str:
+    """``key`` and the JAX settings that change how it compiles."""
+    settings = [str(getattr(jax.config, s, None)) for s in COMPILE_SETTINGS]
+    return "|".join([key, *settings])
+
+
+def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callable:
+    """The program kept in ``path`` compiled (JAX's compilation cache may hold it); traced,
+    checked and exported to ``path`` first when ``path`` holds none. Not written when several
+    processes run together (``jax.distributed``): each compiles its own."""
+    kept = _load(path)
     if kept is None:
         jitted, leaves, out_trees = _flat(fn, args)
         check(jitted, leaves)
-        exported = _export(jitted, leaves) if keep else None
-        if exported is None:  # not to be kept, or not exportable: compiled as usual
+        exported = _export(jitted, leaves) if jax.process_count() == 1 else None
+        if exported is None:  # not exportable: compiled as usual
             return _caller(jitted.lower(*leaves).compile(), out_trees[0])
         kept = (exported, out_trees[0])
-        _save(folder / f"{key}.bin", *kept)
+        _save(path, *kept)
     exported, out_tree = kept
     return _caller(jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile(), out_tree)
 
