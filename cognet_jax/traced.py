@@ -215,7 +215,7 @@ def compile_kept(
 
 def _in_process_key(key: str) -> str:
     """``key`` and the JAX settings that change how it compiles."""
-    settings = [str(getattr(jax.config, s, None)) for s in COMPILE_SETTINGS]
+    settings = [str(jax.config.values.get(s)) for s in COMPILE_SETTINGS]
     return "|".join([key, *settings])
 
 

@@ -113,3 +113,25 @@ def test_a_program_jax_cannot_serialize_still_runs(cache):
     out = traced.compile_kept(_program([], jnp.ones(3)), args, key, _no_check)(*args)
     direct = jax.jit(_program([], jnp.ones(3)))(*args)
     np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(direct["y"]))
+
+
+def test_in_one_process_a_kept_program_is_compiled_once(cache):
+    """The second request in the process gets the compiled program itself (the kept file is
+    not even read); other compile settings compile it again."""
+    table = jnp.arange(4.0)
+    args = (jax.random.key(2), jnp.ones(5))
+    key = traced.program_key("memo", {}, table, args)
+    traces: list = []
+    first = traced.compile_kept(_program(traces, table), args, key, _no_check)
+    (cache / f"{key}.bin").unlink()
+    again = traced.compile_kept(_program(traces, table), args, key, _no_check)
+    assert again is first and len(traces) == 1 and not (cache / f"{key}.bin").exists()
+    assert jax.tree.map(lambda s: s.shape, first.out_shapes) == {"y": (5,), "n": ()}
+    setting = jax.config.values["jax_disable_most_optimizations"]
+    jax.config.update("jax_disable_most_optimizations", not setting)
+    try:
+        other = traced.compile_kept(_program(traces, table), args, key, _no_check)
+    finally:
+        jax.config.update("jax_disable_most_optimizations", setting)
+    assert other is not first and len(traces) == 2
+    np.testing.assert_array_equal(np.asarray(other(*args)["y"]), np.asarray(first(*args)["y"]))
