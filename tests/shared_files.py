@@ -33,6 +33,9 @@ def compile_cache_env() -> dict:
 SUITE_XLA_FLAGS = (
     "--xla_cpu_use_fusion_emitters=false",
     "--xla_cpu_parallel_codegen_split_count=1",
+    # what an ``optimised`` test compiles at (most tests: level 0, conftest.py)
+    "--xla_backend_optimization_level=1",
+    "--xla_llvm_disable_expensive_passes=true",
 )
 
 
