@@ -29,11 +29,11 @@ def compile_cache_env() -> dict:
 
 #: XLA flags the suite adds to ``XLA_FLAGS`` (conftest.py): XLA's CPU backend without its MLIR
 #: fusion emitters and with the whole program in one LLVM module, which at optimisation level
-#: 0 compiles faster and runs faster than the default split
+#: 0 compiles faster and runs faster than the default split; and the level an ``optimised``
+#: test compiles at (the others: level 0, JAX's ``jax_disable_most_optimizations``)
 SUITE_XLA_FLAGS = (
     "--xla_cpu_use_fusion_emitters=false",
     "--xla_cpu_parallel_codegen_split_count=1",
-    # what an ``optimised`` test compiles at (most tests: level 0, conftest.py)
     "--xla_backend_optimization_level=1",
     "--xla_llvm_disable_expensive_passes=true",
 )

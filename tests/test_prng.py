@@ -86,6 +86,7 @@ def test_config_accepts_hash_and_names_the_field_otherwise():
         load_config("tagging-thesis-spec-n3", ['run.prng_impl="philox"'])
 
 
+@pytest.mark.optimised
 def test_search_with_hash_is_deterministic_and_as_good(tmp_path):
     """The same seed gives the same run; and the honest value of G-DICE on a small tagging
     problem is the same, within noise, as with threefry (the generator is not what decides)."""
