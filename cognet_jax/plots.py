@@ -24,15 +24,13 @@ observations), to pass to ``plot_node_responses`` / ``controller_graph_edges``::
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from types import SimpleNamespace
 
-import matplotlib
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle, FancyArrowPatch
-from matplotlib.path import Path as MplPath
 
 __all__ = [
     "controller_graph_edges",
@@ -49,6 +47,24 @@ Interval = tuple[float, float]
 Edge = tuple[int, int, list]
 
 
+@functools.cache
+def _mpl() -> SimpleNamespace:
+    """The matplotlib pieces the figures use, imported at the first figure (0.3 s that a
+    command writing no figure does not spend)."""
+    import matplotlib
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle, FancyArrowPatch
+    from matplotlib.path import Path as MplPath
+
+    return SimpleNamespace(
+        colormaps=matplotlib.colormaps,
+        Figure=Figure,
+        Circle=Circle,
+        FancyArrowPatch=FancyArrowPatch,
+        Path=MplPath,
+    )
+
+
 def _save(fig, path, dpi: int, title: str | None = None) -> str | Path:
     """Lay out ``fig`` (with ``title`` above its panels, if any), write it to ``path``, close
     it."""
@@ -63,12 +79,12 @@ def _save(fig, path, dpi: int, title: str | None = None) -> str | Path:
 def _subplots(*grid, figsize=None, **options):
     """``(fig, axes)``: a new ``Figure`` of ``figsize`` with ``Figure.subplots(*grid,
     **options)``."""
-    fig = Figure(figsize=figsize)
+    fig = _mpl().Figure(figsize=figsize)
     return fig, fig.subplots(*grid, **options)
 
 
 def _colors(n: int) -> list:
-    cmap = matplotlib.colormaps["tab10" if n <= 10 else "tab20"]
+    cmap = _mpl().colormaps["tab10" if n <= 10 else "tab20"]
     return [cmap(i % cmap.N) for i in range(n)]
 
 
@@ -387,7 +403,7 @@ def _draw_nodes(ax, probs: np.ndarray, names: list[str], centers, taken: list) -
     for q in range(probs.shape[0]):
         a = int(np.argmax(probs[q]))
         longest = max(len(names[a]), 4)
-        circle = Circle(
+        circle = _mpl().Circle(
             centers[q],
             radius,
             facecolor="#f4f4f4",
@@ -416,7 +432,7 @@ def _draw_start(ax, c0, taken: list) -> None:
     direction = _unit(160.0)
     tail = c0 + (_NODE_R + 0.65) * direction
     style = dict(arrowstyle="-|>", mutation_scale=14, lw=1.6, shrinkA=0, shrinkB=1, zorder=2)
-    ax.add_patch(FancyArrowPatch(tail, c0 + _NODE_R * direction, color="black", **style))
+    ax.add_patch(_mpl().FancyArrowPatch(tail, c0 + _NODE_R * direction, color="black", **style))
     start = tail + 0.05 * direction
     ax.text(*start, "start", fontsize=_NODE_FS, ha="right", va="center")
     taken.append(_text_box(start, "start", _NODE_FS, ha="right"))
@@ -432,9 +448,10 @@ def _draw_self_loop(ax, c, out, text: str, color, taken: list) -> None:
         c + (radius + loop) * _unit(theta - 42),
         c + radius * _unit(theta - 32),
     ]
-    path = MplPath(verts, [MplPath.MOVETO, MplPath.CURVE4, MplPath.CURVE4, MplPath.CURVE4])
+    mpl_path = _mpl().Path
+    path = mpl_path(verts, [mpl_path.MOVETO, *[mpl_path.CURVE4] * 3])
     ax.add_patch(
-        FancyArrowPatch(
+        _mpl().FancyArrowPatch(
             path=path, arrowstyle="-|>", mutation_scale=12, color=color, lw=1.4, zorder=2
         )
     )
@@ -447,7 +464,7 @@ def _draw_arc(ax, c, end, patches, text: str, color, taken: list) -> None:
     """An arc from the node at ``c`` to the node at ``end`` (``patches``: their circles)."""
     style = dict(arrowstyle="-|>", mutation_scale=14, lw=1.4, shrinkA=1, shrinkB=1, zorder=2)
     style.update(connectionstyle=f"arc3,rad={_RAD}", patchA=patches[0], patchB=patches[1])
-    ax.add_patch(FancyArrowPatch(c, end, color=color, **style))
+    ax.add_patch(_mpl().FancyArrowPatch(c, end, color=color, **style))
     # arc3 is a quadratic Bezier with this control point (in display space, which equals data
     # space up to scale since the aspect is equal); the label goes to the point along it that
     # overlaps least with what is already placed, preferring t = 0.4 (nearer the source)
