@@ -175,8 +175,8 @@ def _evaluate_block(m: _Arrays, ja, nxt, horizon, discount, tol, max_iter) -> np
             out = np.einsum("rst,rt->rs", t_rows, X)
         else:
             out = np.empty_like(r_rows)
-            for a, idx in groups:
-                out[idx] = np.einsum("rt,st->rs", X[idx], m.trans[:, a, :])
+            for a, idx in groups:  # (BLAS; the table's float32 slice is promoted)
+                out[idx] = X[idx] @ m.trans[:, a, :].T
         return r_rows + gamma * out
 
     V = np.zeros((rows, S))
