@@ -182,11 +182,15 @@ def per_run(fn, sharding, num_args: int):
 DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
 
 
-def program_identity(config: Config, **extra) -> dict:
+def program_identity(config: Config, search: bool = False, **extra) -> dict:
     """What a program of ``config`` depends on besides its constants and argument shapes: the
-    config without its ``DRIVING_FIELDS``, its memory budget in bytes, and ``extra``."""
+    config without its ``DRIVING_FIELDS`` (and without its ``evaluation`` section for the
+    ``search``'s own programs, which never read it), its memory budget in bytes, and
+    ``extra``."""
     sections = config.to_dict()
     sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
+    if search:
+        del sections["evaluation"]
     return {"config": sections, "memory": budget_bytes(config.run.memory_gb), **extra}
 
 
@@ -271,12 +275,14 @@ class Program:
         if not self.batched:
             held = {id(x) for x in self.held}
             constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
-            identity = program_identity(self.config)
+            identity = program_identity(self.config, search=True)
         else:
             constants = self.params.env if self.shared_env else []
             fn = per_run(fn, self.sharding, len(args))
             devices = [d.id for d in self.sharding.mesh.devices.flat]
-            identity = program_identity(self.config, devices=devices, shared=self.shared_env)
+            identity = program_identity(
+                self.config, search=True, devices=devices, shared=self.shared_env
+            )
         return compiled_program(self.config, what, fn, args, constants, identity, before_compile)
 
     def _one(self, method):

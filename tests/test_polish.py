@@ -127,6 +127,7 @@ def test_train_and_sweep_record_the_polish(tmp_path):
 
     sets = [*_polished(), "run.progress=false", "run.plots=false", "evaluation.rollouts=1000"]
     train(load_config("gdice-dpomdp", sets), 0, tmp_path / "train", log=lambda *_: None)
+    # (the next test's Program.init and finish are these programs, compiled once)
     results = json.loads((tmp_path / "train" / "results.json").read_text())
     polish = results["polish"]
     assert polish["value_after"] >= polish["value_before"] - 1e-6
@@ -165,7 +166,7 @@ def test_finish_as_steps_equals_finish_in_one_loop():
     from cognet_jax.driver import Program, Run
     from cognet_jax.registry import load_config
 
-    config = load_config("gdice-dpomdp", _polished())  # train's programs in the test above
+    config = load_config("gdice-dpomdp", _polished())  # the test above's search
     program = Program([Run(config=config, seed=0, setting=0)])
     state = program.init()
     reports = []
