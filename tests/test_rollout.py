@@ -5,6 +5,8 @@ controller, for any horizon."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -48,7 +50,10 @@ def plain_rollouts(env, controller, key, num, env_params, policy, record=False):
     return Trajectory(*(jnp.swapaxes(x, 0, 1) for x in out), ret)
 
 
+@functools.cache
 def _cases():
+    """Every case's ``(env, controller, env params, policy)``, built at the first test (not
+    while pytest collects the file)."""
     tag_env, tag_params = make_tagging("thesis")
     noisy = tag_params.replace(obs_noise=0.3, motion_noise=0.2)
     paper_env, paper_params = make_tagging("cogdice-paper", horizon=12)
@@ -72,12 +77,16 @@ def _cases():
     return cases
 
 
-CASES = _cases()
+NAMES = ["heatmap-noisy", "horizon-1", "tabular", "tagging", "tagging-noisy", "tagging-paper"]
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
+def test_the_names_are_the_cases():
+    assert sorted(_cases()) == NAMES
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_rollouts_equal_the_plain_engine(name):
-    env, ctrl, params, policy = CASES[name]
+    env, ctrl, params, policy = _cases()[name]
 
     @jax.jit
     def both(k):  # one program: the returns of 257 rollouts and the record of 33
