@@ -220,19 +220,25 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
             )
 
 
+def _shape(x) -> tuple:
+    """The shape of an array, a ``jax.ShapeDtypeStruct`` or a scalar."""
+    return tuple(x.shape) if hasattr(x, "shape") else np.shape(x)
+
+
 def restore_msgpack(path: str | Path, template, data: bytes | None = None):
     """``flax.serialization.from_bytes(template, bytes of path)`` with every way a damaged file
     fails (truncated, trailing bytes, wrong structure, wrong shapes) turned into one
     ``CorruptFileError``; the restored leaves must have the template's shapes. ``data``: the
-    bytes to restore when they are not the whole file (named ``path`` in errors)."""
+    bytes to restore when they are not the whole file (named ``path`` in errors). The
+    template's leaves may be shapes (``jax.eval_shape``)."""
     path = Path(path)
     data = path.read_bytes() if data is None else data
     try:
         restored = serialization.from_bytes(template, data)
     except Exception as err:  # msgpack and flax raise ValueError, TypeError, AttributeError, ...
         raise CorruptFileError(path, f"{type(err).__name__}: {err}".rstrip(": ")) from None
-    want = [np.shape(x) for x in jax.tree.leaves(template)]
-    got = [np.shape(x) for x in jax.tree.leaves(restored)]
+    want = [_shape(x) for x in jax.tree.leaves(template)]
+    got = [_shape(x) for x in jax.tree.leaves(restored)]
     if want != got:
         raise MismatchError(
             f"{path}: holds arrays of shapes {got[:3]}... where this model needs {want[:3]}...: "

@@ -1042,7 +1042,10 @@ def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
         overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
     config = config_from_dict(apply_overrides(results["config"], overrides))
     algorithm, params = build_algorithm(config)
-    template = algorithm.best_policy(algorithm.init(jax.random.key(0), params))
+    # the policy's structure and shapes, traced (running ``init`` op by op took seconds)
+    template = jax.eval_shape(
+        lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
+    )
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
