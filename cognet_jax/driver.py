@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import signal
@@ -185,23 +186,43 @@ DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
 def program_identity(config: Config, search: bool = False, **extra) -> dict:
     """What a program of ``config`` depends on besides its constants and argument shapes: the
     config without its ``DRIVING_FIELDS`` (and without its ``evaluation`` section for the
-    ``search``'s own programs, which never read it), its memory budget in bytes, and
-    ``extra``."""
+    ``search``'s own programs, which never read it), the bytes of the files it reads (the
+    model, the VAE of ``network.vae_path``: their weights may be baked in), its memory budget
+    in bytes, and ``extra``."""
     sections = config.to_dict()
     sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
     if search:
         del sections["evaluation"]
-    return {"config": sections, "memory": budget_bytes(config.run.memory_gb), **extra}
+    files = [config.problem.path, config.network.vae_path]
+    digests = [_file_digest(Path(f).expanduser()) for f in files if f]
+    memory = budget_bytes(config.run.memory_gb)
+    return {"config": sections, "files": digests, "memory": memory, **extra}
+
+
+def _file_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (computed once per size and modification time); "" for a
+    missing file."""
+    try:
+        stat = path.resolve().stat()
+    except OSError:
+        return ""
+    return _digest_of(path.resolve(), stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _digest_of(path: Path, size: int, mtime_ns: int) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def compiled_program(
     config: Config, what: str, fn, args: tuple, constants, identity: dict, before_compile=None
 ):
     """``fn(*args)`` compiled once (``traced.compile_kept``: kept in this process and, traced,
-    between processes), ``what`` naming it in the memory check's refusal (``before_compile()``
-    is called once the check passed, when it is compiled afresh); ``constants`` are the arrays
-    of ``config``'s params baked into it. A simulator or algorithm registered from outside the
-    package is compiled afresh each time (its source is not in the key)."""
+    between processes, while the compilation cache is on), ``what`` naming it in the memory
+    check's refusal (``before_compile()`` is called once the check passed, when it is
+    compiled afresh); ``constants`` are the arrays of ``config``'s params baked into it. A
+    simulator or algorithm registered from outside the package is compiled afresh each time
+    (its source is not in the key)."""
     before_compile = before_compile or (lambda: None)
     builtin = config.env.name in BUILTIN_ENVS and config.experiment.algorithm in BUILTIN_ALGORITHMS
     key = program_key(what, identity, constants, args) if builtin else None
@@ -268,10 +289,11 @@ class Program:
 
     # -- the programs --------------------------------------------------------------------
     def compiled(self, what: str, fn, args: tuple, before_compile=None):
-        """``fn(*args)`` compiled once (``compiled_program``): one run's ``fn`` takes the
-        held arrays last and gets its params rebuilt (``hoist_large``), the others are
-        constants; several runs' ``fn`` is mapped over them (``per_run``), the first run's
-        env params constants when all runs share them."""
+        """``fn(*args)`` compiled once (``compiled_program``). One run: the params are
+        constants of the program, except the held arrays (``hoist_large``), which a ``fn``
+        that needs them takes as its last argument (``_one``). Several runs: ``fn`` is mapped
+        over them (``per_run``), the first run's env params constants when all runs share
+        them."""
         if not self.batched:
             held = {id(x) for x in self.held}
             constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
@@ -333,10 +355,10 @@ class Program:
             _, hyper, env = self.data
             args = (hyper, env)
             start_fn, advance_fn = self._finish_start_one, self._finish_advance_one
-        shapes = jax.eval_shape(jax.vmap(start_fn) if self.batched else start_fn, state, *args)
-        if shapes is None:
+        start = self.compiled("the polish", start_fn, (state, *args))
+        if start.out_shapes is None:  # nothing to do (no polish)
             return state, None
-        work = self.compiled("the polish", start_fn, (state, *args))(state, *args)
+        work = start(state, *args)
         advance = self.compiled("a polish step", advance_fn, (work, *args))
         done = self.compiled("the polish's end", alg.finish_done, (work,))
         while not np.all(np.asarray(done(work))):
@@ -366,19 +388,19 @@ def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: in
     """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
     evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
     the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first
-    traced, compiled once per process), the mean and standard error summed in float64 on the
-    host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
+    traced, kept by ``traced.compile_kept``), the mean and standard error summed in float64 on
+    the host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
     held, rebuild = hoist_large(params)
     run = honest_returns(algorithm, config.evaluation)
     returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
     held_ids = {id(x) for x in held}
     constants = [x for x in jax.tree.leaves(params) if id(x) not in held_ids]
     identity = program_identity(config, lanes=lanes)
-    compiled: dict = {}  # by the policy's shapes
+    compiled: dict = {}  # by the policy's shapes and types
 
     def evaluate(key, policy):
         args = (key, jax.tree.map(jnp.asarray, policy), held)
-        shapes = str(jax.tree.map(jnp.shape, args[1]))
+        shapes = str(jax.tree.map(lambda x: (x.shape, x.dtype), args[1]))
         if shapes not in compiled:
             compiled[shapes] = compiled_program(
                 config, "the honest evaluation", returns, args, constants, identity
@@ -611,6 +633,15 @@ def _restore(program: Program, state, path: Path):
     return state, raw, int(raw["iteration"])
 
 
+def _history(step, raw: dict, path: Path) -> list:
+    """The checkpoint's per-iteration metrics, shaped as ``step``'s (after it is compiled: its
+    output shapes are the template); ``CorruptFileError`` when they do not fit."""
+    try:
+        return restore_history(step.metrics_shapes, raw)
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError) as err:
+        raise CorruptFileError(path, f"history does not fit: {err}") from None
+
+
 def _polish_records(info, runs: int, seconds: float) -> list:
     """Each run's polish record for results.json (``None`` without a polish)."""
     if info is None:
@@ -803,7 +834,7 @@ def _prepare(runs: list[Run], opts: GroupOptions):
                 state, lambda: print(f"compiling {what} ...", file=sys.stderr, flush=True)
             )
             print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
-            history = [] if raw is None else restore_history(step.metrics_shapes, raw)
+            history = [] if raw is None else _history(step, raw, opts.checkpoint)
         return program, state, history, start, step, compile_s
 
     return in_background(prepare)

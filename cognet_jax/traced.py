@@ -12,19 +12,21 @@ the same numbers.
 
 The key is a SHA-256 of everything the traced program depends on: the source of every module
 of the package, the JAX, jaxlib and Python versions, the JAX settings that change tracing
-(64-bit mode, the PRNG implementation and its partitioning), the config, the model arrays
-baked in as constants, the memory budget the program was checked against, and the shapes and
-types of the arguments. A program of a simulator or algorithm registered from outside the
-package (``--import``) is never kept: its source is not in the key. Off together with the
+(64-bit mode, the PRNG implementation and its partitioning), the mesh it is traced under and
+the number of local devices, the config and the files it reads (``driver.program_identity``),
+the model arrays baked in as constants, the memory budget the program was checked against,
+and the shapes, types and layouts of the arguments. A program of a simulator or algorithm
+registered from outside the package (``--import``) is never kept: its source is not in the
+key. Off together with the
 compilation cache (``--no-compile-cache``, ``COGNET_JAX_CACHE=off``). A file that cannot be
 read is traced afresh and written again.
 
 Within one process a kept program is compiled once: the compiled program is kept in memory by
-its key and JAX's settings that change compilation (``jax_disable_most_optimizations`` and
-the optimisation efforts), so a second run of the same program in the process (a resumed run,
-``cognet-jax evaluate`` after ``train`` in one Python session, the runs of a sweep's groups)
-neither traces, nor lowers, nor reads the compilation cache. The ``KEPT_IN_PROCESS`` programs
-used last are kept.
+its key and JAX's settings that change compilation (``COMPILE_SETTINGS``), so a second run of
+the same program in the process (a resumed run, an evaluation after ``train`` in one Python
+session) neither traces, nor lowers, nor reads the compilation cache. The ``KEPT_IN_PROCESS``
+programs used last are kept. A program that is not kept (no key, or the cache off) is traced
+and compiled at every request.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import os
 import pickle
 import platform
 import sys
+import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
@@ -54,10 +57,15 @@ COMPILE_SETTINGS = (
     "jax_disable_most_optimizations",
     "jax_exec_time_optimization_effort",
     "jax_memory_fitting_effort",
+    "jax_optimization_level",
+    "jax_memory_fitting_level",
+    "jax_compiler_enable_remat_pass",
+    "jax_use_shardy_partitioner",
 )
 #: compiled programs kept in one process (the ones used last)
 KEPT_IN_PROCESS = 64
 _COMPILED: OrderedDict[str, Callable] = OrderedDict()
+_COMPILED_LOCK = threading.Lock()  # (a stopped command's worker thread may still compile)
 
 
 def trace_cache_dir() -> Path | None:
@@ -113,6 +121,9 @@ def program_key(what: str, identity: dict, constants, args) -> str | None:
     if size > KEPT_CONSTANT_BYTES:
         return None
     settings = {s: str(getattr(jax.config, s)) for s in TRACE_SETTINGS}
+    # the mesh a program is traced under (``run.shard_rollouts``) and the devices it may use
+    settings["mesh"] = str(jax.sharding.get_abstract_mesh())
+    settings["devices"] = str(jax.local_device_count())
     versions = [jax.__version__, jax.lib.__version__, platform.python_version(), sys.platform]
     h = hashlib.sha256()
     for part in (
@@ -203,13 +214,15 @@ def compile_kept(
         check(jitted, leaves)
         return _caller(jitted.lower(*leaves).compile(), out_trees[0])
     in_process = _in_process_key(key)
-    if in_process in _COMPILED:
-        _COMPILED.move_to_end(in_process)
-        return _COMPILED[in_process]
+    with _COMPILED_LOCK:
+        if in_process in _COMPILED:
+            _COMPILED.move_to_end(in_process)
+            return _COMPILED[in_process]
     caller = _compiled_from_file(fn, args, folder / f"{key}.bin", check)
-    _COMPILED[in_process] = caller
-    while len(_COMPILED) > KEPT_IN_PROCESS:
-        _COMPILED.popitem(last=False)
+    with _COMPILED_LOCK:
+        _COMPILED[in_process] = caller
+        while len(_COMPILED) > KEPT_IN_PROCESS:
+            _COMPILED.popitem(last=False)
     return caller
 
 
@@ -222,7 +235,8 @@ def _in_process_key(key: str) -> str:
 def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callable:
     """The program kept in ``path`` compiled (JAX's compilation cache may hold it); traced,
     checked and exported to ``path`` first when ``path`` holds none. Not written when several
-    processes run together (``jax.distributed``): each compiles its own."""
+    processes run together (``jax.distributed``), which trace their own (a file written
+    earlier by a single process is read all the same: its key names the devices)."""
     kept = _load(path)
     if kept is None:
         jitted, leaves, out_trees = _flat(fn, args)

@@ -3,6 +3,7 @@ instead of traced, gives the same numbers, and every input of the trace is in it
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from pathlib import Path
 
 import jax
@@ -15,8 +16,10 @@ from cognet_jax import traced
 
 @pytest.fixture
 def cache(tmp_path, monkeypatch):
+    """A fresh folder of kept programs, and none compiled in this process yet."""
     folder = tmp_path / "xla-traced"
     monkeypatch.setattr(traced, "trace_cache_dir", lambda: folder)
+    monkeypatch.setattr(traced, "_COMPILED", OrderedDict())
     return folder
 
 
@@ -41,6 +44,7 @@ def test_kept_program_is_read_back_not_traced_and_gives_the_same_numbers(cache):
     checked = lambda jitted, leaves: jitted.trace(*leaves)  # noqa: E731 (as the memory check)
     first = traced.compile_kept(_program(traces, table), args, key, checked)(*args)
     assert len(traces) == 1 and (cache / f"{key}.bin").is_file()  # the export reads the check's
+    traced._COMPILED.clear()  # as in a new process: read back from the file
     before = len(traces)
     checks: list = []
     again = traced.compile_kept(_program(traces, table), args, key, lambda j, a: checks.append(1))(
@@ -135,3 +139,21 @@ def test_in_one_process_a_kept_program_is_compiled_once(cache):
         jax.config.update("jax_disable_most_optimizations", setting)
     assert other is not first and len(traces) == 2
     np.testing.assert_array_equal(np.asarray(other(*args)["y"]), np.asarray(first(*args)["y"]))
+
+
+def test_the_identity_of_a_program_holds_the_bytes_of_the_files_it_reads(tmp_path):
+    """A VAE (or model) file rewritten in place gives another key: its weights may be baked
+    into the program."""
+    import os
+
+    from cognet_jax.driver import program_identity
+    from cognet_jax.registry import load_config
+
+    vae = tmp_path / "vae.msgpack"
+    vae.write_bytes(b"first")
+    config = load_config("tagging-thesis-n3", [f"network.vae_path={str(vae)!r}"])
+    first = program_identity(config)
+    assert program_identity(config) == first
+    vae.write_bytes(b"other")
+    os.utime(vae, ns=(1, 1))  # (a rewrite within the clock's resolution is still seen)
+    assert program_identity(config) != first
