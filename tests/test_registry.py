@@ -83,14 +83,14 @@ def seek():
 def test_readme_user_simulator_is_planned(seek):
     from cognet_jax.controllers.regions import DeterministicRegionPolicy
 
-    algo, env, params, search = seek["algo"], seek["env"], seek["params"], seek["search"]
+    env, params, search = seek["env"], seek["params"], seek["search"]
     # baseline: every agent stays where it starts (only a start near the goal pays)
     stay = DeterministicRegionPolicy(
         actions=jnp.ones((2, 3), jnp.int32),
         points=jnp.tile(jnp.array([-1.0, 1.0]), (2, 3, 1)),
         transitions=jnp.zeros((2, 3, 3), jnp.int32),
     )
-    stay_value = float(algo.returns(jax.random.key(2), stay, 10_000, search).mean())
+    stay_value = float(seek["returns"](jax.random.key(2), stay, 10_000, search).mean())
     value = float(seek["value"])
     assert value > stay_value + 2.0 and value > 0, (value, stay_value)
     # the found controller runs through controller_step on the simulator's observations
