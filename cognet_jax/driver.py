@@ -153,7 +153,7 @@ def hoist_large(params):
     ``rebuild(held) -> params`` with them put back (traced arguments inside a program); the
     other leaves stay constants."""
     leaves, treedef = jax.tree.flatten(params)
-    where = [i for i, x in enumerate(leaves) if getattr(x, "nbytes", 0) > CONSTANT_BYTES]
+    where = [i for i, x in enumerate(leaves) if _held(x)]
 
     def rebuild(held):
         out = list(leaves)
@@ -162,6 +162,15 @@ def hoist_large(params):
         return jax.tree.unflatten(treedef, out)
 
     return tuple(leaves[i] for i in where), rebuild
+
+
+def _held(x) -> bool:
+    return getattr(x, "nbytes", 0) > CONSTANT_BYTES
+
+
+def baked_constants(params) -> list:
+    """The array leaves of ``params`` that ``hoist_large`` leaves as constants."""
+    return [x for x in jax.tree.leaves(params) if not _held(x)]
 
 
 def per_run(fn, sharding, num_args: int):
@@ -203,10 +212,11 @@ def _file_digest(path: Path) -> str:
     """SHA-256 of a file's bytes (computed once per size and modification time); "" for a
     missing file."""
     try:
-        stat = path.resolve().stat()
+        path = path.resolve()
+        stat = path.stat()
     except OSError:
         return ""
-    return _digest_of(path.resolve(), stat.st_size, stat.st_mtime_ns)
+    return _digest_of(path, stat.st_size, stat.st_mtime_ns)
 
 
 @functools.lru_cache(maxsize=64)
@@ -295,8 +305,7 @@ class Program:
         over them (``per_run``), the first run's env params constants when all runs share
         them."""
         if not self.batched:
-            held = {id(x) for x in self.held}
-            constants = [x for x in jax.tree.leaves(self.params) if id(x) not in held]
+            constants = baked_constants(self.params)
             identity = program_identity(self.config, search=True)
         else:
             constants = self.params.env if self.shared_env else []
@@ -393,8 +402,7 @@ def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: in
     held, rebuild = hoist_large(params)
     run = honest_returns(algorithm, config.evaluation)
     returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
-    held_ids = {id(x) for x in held}
-    constants = [x for x in jax.tree.leaves(params) if id(x) not in held_ids]
+    constants = baked_constants(params)
     identity = program_identity(config, lanes=lanes)
     compiled: dict = {}  # by the policy's shapes and types
 
@@ -725,7 +733,7 @@ def fingerprint(config: Config) -> dict:
     out = {"config": hashlib.sha256(text).hexdigest()}
     path = Path(config.problem.path).expanduser() if config.problem.path else None
     if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
-        out["model"] = hashlib.sha256(path.read_bytes()).hexdigest()
+        out["model"] = _file_digest(path)
     return out
 
 
