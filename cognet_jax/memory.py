@@ -11,8 +11,11 @@ uses the same key (common random numbers) and its own rollouts are never split.
 * :func:`rollout_bytes` -- bytes one in-flight rollout needs, as XLA counts them: a probe of
   ``4 x 256`` rollouts is compiled and its temporary buffer size read
   (``Compiled.memory_analysis``). Measured: 62-105 B for tagging and tabular models, 290-430 B
-  for the heatmap with node networks. The probe costs about 0.5 s, so it runs only when a cheap
-  upper bound (every array of one step of one rollout, summed) says the batch could be too big.
+  for the heatmap with node networks. The probe costs about 0.5 s, so it runs only when an
+  upper bound says the batch could be too big: every array the evaluation of all candidates
+  at once creates, summed (:func:`traced_bytes` of its trace, which
+  ``rollout.evaluate_candidates`` then uses as it is), or without such a trace every array of
+  one step of one rollout, summed, times the rollouts in flight.
 * :func:`candidate_chunk` -- how many candidates to evaluate at once, or ``ResourceError``
   when even one candidate's rollouts exceed the budget.
 * :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
@@ -124,6 +127,12 @@ def _with_params(env_params):
     return (), lambda e: env_params
 
 
+def traced_bytes(jaxpr) -> int:
+    """Bytes of every array a jaxpr creates, summed, sub-programs counted once (an upper bound
+    on what it keeps alive at once: a ``lax.scan`` body's arrays live one step at a time)."""
+    return sum(_aval_bytes(a) for a, _ in jaxpr_arrays(jaxpr))
+
+
 def _step_upper_bound(run, env_params, policy) -> int:
     """Bytes of every array one time step of one rollout creates, summed (an upper bound on
     what a rollout keeps alive; 10-100x what XLA needs after fusion)."""
@@ -131,7 +140,7 @@ def _step_upper_bound(run, env_params, policy) -> int:
     jaxpr = jax.make_jaxpr(lambda k, p, *e: run(k, p, 1, read(e)))(
         jax.random.key(0), _abstract(policy), *extra
     )
-    return sum(_aval_bytes(a) for a, _ in jaxpr_arrays(jaxpr.jaxpr))
+    return traced_bytes(jaxpr.jaxpr)
 
 
 _PROBED: dict = {}
@@ -168,13 +177,21 @@ def candidate_chunk(
     memory: int | None,
     what: str = "algorithm.eval_rollouts",
     cache: tuple = (),
+    upper_bound: int | None = None,
 ) -> int:
     """How many of ``candidates`` candidates (``rollouts`` rollouts each, by ``run``) to
     evaluate at once within ``memory`` bytes (None: :func:`budget_bytes`); ``candidates`` when
     all fit. ``policy`` is one candidate (arrays or shapes). Raises ``ResourceError`` naming
-    ``what`` when one candidate's rollouts alone exceed the budget."""
+    ``what`` when one candidate's rollouts alone exceed the budget.
+
+    ``upper_bound``: bytes that all candidates at once surely fit in (the
+    :func:`traced_bytes` of their traced evaluation); None: every array of one step of one
+    rollout, summed, times ``candidates x rollouts``. Within the budget, all are evaluated at
+    once; over it, the bytes per rollout are measured (:func:`rollout_bytes`)."""
     memory = budget_bytes() if memory is None else memory
-    if candidates * rollouts * _step_upper_bound(run, env_params, policy) <= memory:
+    if upper_bound is None:
+        upper_bound = candidates * rollouts * _step_upper_bound(run, env_params, policy)
+    if upper_bound <= memory:
         return candidates
     per_rollout = rollout_bytes(run, env_params, policy, cache)
     per_candidate = rollouts * per_rollout

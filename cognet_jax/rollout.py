@@ -1,6 +1,7 @@
-"""Batched rollouts: ``lax.scan`` over time, vectorised over rollouts (and over candidate
-policies one level up). Works with any environment of ``cognet_jax.envs.base`` and any
-controller kind of ``cognet_jax.controllers``.
+"""Batched rollouts: ``lax.scan`` over time, vectorised over rollouts (and, for the candidates
+of an iteration, over candidate policies inside the same scan: ``evaluate_candidates``). Works
+with any environment of ``cognet_jax.envs.base`` and any controller kind of
+``cognet_jax.controllers``.
 
 Per time step t (SPEC section 1): every agent draws ``a_t`` from its node, the environment
 returns ``r_t = R(s_t, a_t)``, ``s_{t+1}`` and ``z_{t+1}``, every agent moves to
@@ -29,7 +30,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.memory import candidate_chunk
+from cognet_jax.memory import candidate_chunk, traced_bytes
 from cognet_jax.prng import fast_key
 
 
@@ -67,28 +68,62 @@ def rollouts(
 
     Returns the discounted returns ``[num]``, or a ``Trajectory`` when ``record`` is true.
     """
+    return _simulate(env, controller, key, num, env_params, policy, record=record)
+
+
+def _simulate(env, controller, key, num, env_params, policy, record=False, lanes=None):
+    """The rollout engine. ``lanes``: None (one policy, one key), or ``(policy_axes,
+    key_axis)`` for C candidate policies at once (``policy_axes`` the vmap ``in_axes`` prefix
+    of ``policy``; ``key_axis`` 0 when ``key`` holds one key per candidate, None for one key
+    shared by all): the scan over time then advances every candidate's rollouts, its step
+    functions ``vmap``-ed over the candidates, and returns ``[C, num]``.
+
+    The same computation as ``vmap`` over the candidates of the one-policy engine, bit for bit
+    (tests/test_rollout.py), traced at a fraction of the cost: JAX batches a ``vmap``-ed
+    ``lax.scan`` by tracing its body again, twice when the carry becomes batched."""
     n, h = env.num_agents, env.horizon
-    k_reset, k_steps = jax.random.split(key)
-    states = jax.vmap(env.reset, (0, None))(
-        shard_rollouts(jax.random.uniform(fast_key(k_reset), (num, env.reset_noise))), env_params
-    )
+    policy_axes, key_axis = lanes if lanes is not None else (None, None)
+
+    def lane(fn, *axes):
+        """``fn`` over the candidates (``vmap`` with ``axes``), or ``fn`` with one policy."""
+        return fn if lanes is None else jax.vmap(fn, in_axes=axes)
+
+    def per_key(fn):
+        """``fn`` of a key, over the candidates' keys when each has its own."""
+        return fn if key_axis is None else jax.vmap(fn)
+
+    def uniforms(k, width):
+        return shard_rollouts(jax.random.uniform(fast_key(k), (num, width)))
+
+    k_reset, k_steps = per_key(lambda k: tuple(jax.random.split(k)))(key)
+    states = per_key(
+        lambda k: jax.vmap(env.reset, (0, None))(uniforms(k, env.reset_noise), env_params)
+    )(k_reset)
     gamma = jnp.asarray(env_params.discount, jnp.float32)
-    act = jax.vmap(controller.act, (0, None, 0))
-    move = jax.vmap(controller.next_node, (0, None, 0, 0))
-    env_step = jax.vmap(env.step, (0, 0, 0, None))
+    act = lane(jax.vmap(controller.act, (0, None, 0)), key_axis, policy_axes, 0)
+    move = lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
+    env_step = lane(jax.vmap(env.step, (0, 0, 0, None)), key_axis, 0, 0, None)
+    nodes = jnp.zeros((num, n), jnp.int32)
+    ret = jnp.zeros(num, jnp.float32)
+    if lanes is not None:
+        count = _count(policy, policy_axes)
+        lead = lambda x: jnp.broadcast_to(x, (count, *x.shape))  # noqa: E731
+        nodes, ret = lead(nodes), lead(ret)
+        if key_axis is None:  # every candidate starts from the same states
+            states = jax.tree.map(lead, states)
 
     width = 2 * n + env.step_noise
 
     def draw(k):
-        u = shard_rollouts(jax.random.uniform(fast_key(k), (num, width)))
-        return u[:, : 2 * n], u[:, 2 * n :]
+        u = per_key(lambda k: uniforms(k, width))(k)
+        return u[..., : 2 * n], u[..., 2 * n :]
 
     def one_step(carry, u):
         states, nodes, ret, disc = carry
         u_ctrl, u_env = u
-        actions = act(u_ctrl[:, :n], policy, nodes)
+        actions = act(u_ctrl[..., :n], policy, nodes)
         states, obs, reward = env_step(u_env, states, actions, env_params)
-        next_nodes = move(u_ctrl[:, n:], policy, nodes, obs)
+        next_nodes = move(u_ctrl[..., n:], policy, nodes, obs)
         ret = ret + disc * reward
         out = (nodes, actions, obs, next_nodes, reward) if record else None
         return (states, next_nodes, ret, disc * gamma), out
@@ -98,8 +133,10 @@ def rollouts(
         carry, out = one_step(carry, u)
         return (carry, draw(k_next)), out
 
-    step_keys = jax.random.split(k_steps, h)
-    init = (states, jnp.zeros((num, n), jnp.int32), jnp.zeros(num, jnp.float32), jnp.float32(1.0))
+    step_keys = per_key(lambda k: jax.random.split(k, h))(k_steps)
+    if key_axis is not None:
+        step_keys = jnp.swapaxes(step_keys, 0, 1)  # [h, C]
+    init = (states, nodes, ret, jnp.float32(1.0))
     (carry, u_last), out = jax.lax.scan(body, (init, draw(step_keys[0])), step_keys[1:])
     (_, _, ret, _), out_last = one_step(carry, u_last)
     if not record:
@@ -107,6 +144,20 @@ def rollouts(
     out = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), out, out_last)
     nodes, actions, obs, next_nodes, rewards = (jnp.swapaxes(x, 0, 1) for x in out)
     return Trajectory(nodes, actions, obs, next_nodes, rewards, ret)
+
+
+def _batched(policy_axes, policies, fn):
+    """``fn`` applied to every leaf of ``policies`` that has the candidates' axis."""
+
+    def mapped(ax, sub):
+        return sub if ax is None else jax.tree.map(fn, sub)
+
+    return jax.tree.map(mapped, policy_axes, policies, is_leaf=lambda x: x is None)
+
+
+def _count(policies, policy_axes) -> int:
+    """The number of candidates: the leading axis of ``policies``' batched leaves."""
+    return jax.tree.leaves(_batched(policy_axes, policies, lambda x: x))[0].shape[0]
 
 
 def evaluate_candidates(
@@ -123,43 +174,45 @@ def evaluate_candidates(
     """Mean return ``[C]`` of C candidate policies, each rolled out ``num`` times: all with the
     same ``key`` (common random numbers) or, with ``common_random_numbers=False``, candidate c
     with ``split(key, C)[c]``. ``policy_axes`` is the vmap ``in_axes`` prefix of ``policies``
-    (e.g. batch only the action tables and share the networks).
+    (e.g. batch only the action tables and share the networks). The same numbers, bit for bit,
+    as ``vmap`` over the candidates of ``rollouts(...).mean()``.
 
     ``memory``: bytes the ``C x num`` rollouts in flight may take (None: half the machine,
-    ``memory.budget_bytes``). When they do not fit, the candidates are evaluated a chunk at a
-    time (``lax.map`` with ``batch_size``): every rollout's return is bit for bit the same as
-    unchunked, and so is each mean up to its last bit (XLA sums a row in an order that depends
-    on the batch shape). One candidate's ``num`` rollouts over the budget raise
+    ``memory.budget_bytes``). The evaluation of all candidates at once is traced first; when
+    the arrays it creates, summed (``memory.traced_bytes``), exceed the budget, the candidates
+    are evaluated a chunk at a time (``lax.map`` with ``batch_size``, sized by
+    ``memory.candidate_chunk``): every rollout's return is bit for bit the same as unchunked,
+    and so is each mean up to its last bit (XLA sums a row in an order that depends on the
+    batch shape). One candidate's ``num`` rollouts over the budget raise
     ``errors.ResourceError`` while tracing, before anything compiles.
     """
-
-    def one(k, policy):
-        return rollouts(env, controller, k, num, env_params, policy).mean()
-
-    def mapped(fn):
-        """``fn`` applied to the batched part of a subtree of ``policies``, per its axis."""
-        return lambda ax, sub: sub if ax is None else jax.tree.map(fn, sub)
-
-    def candidate(fn):
-        return jax.tree.map(mapped(fn), policy_axes, policies, is_leaf=lambda x: x is None)
-
-    count = jax.tree.leaves(candidate(lambda x: x))[0].shape[0]
+    count = _count(policies, policy_axes)
     keys = key if common_random_numbers else jax.random.split(key, count)
-    key_axis = None if common_random_numbers else 0
+    lanes = (policy_axes, None if common_random_numbers else 0)
+
+    def every(keys, policies):
+        returns = _simulate(env, controller, keys, num, env_params, policies, lanes=lanes)
+        return returns.mean(axis=-1)
+
+    traced = jax.make_jaxpr(every)(keys, policies)
     chunk = candidate_chunk(
         lambda k, p, n, e: rollouts(env, controller, k, n, e, p),
         env_params,
-        candidate(lambda x: x[0]),
+        _batched(policy_axes, policies, lambda x: x[0]),
         count,
         num,
         memory,
         cache=(id(env), id(controller)),
+        upper_bound=traced_bytes(traced.jaxpr),
     )
-    if chunk >= count:
-        return jax.vmap(one, in_axes=(key_axis, policy_axes))(keys, policies)
+    if chunk >= count:  # what was traced, not traced again
+        flat = jax.tree.leaves((keys, policies))
+        return jax.core.eval_jaxpr(traced.jaxpr, traced.consts, *flat)[0]
 
     def by_index(i):
-        return one(keys if common_random_numbers else keys[i], candidate(lambda x: x[i]))
+        k = keys if common_random_numbers else keys[i]
+        policy = _batched(policy_axes, policies, lambda x: x[i])
+        return rollouts(env, controller, k, num, env_params, policy).mean()
 
     return jax.lax.map(by_index, jnp.arange(count), batch_size=chunk)
 

@@ -17,7 +17,7 @@ from cognet_jax.controllers.tabular import TabularController
 from cognet_jax.envs.heatmap import make_heatmap
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.envs.tagging import make_tagging
-from cognet_jax.rollout import Trajectory, rollouts
+from cognet_jax.rollout import Trajectory, evaluate_candidates, rollouts
 from tests.test_tabular_env import asymmetric_model
 
 
@@ -105,3 +105,41 @@ def test_rollouts_equal_the_plain_engine(name):
         else:  # floats may differ in the last bit where XLA fuses differently (noise)
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
     assert got.nodes.shape[:2] == (33, env.horizon)
+
+
+def test_candidates_evaluated_together_equal_each_one_alone():
+    """``evaluate_candidates`` advances all candidates in one scan: its means are those of
+    ``vmap`` over the candidates of one policy's rollouts, bit for bit, with common random
+    numbers or a key per candidate, and with networks shared by the candidates."""
+    env, ctrl, params, policy = _cases()["tagging-noisy"]
+    stacked = jax.vmap(ctrl.init)(jax.random.split(jax.random.key(4), 3))
+    shape = stacked.action_probs.shape
+    probs = jax.random.dirichlet(jax.random.key(6), jnp.ones(shape[-1]), shape[:-1])
+    stacked = stacked.replace(action_probs=probs)
+    # the first candidate's networks for all three: only the action tables are batched
+    shared = stacked.replace(net_params=policy.net_params)
+    shared_axes = type(policy)(action_probs=0, net_params=None)
+
+    def alone(k, policy):
+        return rollouts(env, ctrl, k, 65, params, policy).mean()
+
+    @jax.jit
+    def both(k):
+        return {
+            "crn": (
+                evaluate_candidates(env, ctrl, k, 65, params, stacked),
+                jax.vmap(alone, (None, 0))(k, stacked),
+            ),
+            "own keys": (
+                evaluate_candidates(env, ctrl, k, 65, params, stacked, common_random_numbers=False),
+                jax.vmap(alone)(jax.random.split(k, 3), stacked),
+            ),
+            "shared networks": (
+                evaluate_candidates(env, ctrl, k, 65, params, shared, policy_axes=shared_axes),
+                jax.vmap(alone, (None, shared_axes))(k, shared),
+            ),
+        }
+
+    for what, (together, each) in both(jax.random.key(9)).items():
+        np.testing.assert_array_equal(together, each, err_msg=what)
+        assert len(set(np.asarray(each).tolist())) > 1, what  # three different candidates
