@@ -57,6 +57,53 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+#: the test files taking 5 s or more, longest first (seconds of test time, both workers, on the
+#: 2-core CPU, 2026-11-27): run in this order, the rest after them. With ``--dist loadfile``
+#: and ``--no-loadscope-reorder`` (pyproject.toml) xdist hands the files out in this order as
+#: workers free up, so the long files start early and short ones fill the end; by default it
+#: orders them by their number of tests, and a long file with few tests could start last.
+LONGEST_FIRST = {
+    name: rank
+    for rank, name in enumerate(
+        (
+            "test_sweep.py",  # 48-55 s
+            "test_engine.py",  # 47-50
+            "test_gdice_defaults.py",  # 37-43
+            "test_one_truth.py",  # 33-34
+            "test_cognet_dice.py",  # 27
+            "test_polish.py",  # 25-27
+            "test_models.py",  # 25
+            "test_heatmap_cognet.py",  # 21-24
+            "test_memory.py",  # 21
+            "test_signals.py",  # 20-21
+            "test_prng.py",  # 19-21
+            "test_cognet_weights.py",  # 19-21
+            "test_rollout.py",  # 17-20
+            "test_controller_step.py",  # 15-18
+            "test_checkpoint.py",  # 16-17
+            "test_gdice.py",  # 14-16
+            "test_cli_errors.py",  # 13-16
+            "test_best_response.py",  # 11-12
+            "test_shard_rollouts.py",  # 11
+            "test_registry.py",  # 9-10
+            "test_exact_jax.py",  # 7-8
+            "test_torch_reference.py",  # 7-8
+            "test_cogdice.py",  # 7
+            "test_neural.py",  # 7
+            "test_fuzz.py",  # 6
+            "test_large_dpomdp.py",  # 5-6
+            "test_vae.py",  # 5
+            "test_config_cli.py",  # 5
+        )
+    )
+}
+
+
+def pytest_collection_modifyitems(items):
+    """The files in ``LONGEST_FIRST`` order (a stable sort: each file's tests keep theirs)."""
+    items.sort(key=lambda item: LONGEST_FIRST.get(item.path.name, len(LONGEST_FIRST)))
+
+
 def pytest_configure(config):
     config.addinivalue_line(
         "markers",
