@@ -14,8 +14,8 @@ uses the same key (common random numbers) and its own rollouts are never split.
   for the heatmap with node networks. The probe costs about 0.5 s, so it runs only when an
   upper bound says the batch could be too big: every array the evaluation of all candidates
   at once creates, summed (:func:`traced_bytes` of its trace, which
-  ``rollout.evaluate_candidates`` then uses as it is), or without such a trace every array of
-  one step of one rollout, summed, times the rollouts in flight.
+  ``rollout.evaluate_candidates`` then uses as it is), or without such a trace every array
+  that the trace of one rollout creates, summed, times the rollouts in flight.
 * :func:`candidate_chunk` -- how many candidates to evaluate at once, or ``ResourceError``
   when even one candidate's rollouts exceed the budget.
 * :func:`check_traced` -- the largest array of a traced (not yet compiled) program against the
@@ -128,14 +128,16 @@ def _with_params(env_params):
 
 
 def traced_bytes(jaxpr) -> int:
-    """Bytes of every array a jaxpr creates, summed, sub-programs counted once (an upper bound
-    on what it keeps alive at once: a ``lax.scan`` body's arrays live one step at a time)."""
+    """Bytes of every array a jaxpr creates, summed, the arrays of a loop body once, not once
+    per step (an upper bound on what it keeps alive at once: a ``lax.scan`` body's arrays
+    live one step at a time)."""
     return sum(_aval_bytes(a) for a, _ in jaxpr_arrays(jaxpr))
 
 
 def _step_upper_bound(run, env_params, policy) -> int:
-    """Bytes of every array one time step of one rollout creates, summed (an upper bound on
-    what a rollout keeps alive; 10-100x what XLA needs after fusion)."""
+    """Bytes of every array the trace of one rollout creates (its reset, its scan's step once,
+    its last step), summed (an upper bound on what a rollout keeps alive; 10-100x what XLA
+    needs after fusion)."""
     extra, read = _with_params(env_params)
     jaxpr = jax.make_jaxpr(lambda k, p, *e: run(k, p, 1, read(e)))(
         jax.random.key(0), _abstract(policy), *extra
@@ -185,9 +187,9 @@ def candidate_chunk(
     ``what`` when one candidate's rollouts alone exceed the budget.
 
     ``upper_bound``: bytes that all candidates at once surely fit in (the
-    :func:`traced_bytes` of their traced evaluation); None: every array of one step of one
-    rollout, summed, times ``candidates x rollouts``. Within the budget, all are evaluated at
-    once; over it, the bytes per rollout are measured (:func:`rollout_bytes`)."""
+    :func:`traced_bytes` of their traced evaluation); None: every array the trace of one
+    rollout creates, summed, times ``candidates x rollouts``. Within the budget, all are
+    evaluated at once; over it, the bytes per rollout are measured (:func:`rollout_bytes`)."""
     memory = budget_bytes() if memory is None else memory
     if upper_bound is None:
         upper_bound = candidates * rollouts * _step_upper_bound(run, env_params, policy)

@@ -12,7 +12,8 @@ Random numbers: one key drives a whole batch of rollouts. Each time step draws o
 uniforms ``[rollouts, 2 agents + env.step_noise]`` (the controller's action and transition draws,
 then the simulator's noise), so there is one generator call per step for all rollouts instead of
 one per rollout. Common random numbers across candidate policies = the same key for every
-candidate: under ``vmap`` over candidates the block is drawn once and shared.
+candidate: ``evaluate_candidates`` draws the block once per step, outside the step functions'
+``vmap`` over the candidates, and every candidate reads it.
 
 Speed without changing a number: a step's block is drawn one step ahead and carried through
 the scan, so it is computed once, in a kernel of its own, and stored; drawn inside the step,
@@ -81,6 +82,8 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     The same computation as ``vmap`` over the candidates of the one-policy engine, bit for bit
     (tests/test_rollout.py), traced at a fraction of the cost: JAX batches a ``vmap``-ed
     ``lax.scan`` by tracing its body again, twice when the carry becomes batched."""
+    if record and lanes is not None:
+        raise ValueError("rollouts of several candidates are not recorded")
     n, h = env.num_agents, env.horizon
     policy_axes, key_axis = lanes if lanes is not None else (None, None)
 

@@ -59,9 +59,10 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 #: the test files taking 5 s or more, longest first (seconds of test time, both workers, on the
 #: 2-core CPU, 2026-11-27): run in this order, the rest after them. With ``--dist loadfile``
-#: and ``--no-loadscope-reorder`` (pyproject.toml) xdist hands the files out in this order as
-#: workers free up, so the long files start early and short ones fill the end; by default it
-#: orders them by their number of tests, and a long file with few tests could start last.
+#: and ``--no-loadscope-reorder`` (pyproject.toml) xdist hands the files out in this order
+#: (the next one to a worker with at most 2 of its tests left), so the long files start early
+#: and short ones fill the end; by default it orders them by their number of tests, and a long
+#: file with few tests could start last.
 LONGEST_FIRST = {
     name: rank
     for rank, name in enumerate(

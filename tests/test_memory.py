@@ -64,6 +64,30 @@ def test_chunked_candidates_equal_unchunked(crn):
     assert np.array_equal(batched, mapped)
 
 
+def test_the_bound_of_all_candidates_traced_is_below_the_per_rollout_bound(monkeypatch):
+    """``evaluate_candidates`` bounds its memory by the arrays of the traced evaluation of all
+    candidates: within ``candidates x rollouts x`` the arrays of one traced rollout (the bound
+    used before), so what fitted the budget still does."""
+    import cognet_jax.rollout as rollout
+
+    alg, params, policies = candidates_of("tagging-thesis-cogdice-n3")
+    seen = []
+
+    def spy(run, env_params, policy, candidates, rollouts, mem, *args, upper_bound, **kw):
+        seen.append((upper_bound, candidates * rollouts))
+        return memory.candidate_chunk(run, env_params, policy, candidates, rollouts, mem)
+
+    monkeypatch.setattr(rollout, "candidate_chunk", spy)
+    one = jax.tree.map(lambda x: x[0], policies)
+    jax.eval_shape(
+        lambda p: evaluate_candidates(alg.env, alg.controller, jax.random.key(0), 200, params, p),
+        policies,
+    )
+    [(traced, in_flight)] = seen
+    per_rollout = memory._step_upper_bound(run_of(alg.env, alg.controller), params, one)
+    assert 0 < traced <= in_flight * per_rollout, (traced, in_flight * per_rollout)
+
+
 def test_shared_network_candidates_are_chunked_too():
     """COGNet-DICE's candidates batch only the action tables (``policy_axes``)."""
     alg, search_params = build_algorithm(load_config("tagging-thesis-spec-n3"))

@@ -107,25 +107,36 @@ def test_rollouts_equal_the_plain_engine(name):
     assert got.nodes.shape[:2] == (33, env.horizon)
 
 
-def test_candidates_evaluated_together_equal_each_one_alone():
-    """``evaluate_candidates`` advances all candidates in one scan: its means are those of
-    ``vmap`` over the candidates of one policy's rollouts, bit for bit, with common random
-    numbers or a key per candidate, and with networks shared by the candidates."""
-    env, ctrl, params, policy = _cases()["tagging-noisy"]
-    stacked = jax.vmap(ctrl.init)(jax.random.split(jax.random.key(4), 3))
+def _three_candidates(name):
+    """Three policies of case ``name`` stacked on a leading axis, and ``(policies, axes)`` of
+    three that share the case's networks (None for a tabular controller)."""
+    _, ctrl, _, policy = _cases()[name]
+    keys = jax.random.split(jax.random.key(4), 3)
+    if isinstance(ctrl, TabularController):
+        return jax.vmap(ctrl.sample, (0, None))(keys, ctrl.init_distribution()), None
+    stacked = jax.vmap(ctrl.init)(keys)
     shape = stacked.action_probs.shape
     probs = jax.random.dirichlet(jax.random.key(6), jnp.ones(shape[-1]), shape[:-1])
     stacked = stacked.replace(action_probs=probs)
-    # the first candidate's networks for all three: only the action tables are batched
+    # the case's networks for all three: only the action tables are batched
     shared = stacked.replace(net_params=policy.net_params)
-    shared_axes = type(policy)(action_probs=0, net_params=None)
+    return stacked, (shared, type(policy)(action_probs=0, net_params=None))
+
+
+@pytest.mark.parametrize("name", ["tabular", "tagging-noisy"])
+def test_candidates_evaluated_together_equal_each_one_alone(name):
+    """``evaluate_candidates`` advances all candidates in one scan: its means are those of
+    ``vmap`` over the candidates of one policy's rollouts, bit for bit, with common random
+    numbers or a key per candidate, and with networks shared by the candidates."""
+    env, ctrl, params, _ = _cases()[name]
+    stacked, shared = _three_candidates(name)
 
     def alone(k, policy):
         return rollouts(env, ctrl, k, 65, params, policy).mean()
 
     @jax.jit
     def both(k):
-        return {
+        out = {
             "crn": (
                 evaluate_candidates(env, ctrl, k, 65, params, stacked),
                 jax.vmap(alone, (None, 0))(k, stacked),
@@ -134,11 +145,14 @@ def test_candidates_evaluated_together_equal_each_one_alone():
                 evaluate_candidates(env, ctrl, k, 65, params, stacked, common_random_numbers=False),
                 jax.vmap(alone)(jax.random.split(k, 3), stacked),
             ),
-            "shared networks": (
-                evaluate_candidates(env, ctrl, k, 65, params, shared, policy_axes=shared_axes),
-                jax.vmap(alone, (None, shared_axes))(k, shared),
-            ),
         }
+        if shared is not None:
+            policies, axes = shared
+            out["shared networks"] = (
+                evaluate_candidates(env, ctrl, k, 65, params, policies, policy_axes=axes),
+                jax.vmap(alone, (None, axes))(k, policies),
+            )
+        return out
 
     for what, (together, each) in both(jax.random.key(9)).items():
         np.testing.assert_array_equal(together, each, err_msg=what)
