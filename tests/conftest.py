@@ -4,8 +4,9 @@
 built in two tests of a file, or in a test and the ``cognet-jax`` process it starts:
 ``shared_files.compile_cache_env``) is compiled once. One folder per process, not one for all
 xdist workers: JAX writes cache entries without a lock unless a size bound is set, and with one
-it lists the folder at every write, which made the suite slower than compiling twice. The folder
-is removed at the end of the session.
+it lists the folder at every write, which made the suite slower than compiling twice. (One
+folder shared by both workers without a bound, tried 2026-11-27: as many compiles, about 3,700,
+and no faster.) The folder is removed at the end of the session.
 
 **Most optimisations off for the tests**: JAX's own ``jax_disable_most_optimizations`` (XLA's
 backend at optimisation level 0 and LLVM's expensive passes off), set in this process and,
@@ -29,7 +30,7 @@ module instead of split for parallel code generation, and optimisation level 1 w
 expensive passes where JAX's flag is off (``optimised`` tests). At level 0 the first two
 compile the default COGNet-DICE iteration in 2.2-2.6 s instead of 3.2-3.6 s, and it then runs
 in 61-65 ms instead of 190-250 ms (2-core CPU; the suite went 519 s -> 414-460 s; with the
-optimised tests at level 1 and every program of a run compiled once per worker, 298-376 s).
+optimised tests at level 1 and every program of a run compiled once per worker, 295-376 s).
 The older emitters may round differently where two forms of one computation are compared bit
 for bit: such a test compiles its programs with XLA's default emitters (a compiler option,
 tests/test_neural.py).
