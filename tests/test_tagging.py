@@ -104,3 +104,23 @@ def test_discretised_observations():
     np.testing.assert_allclose(discretise(z, 2.0), [-4, 0, 0, 2, 4, 8])
     np.testing.assert_allclose(discretise(z, 4.0), [-4, 0, 0, 0, 4, 8])
     np.testing.assert_allclose(discretise(z, 0.5), [-3.5, -1.0, 0.5, 2.5, 4.5, 8.0])
+
+
+def test_a_constant_zero_noise_level_skips_the_normal_draws():
+    """``scaled_normal`` with a constant zero scale traces no inverse CDF and no ``cond``; a
+    traced scale keeps the ``cond``; every way, zero noise is exactly zero and a nonzero level
+    scales the same normal draws."""
+    from cognet_jax.envs.base import normal_from_uniform, scaled_normal
+
+    u = jax.random.uniform(jax.random.key(0), (64,))
+
+    def primitives(fn, *args):
+        return {e.primitive.name for e in jax.make_jaxpr(fn)(*args).eqns}
+
+    assert "cond" not in primitives(lambda u: scaled_normal(0.0, u), u)
+    assert "cond" in primitives(lambda s, u: scaled_normal(s, u), 0.0, u)
+    assert "cond" in primitives(lambda u: scaled_normal(0.5, u), u)
+    traced = jax.jit(scaled_normal)
+    np.testing.assert_array_equal(scaled_normal(0.0, u), traced(jnp.float32(0.0), u))
+    assert not np.any(np.asarray(scaled_normal(0.0, u)))
+    np.testing.assert_allclose(traced(0.5, u), 0.5 * normal_from_uniform(u), rtol=1e-6)
