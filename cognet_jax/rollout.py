@@ -83,7 +83,8 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     (tests/test_rollout.py), traced in less time: JAX batches a ``vmap``-ed ``lax.scan`` by
     tracing its body again, twice when the carry becomes batched (the default COGNet-DICE
     iteration's candidates: 0.28 s against 0.76 s with the memory probe it also spares, at
-    XLA's level 0 on the 2-core CPU; the whole iteration 0.67 s against 0.80 s)."""
+    XLA's level 0 on the 2-core CPU; the whole iteration 0.67 s against 0.80 s; one
+    measurement each)."""
     if record and lanes is not None:
         raise ValueError("rollouts of several candidates are not recorded")
     n, h = env.num_agents, env.horizon

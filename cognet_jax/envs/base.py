@@ -97,8 +97,8 @@ def scaled_normal(scale: jax.Array | float, u: jax.Array) -> jax.Array:
     nothing for their zero noise: the inverse CDF is a few hundred operations per draw and was
     the largest part of a tagging step. A constant zero ``scale`` (a program's params baked in,
     as ``cognet-jax train`` compiles them) gives zeros without tracing the inverse CDF at all:
-    the default tagging iteration's program is 11% smaller and compiles 10-20% faster (XLA
-    level 0).
+    the default tagging iteration's HLO 434 kB instead of 486 kB, compiled in 1.03 s instead
+    of 1.27 s (XLA level 0, one measurement each; the heatmap's 0.95 s instead of 1.15 s).
     Otherwise ``lax.cond`` on the scalar ``scale``: with an unbatched ``scale`` only one branch
     runs; under ``vmap`` over a batched ``scale`` both run and the result is selected. The
     value is the same every way (``0 * x = 0`` for the finite ``x`` this returns)."""
