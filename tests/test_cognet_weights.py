@@ -98,7 +98,6 @@ def best_open_loop_value(alg, params, key) -> float:
     return float(jnp.max(jax.jit(blind.evaluate)(key, blind.to_policy(sample), params)))
 
 
-@pytest.mark.optimised
 def test_cognet_dice_learns_to_use_observations_on_tagging():
     """A short default search (seed 0) on the thesis tagging problem beats every open-loop
     controller by a wide margin, and so does the *mode* of its final distribution: a search

@@ -391,6 +391,7 @@ def recycling_path() -> Path:
     return _benchmark_file("recycling")
 
 
+@pytest.mark.optimised  # its time is 20 iterations of 200 x 100-step rollouts
 def test_shared_controller_gdice_beats_reactive_controller_on_recycling(recycling_path):
     """Recycling, gamma 0.9: G-DICE over symmetric controllers, with Monte Carlo values as in
     SPEC, finds a controller above the reactive one's 31.496063 (best known 31.93)."""
