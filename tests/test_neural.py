@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.extend.core import jaxprs_in_params
 
 from cognet_jax.controllers.neural import UNROLL_MIN_NODES, NeuralController
 from cognet_jax.envs.tagging import make_tagging
@@ -57,3 +58,44 @@ def test_rollouts_do_not_depend_on_the_form(monkeypatch):
     for a, b in zip(jax.tree.leaves(unrolled), jax.tree.leaves(scanned), strict=True):
         np.testing.assert_array_equal(a, b)
     assert jnp.size(jax.tree.leaves(unrolled)[0]) > 0
+
+
+def _jit_calls(jaxpr, name: str) -> list:
+    """The ``jit`` equations named ``name`` in ``jaxpr`` and every jaxpr nested in it."""
+    found = []
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name in ("jit", "pjit") and eqn.params["name"] == name:
+            found.append(eqn)
+        for sub in jaxprs_in_params(eqn.params):
+            found += _jit_calls(sub, name)
+    return found
+
+
+def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch):
+    """``normal_from_uniform`` and the written-out networks are ``jit``s so that a rollout
+    traces each once per shape (envs/base.py): every call site of a rollout holds the same
+    traced jaxpr, and the rollouts are the numbers of the same code without the ``jit``s."""
+    import cognet_jax.controllers.neural as neural
+    import cognet_jax.envs.base as base
+
+    env, params = make_tagging("cogdice-paper", motion_noise=0.3, obs_noise=0.3)  # normal draws
+    ctrl = NeuralController(env.num_agents, 3, env.num_actions)  # written-out networks
+    policy = ctrl.init(jax.random.key(3))
+    key = jax.random.key(4)
+
+    def fresh():  # a new function each time: JAX keeps a function's traces
+        return lambda k, p: rollouts(env, ctrl, k, 512, params, p, record=True)
+
+    jaxpr = jax.make_jaxpr(fresh())(key, policy).jaxpr
+    for name in ("normal_from_uniform", "_written_out_mlp"):
+        calls = _jit_calls(jaxpr, name)
+        assert len(calls) >= 2, name  # the scan's body and the last step
+        assert len({id(c.params["jaxpr"]) for c in calls}) == 1, name
+    jitted = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
+    monkeypatch.setattr(base, "normal_from_uniform", base.normal_from_uniform.__wrapped__)
+    monkeypatch.setattr(neural, "_written_out_mlp", neural._written_out_mlp.__wrapped__)
+    for name in ("normal_from_uniform", "_written_out_mlp"):
+        assert not _jit_calls(jax.make_jaxpr(fresh())(key, policy).jaxpr, name)
+    plain = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
+    for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -129,22 +129,12 @@ class NeuralController:
         ``self.net.apply`` (the Flax module, used for training), up to float rounding."""
         if not self.unrolled:
             return self.net.apply(member_params, obs)
-        p = member_params["params"]
-        w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
-        w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
-        x = obs.reshape(-1).astype(jnp.float32)
-        if x.shape[0] != self.in_features:
+        if math.prod(obs.shape) != self.in_features:
             raise ValueError(
                 f"node network reads {self.in_features} inputs, got an observation of shape "
                 f"{tuple(obs.shape)}"
             )
-        out = b2
-        for j in range(self.hidden):
-            pre = b1[j]
-            for i in range(self.in_features):
-                pre = pre + x[i] * w1[i, j]
-            out = out + jnp.maximum(pre, 0.0) * w2[j]
-        return out
+        return _written_out_mlp(member_params["params"], obs)
 
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
@@ -206,6 +196,27 @@ class NeuralController:
             obs = self.features(obs)
         weights = softmax_weights(self.node_logits(policy.net_params, nodes, obs))
         return sample_categorical(u, weights)
+
+
+@jax.jit
+def _written_out_mlp(p: dict, obs: jax.Array) -> jax.Array:
+    """``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as scalar multiply-adds
+    (``NeuralController.one_net_logits``): logits ``[nodes]`` from ``obs`` (``in`` numbers).
+
+    Jitted, so its ``hidden * (in + 1)`` traced operations are traced once per shape and the
+    trace reused: a rollout applies it in the scan's body and in its last step, for every
+    rollout engine of an iteration, and every program of a process (``envs.base.
+    normal_from_uniform``, the same change). XLA inlines it: the same numbers bit for bit."""
+    w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
+    w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
+    x = obs.reshape(-1).astype(jnp.float32)
+    out = b2
+    for j in range(w1.shape[1]):
+        pre = b1[j]
+        for i in range(w1.shape[0]):
+            pre = pre + x[i] * w1[i, j]
+        out = out + jnp.maximum(pre, 0.0) * w2[j]
+    return out
 
 
 def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
