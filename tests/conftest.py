@@ -30,7 +30,7 @@ module instead of split for parallel code generation, and optimisation level 1 w
 expensive passes where JAX's flag is off (``optimised`` tests). At level 0 the first two
 compile the default COGNet-DICE iteration in 2.2-2.6 s instead of 3.2-3.6 s, and it then runs
 in 61-65 ms instead of 190-250 ms (2-core CPU; the suite went 519 s -> 414-460 s; with the
-optimised tests at level 1 and every program of a run compiled once per worker, 286-389 s).
+optimised tests at level 1 and every program of a run compiled once per worker, 285-389 s).
 The older emitters may round differently where two forms of one computation are compared bit
 for bit: such a test compiles its programs with XLA's default emitters (a compiler option,
 tests/test_neural.py).
