@@ -76,8 +76,9 @@ def normal_from_uniform(u: jax.Array) -> jax.Array:
     at every call. XLA inlines it, so the compiled program computes the same numbers (two
     iterations of nine shipped experiments compared bit for bit at XLA's default level;
     rollouts in tests/test_neural.py). With ``controllers.neural._written_out_mlp`` (the
-    same change) tracing the default tagging iteration in a fresh process took 0.50-0.71 s instead of 0.76-0.98 s (XLA level 0, 2-core
-    CPU, two runs each; thesis 0.60-0.67 s / 0.93-1.01 s, heatmap 0.32-0.37 s / 0.55-0.60 s)."""
+    same change) tracing the default tagging iteration in a fresh process took 0.50-0.71 s
+    instead of 0.76-0.98 s (XLA level 0, 2-core CPU, two runs each; thesis 0.60-0.67 s /
+    0.93-1.01 s, heatmap 0.32-0.37 s / 0.55-0.60 s)."""
     eps = 1e-7
     return ndtri(jnp.clip(u, eps, 1.0 - eps))
 
