@@ -99,3 +99,43 @@ def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch):
     plain = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
     for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_eager_controller_set_up_is_a_few_programs_and_the_numbers_of_the_plain_code():
+    """Building a controller's search distribution, sampling it and initialising node networks
+    outside a program (as a user's script or a test does) compiles a few whole programs, not
+    every single operation (``uniform_distribution``, ``categorical_from_uniform``,
+    ``TabularController.init_distribution`` / ``sample`` and
+    ``NeuralController.init_net_params`` are ``jit``s), and gives the numbers of the same code
+    run operation by operation."""
+    from jax import monitoring
+
+    from cognet_jax.controllers.tabular import TabularController
+
+    # sizes no other test uses, so every program is new to this process
+    tabular = TabularController(2, 6, 5, 7, action_counts=(5, 4), layers=3)
+    neural = NeuralController(2, 5, 4, obs_shape=(7,), hidden=11)
+    key = jax.random.key(9)
+    traced = []
+
+    def count(event, duration, **_):
+        if event.endswith("jaxpr_trace_duration"):
+            traced.append(duration)
+
+    monitoring.register_event_duration_secs_listener(count)
+    try:
+        dist = tabular.init_distribution()
+        sampled = tabular.sample(key, dist)
+        nets = neural.init(key)
+    finally:
+        monitoring.unregister_event_duration_listener(count)
+    # 4 programs traced; 74 single operations before these were jits (2026-11-27)
+    assert len(traced) <= 12, len(traced)
+
+    plain_dist = TabularController.init_distribution.__wrapped__(tabular)
+    plain_sampled = TabularController.sample.__wrapped__(tabular, key, plain_dist)
+    plain_nets = NeuralController.init_net_params.__wrapped__(neural, key)
+    pairs = [(dist, plain_dist), (sampled, plain_sampled), (nets.net_params, plain_nets)]
+    for jitted, plain in pairs:
+        for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -15,6 +15,8 @@ All agents start in node 0.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -32,7 +34,15 @@ def sample_categorical(u: jax.Array, probs: jax.Array) -> jax.Array:
 
 def uniform_distribution(shape: tuple[int, ...], counts: tuple[int, ...] | None = None):
     """Uniform probabilities of ``shape [agents, ..., K]``; with per-agent ``counts`` the
-    categories ``k >= counts[agent]`` get probability 0 (agents with fewer actions)."""
+    categories ``k >= counts[agent]`` get probability 0 (agents with fewer actions).
+
+    One small program per ``(shape, counts)`` (a ``jit`` with both static), not a handful of
+    single operations where it runs eagerly; inside a program it is inlined."""
+    return _uniform_probs(tuple(shape), None if counts is None else tuple(counts))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _uniform_probs(shape: tuple[int, ...], counts: tuple[int, ...] | None) -> jax.Array:
     k = shape[-1]
     if counts is None:
         return jnp.full(shape, 1.0 / k, jnp.float32)

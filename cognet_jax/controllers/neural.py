@@ -12,6 +12,7 @@ uniform in ``+-1/sqrt(fan_in)``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 
@@ -99,8 +100,10 @@ class NeuralController:
     def net(self) -> NodeNet:
         return NodeNet(in_features=self.in_features, hidden=self.hidden, out=self.num_nodes)
 
+    @functools.partial(jax.jit, static_argnums=0)
     def init_net_params(self, key: jax.Array) -> dict:
-        """Independent members for every (agent, node): leaves ``[agents, nodes, ...]``."""
+        """Independent members for every (agent, node): leaves ``[agents, nodes, ...]``.
+        A ``jit`` (the controller static): one program, not Flax's initialisers op by op."""
         a, n = self.num_agents, self.num_nodes
         keys = jax.random.split(key, a * n)
         dummy = jnp.zeros(self.obs_shape, jnp.float32)

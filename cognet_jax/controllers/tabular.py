@@ -22,6 +22,7 @@ all agents, count MLE, smoothing and entropy injection keep the agents' rows equ
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -79,7 +80,11 @@ class TabularController:
         layer, target = self._layers_of_nodes()
         return (layer[None, :] == target[:, None])[:, None, :]
 
+    @functools.partial(jax.jit, static_argnums=0)
     def init_distribution(self) -> TabularDistribution:
+        """Uniform rows (a layered controller's over the next layer only). This and ``sample``
+        are ``jit``s with the controller static: one program each where they run eagerly (a
+        search's initial state built outside a program), inlined inside one."""
         a, n = self.num_agents, self.num_nodes
         trans = uniform_distribution((a, n, self.num_obs, n))
         support = self.transition_support()
@@ -91,6 +96,7 @@ class TabularController:
             transition_probs=trans,
         )
 
+    @functools.partial(jax.jit, static_argnums=0)
     def sample(self, key: jax.Array, dist: TabularDistribution) -> DeterministicTabularPolicy:
         """Draw one deterministic joint controller from the search distribution (with
         ``shared``: one controller from agent 0's rows, the same for every agent)."""
