@@ -3,6 +3,8 @@ its uniforms have the right moments and no visible dependence between neighbouri
 keys or folded-in keys, and a search with it is deterministic and reaches the values it reaches
 with threefry."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -122,13 +124,25 @@ def _fast(seed):
     return jax.random.wrap_key_data(jax.random.key_data(jax.random.key(seed)), impl=THREEFRY_IMPL)
 
 
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _bits_both_ways(key_data, shape, dtype):
+    """``random_bits`` of one key's data with ``THREEFRY_IMPL`` and with JAX's threefry, in
+    one program (a program per shape and dtype, not one per function and seed)."""
+    fast = jax.random.wrap_key_data(key_data, impl=THREEFRY_IMPL)
+    return jax.random.bits(fast, shape, dtype), jax.random.bits(
+        jax.random.wrap_key_data(key_data), shape, dtype
+    )
+
+
 @pytest.mark.parametrize("shape", [(), (1,), (7,), (3, 5), (100_001, 11), (2, 3, 4), (0, 3)])
 @pytest.mark.parametrize("dtype", [jnp.uint8, jnp.uint16, jnp.uint32, jnp.uint64])
 def test_threefry_impl_bits_equal_jax(shape, dtype):
     with jax.enable_x64(dtype == jnp.uint64):  # 64-bit draws need x64
         for seed in (0, 1, 2**31 + 5):
-            expected = jax.random.bits(jax.random.key(seed), shape, dtype)
-            np.testing.assert_array_equal(jax.random.bits(_fast(seed), shape, dtype), expected)
+            data = jax.random.key_data(jax.random.key(seed))
+            got, expected = _bits_both_ways(data, shape, dtype)
+            assert got.dtype == expected.dtype == dtype and got.shape == expected.shape == shape
+            np.testing.assert_array_equal(got, expected)
 
 
 def test_threefry_impl_split_fold_in_seed_and_distributions_equal_jax():
