@@ -1,6 +1,8 @@
 """PyTorch references (benchmarks/torch_reference): simulators equal cognet_jax's tagging step,
 both COGNet-DICE versions run, and SPEC section 8 values come out of the torch simulator."""
 
+import importlib
+import importlib.util
 import math
 
 import jax
@@ -8,24 +10,30 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from cognet_jax.envs.tagging import TaggingState
+from cognet_jax.envs.tagging import make_tagging as jax_make_tagging
 
+
+class _ImportedAtFirstUse:
+    """Module ``name``, imported when one of its attributes is first read: importing torch takes
+    about 2 s, which every xdist worker paid while collecting the suite; now only the worker
+    that runs these tests does."""
+
+    def __init__(self, name: str):
+        self._name = name
+
+    def __getattr__(self, attr: str):
+        return getattr(importlib.import_module(self._name), attr)
+
+
+pytestmark = pytest.mark.skipif(
+    importlib.util.find_spec("torch") is None, reason="torch is not installed"
+)
+torch = _ImportedAtFirstUse("torch")
 # ``benchmarks`` is a top-level folder of the repository, not part of the installed package; the
 # pytest configuration (``pythonpath = ["."]``) puts the repository root on the import path.
-from benchmarks.torch_reference import (  # noqa: E402
-    CognetSettings,
-    TorchCognetCompiled,
-    TorchCognetLoop,
-    TorchCognetVectorized,
-    make_tagging,
-)
-from benchmarks.torch_reference.tagging import (  # noqa: E402
-    reset_batched,
-    step_batched,
-    step_scalar,
-)
-from cognet_jax.envs.tagging import TaggingState  # noqa: E402
-from cognet_jax.envs.tagging import make_tagging as jax_make_tagging  # noqa: E402
+reference = _ImportedAtFirstUse("benchmarks.torch_reference")
+torch_tagging = _ImportedAtFirstUse("benchmarks.torch_reference.tagging")
 
 
 def _random_cases(rng, num, noise_len):
@@ -45,7 +53,7 @@ def _random_cases(rng, num, noise_len):
 @pytest.mark.parametrize("noise", [0.0, 0.3])
 def test_torch_simulators_match_jax(setting, noise):
     env, params = jax_make_tagging(setting, motion_noise=noise, obs_noise=noise)
-    cfg = make_tagging(setting, motion_noise=noise, obs_noise=noise)
+    cfg = reference.make_tagging(setting, motion_noise=noise, obs_noise=noise)
     assert cfg.step_noise == env.step_noise and cfg.reset_noise == env.reset_noise
     pos, actions, u = _random_cases(np.random.default_rng(int(noise * 10) + len(setting)), 400, 7)
 
@@ -55,7 +63,7 @@ def test_torch_simulators_match_jax(setting, noise):
     ref = [np.asarray(x) for x in (nxt.taggers, nxt.evader, obs, reward)]
 
     # batched torch
-    out = step_batched(
+    out = torch_tagging.step_batched(
         torch.from_numpy(u),
         torch.from_numpy(pos[:, :2]),
         torch.from_numpy(pos[:, 2]),
@@ -69,7 +77,7 @@ def test_torch_simulators_match_jax(setting, noise):
 
     # scalar (Python floats), row by row
     for k in range(pos.shape[0]):
-        taggers, evader, z, r = step_scalar(
+        taggers, evader, z, r = torch_tagging.step_scalar(
             u[k].tolist(), pos[k, :2].tolist(), float(pos[k, 2]), actions[k].tolist(), cfg
         )
         np.testing.assert_allclose(taggers, ref[0][k], atol=1e-5)
@@ -82,23 +90,28 @@ def test_torch_reset_matches_jax():
     env, params = jax_make_tagging("thesis")
     u = np.random.default_rng(3).uniform(size=(50, env.reset_noise)).astype(np.float32)
     want = jax.vmap(env.reset, (0, None))(jnp.asarray(u), params)
-    taggers, evader = reset_batched(torch.from_numpy(u), make_tagging("thesis"))
+    taggers, evader = torch_tagging.reset_batched(
+        torch.from_numpy(u), reference.make_tagging("thesis")
+    )
     np.testing.assert_allclose(taggers.numpy(), np.asarray(want.taggers), atol=1e-6)
     np.testing.assert_allclose(evader.numpy(), np.asarray(want.evader), atol=1e-6)
 
 
-SMALL = CognetSettings(nodes=3, rollouts=40, top=6, keep=3, eval_rollouts=6, train_steps=2)
+def _small():
+    return reference.CognetSettings(
+        nodes=3, rollouts=40, top=6, keep=3, eval_rollouts=6, train_steps=2
+    )
 
 
-@pytest.mark.parametrize("cls", [TorchCognetLoop, TorchCognetVectorized])
+@pytest.mark.parametrize("cls", ["TorchCognetLoop", "TorchCognetVectorized"])
 def test_one_step_runs(cls):
-    algo = cls(SMALL, seed=0)
+    algo = getattr(reference, cls)(_small(), seed=0)
     first = algo.step()
     second = algo.step()
     for metrics in (first, second):
         for key in ("value", "best_value", "best_candidate", "rollout_mean"):
             assert math.isfinite(metrics[key]), (key, metrics)
-        assert 0 <= metrics["kept"] <= SMALL.keep
+        assert 0 <= metrics["kept"] <= _small().keep
     assert second["best_value"] >= first["value"]
     probs = algo.action_probs
     assert torch.isfinite(probs).all()
@@ -110,7 +123,10 @@ def test_compiled_reference_draws_the_same_numbers_as_the_eager_one():
     """``torch.compile`` of the time step changes speed, not results: same seed, same returns
     (up to float rounding of the fused kernels), for one policy and for a batch of candidates
     with common random numbers (the two shapes an iteration compiles)."""
-    eager, compiled = TorchCognetVectorized(SMALL, seed=3), TorchCognetCompiled(SMALL, seed=3)
+    eager, compiled = (
+        reference.TorchCognetVectorized(_small(), seed=3),
+        reference.TorchCognetCompiled(_small(), seed=3),
+    )
     torch.testing.assert_close(compiled.rollout_returns(64), eager.rollout_returns(64))
     cands = torch.stack([eager.action_probs, eager.action_probs.flip(-1)])
     torch.testing.assert_close(
@@ -121,10 +137,10 @@ def test_compiled_reference_draws_the_same_numbers_as_the_eager_one():
 def test_noise_free_rollouts_draw_no_simulator_uniforms():
     """The vectorised reference draws only the uniforms the setting uses (as XLA keeps only
     the draws the JAX program reads): 2 per agent and step in the noise-free thesis setting."""
-    assert make_tagging("thesis").step_noise_used == 0
-    assert make_tagging("thesis", obs_noise=0.1).step_noise_used == 7
-    assert make_tagging("cogdice-paper").step_noise_used == 7  # respawn
-    algo = TorchCognetVectorized(SMALL, seed=0)
+    assert reference.make_tagging("thesis").step_noise_used == 0
+    assert reference.make_tagging("thesis", obs_noise=0.1).step_noise_used == 7
+    assert reference.make_tagging("cogdice-paper").step_noise_used == 7  # respawn
+    algo = reference.TorchCognetVectorized(_small(), seed=0)
     before = algo.gen.get_state()
     algo.rollout_returns(10)
     after = algo.gen.get_state()
@@ -140,7 +156,7 @@ def test_accepts_cognet_jax_settings():
     from cognet_jax.algorithms.cognet_dice import CognetHyper
     from cognet_jax.algorithms.cognet_dice import CognetSettings as JaxSettings
 
-    algo = TorchCognetVectorized(
+    algo = reference.TorchCognetVectorized(
         JaxSettings(nodes=2, rollouts=40, top=8, keep=2, eval_rollouts=5, train_steps=2),
         hyper=CognetHyper(alpha=jnp.float32(0.3)),
     )
@@ -149,8 +165,10 @@ def test_accepts_cognet_jax_settings():
 
 
 def test_separate_training_step_runs():
-    settings = CognetSettings(nodes=3, rollouts=30, keep=4, eval_rollouts=6, separate=True)
-    for cls in (TorchCognetLoop, TorchCognetVectorized):
+    settings = reference.CognetSettings(
+        nodes=3, rollouts=30, keep=4, eval_rollouts=6, separate=True
+    )
+    for cls in (reference.TorchCognetLoop, reference.TorchCognetVectorized):
         algo = cls(settings, seed=1)
         before = algo.action_probs.clone()
         assert math.isfinite(algo.step()["value"])
@@ -164,12 +182,16 @@ def _region_policy_value(cfg, num, seed=0):
     gen = torch.Generator().manual_seed(seed)
     node_action = torch.tensor([1, 0, 2])
     points = torch.tensor([-1.0, 1.0])
-    taggers, evader = reset_batched(torch.rand(num, cfg.reset_noise, generator=gen), cfg)
+    taggers, evader = torch_tagging.reset_batched(
+        torch.rand(num, cfg.reset_noise, generator=gen), cfg
+    )
     nodes = torch.zeros(num, cfg.num_agents, dtype=torch.long)
     ret, discount = torch.zeros(num, dtype=torch.float64), 1.0
     for _ in range(cfg.horizon):
         u = torch.rand(num, cfg.step_noise, generator=gen)
-        taggers, evader, obs, reward = step_batched(u, taggers, evader, node_action[nodes], cfg)
+        taggers, evader, obs, reward = torch_tagging.step_batched(
+            u, taggers, evader, node_action[nodes], cfg
+        )
         nodes = (points < obs[..., None]).sum(-1)  # number of points strictly below z
         ret += discount * reward
         discount *= cfg.discount
@@ -177,19 +199,19 @@ def _region_policy_value(cfg, num, seed=0):
 
 
 def test_reactive_controller_value_thesis():
-    mean, se = _region_policy_value(make_tagging("thesis"), 20_000)
+    mean, se = _region_policy_value(reference.make_tagging("thesis"), 20_000)
     assert abs(mean - 20.76) < 3 * math.hypot(se, 0.09), (mean, se)
 
 
 def test_random_policy_value_vectorized():
-    algo = TorchCognetVectorized(CognetSettings(nodes=3), seed=2)
+    algo = reference.TorchCognetVectorized(reference.CognetSettings(nodes=3), seed=2)
     ret = algo.rollout_returns(20_000).double()
     mean, se = ret.mean().item(), ret.std().item() / math.sqrt(ret.numel())
     assert abs(mean - (-23.68)) < 3 * se + 0.05, (mean, se)
 
 
 def test_random_policy_value_loop():
-    algo = TorchCognetLoop(CognetSettings(nodes=3), seed=2)
+    algo = reference.TorchCognetLoop(reference.CognetSettings(nodes=3), seed=2)
     ret = algo.rollout_returns(600).double()
     mean, se = ret.mean().item(), ret.std().item() / math.sqrt(ret.numel())
     assert abs(mean - (-23.68)) < 3.5 * se, (mean, se)
@@ -218,8 +240,11 @@ def test_network_training_matches_jax_and_loop():
     nodes, hidden, steps, lr, kept = 4, 5, 3, 0.05, 3
     env, _ = jax_make_tagging("thesis")
     jalgo = CognetDice(env, JaxSettings(nodes=nodes, hidden=hidden, train_steps=steps))
-    settings = CognetSettings(nodes=nodes, hidden=hidden, train_steps=steps)
-    vec, loop = TorchCognetVectorized(settings, seed=3), TorchCognetLoop(settings)
+    settings = reference.CognetSettings(nodes=nodes, hidden=hidden, train_steps=steps)
+    vec, loop = (
+        reference.TorchCognetVectorized(settings, seed=3),
+        reference.TorchCognetLoop(settings),
+    )
     with torch.no_grad():  # the loop modules get the vectorised reference's weights
         for i in range(2):
             for q in range(nodes):
