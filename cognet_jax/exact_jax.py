@@ -20,6 +20,8 @@ controllers and models G-DICE is run on (``exact_cost`` lets callers refuse larg
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -73,12 +75,15 @@ def _backup(params: TabularParams, ja, nxt, v_next, gamma):
     return reward + gamma * cont
 
 
+@functools.partial(jax.jit, static_argnums=(0, 3))
 def exact_value(
     env: TabularEnv, params: TabularParams, policy: DeterministicTabularPolicy, nodes: int
 ) -> jax.Array:
     """Exact ``E[sum_{t<h} gamma^t r_t]`` ``[]`` of one deterministic joint controller
     (``policy.actions [agents, nodes]``, ``policy.transitions [agents, nodes, obs]``) over the
-    env's horizon, from node 0 and ``s_0 ~ b0``. vmap it over a batch of controllers."""
+    env's horizon, from node 0 and ``s_0 ~ b0``. vmap it over a batch of controllers. A ``jit``
+    (``env`` and ``nodes`` static; inlined inside a program): one program where it is called
+    eagerly, not each operation of the joint tables."""
     ja, nxt = _joint_tables(env, policy, nodes)
     gamma = jnp.asarray(params.discount, jnp.float32)
     q, s = nxt.shape[0], env.num_states
@@ -91,6 +96,7 @@ def exact_value(
     return v0[0] @ params.initial_belief
 
 
+@functools.partial(jax.jit, static_argnums=(0, 3))
 def exact_value_layered(
     env: TabularEnv, params: TabularParams, policy: DeterministicTabularPolicy, width: int
 ) -> jax.Array:
