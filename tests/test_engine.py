@@ -45,11 +45,6 @@ def _config(name, extra=()):
     return load_config(experiment, [*sets, *extra])
 
 
-def _same(a, b):
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-
-
 def test_tabular_search_with_own_fitness_and_fresh_values():
     from cognet_jax.api import build_algorithm
     from cognet_jax.exact_jax import exact_value
@@ -87,9 +82,10 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
 
 @functools.cache
 def _driven_by_hand(name):
-    """One iteration of case ``name`` three ways, in one program (what is the same computation
-    is compiled once): ``ask``, ``evaluate`` and ``tell`` by hand; ``step``; and by hand with
-    every candidate valued 0 and ``fresh_value`` giving 7. Returns ``(algorithm, outputs)``."""
+    """One iteration of case ``name`` two ways: ``ask``, ``evaluate`` and ``tell`` by hand and
+    ``step``, as traced programs (``(by_hand, step)`` jaxprs, not compiled); and, compiled, by
+    hand with every candidate valued 0 and ``fresh_value`` giving 7. Returns ``(algorithm,
+    (by_hand, step), outputs)``."""
     algorithm, params, _ = make_step(_config(name))
     state = algorithm.init(jax.random.key(0), params)
 
@@ -102,17 +98,23 @@ def _driven_by_hand(name):
         seven = lambda k, p: jnp.float32(7.0)  # noqa: E731
         return algorithm.tell(key, state, asked, values, params, fresh_value=seven)
 
-    def three(key, state):
-        return by_hand(key, state), algorithm.step(key, state, params), by_hand(key, state, True)
-
-    return algorithm, jax.jit(three)(jax.random.key(5), state)
+    key = jax.random.key(5)
+    traced = [
+        jax.make_jaxpr(f)(key, state) for f in (by_hand, lambda k, s: algorithm.step(k, s, params))
+    ]
+    own = jax.jit(functools.partial(by_hand, own_values=True))(key, state)
+    return algorithm, traced, own
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_ask_evaluate_tell_is_step(name):
-    """A search driven by hand with one iteration key draws exactly what ``step`` draws."""
-    _, (by_hand, step, _) = _driven_by_hand(name)
-    _same(by_hand, step)
+    """A search driven by hand with one iteration key is the program ``step`` runs: the same
+    operations on the same values (equal jaxprs, so equal numbers however it is compiled)."""
+    _, (by_hand, step), _ = _driven_by_hand(name)
+    assert len(by_hand.eqns) > 10  # a whole iteration was traced
+    assert str(by_hand) == str(step)
+    for a, b in zip(by_hand.consts, step.consts, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 #: iteration value each algorithm reports when every candidate is valued 0 and ``fresh`` gives 7:
@@ -131,7 +133,7 @@ OWN_VALUE = {
 def test_ask_evaluate_tell_with_own_values_and_fresh(name):
     """Values of one's own go through ``tell``: with every candidate valued 0 and
     ``fresh_value`` giving 7, the anytime best value is 7."""
-    algorithm, (_, _, (_, metrics)) = _driven_by_hand(name)
+    algorithm, _, (_, metrics) = _driven_by_hand(name)
     if name == "gdice-portfolio":
         assert len(algorithm.members) == 3  # independent, shared, exploring
     assert float(metrics.best_value) == 7.0
