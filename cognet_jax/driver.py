@@ -816,7 +816,8 @@ class _Searched:
 
 def _prepare(runs: list[Run], opts: GroupOptions):
     """``(program, state, history, start, step, compile_s)``: the group's program built, its
-    state initialised or restored from ``opts.checkpoint``, one iteration compiled. Run in a
+    state initialised or restored from ``opts.checkpoint``, one iteration compiled;
+    ``compile_s``: the initial state's and the iteration's programs, compiled or loaded. Run in a
     worker thread (``signals.in_background``): a stop signal ends the command at once, leaving
     the folder as it was (no iteration has finished)."""
     config = runs[0].config
@@ -829,18 +830,23 @@ def _prepare(runs: list[Run], opts: GroupOptions):
             file=sys.stderr,
         )
 
+    what = f"{config.experiment.name}" + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
+
+    def announce():  # once the iteration passed the memory check: a refusal is the only line
+        print(f"compiling {what} ...", file=sys.stderr, flush=True)
+
     def prepare():
         with rollout_mesh(config):
             program = Program(runs)
+            t0 = time.perf_counter()
             state, raw, start = program.init(), None, 0
+            init_s = time.perf_counter() - t0  # its compilation (running it takes no time)
             if opts.resume and opts.checkpoint is not None and opts.checkpoint.exists():
                 state, raw, start = _restore(program, state, opts.checkpoint)
                 total = config.algorithm.iterations
                 opts.log(f"resuming {config.experiment.name} at iteration {start}/{total}")
-            what = f"{config.experiment.name}" + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
-            step, compile_s = program.compile_step(
-                state, lambda: print(f"compiling {what} ...", file=sys.stderr, flush=True)
-            )
+            step, step_s = program.compile_step(state, announce)
+            compile_s = init_s + step_s
             print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
             history = [] if raw is None else _history(step, raw, opts.checkpoint)
         return program, state, history, start, step, compile_s
