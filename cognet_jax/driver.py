@@ -840,7 +840,7 @@ def _prepare(runs: list[Run], opts: GroupOptions):
             program = Program(runs)
             t0 = time.perf_counter()
             state, raw, start = program.init(), None, 0
-            init_s = time.perf_counter() - t0  # its compilation (running it takes no time)
+            init_s = time.perf_counter() - t0  # its compilation (the run is dispatched)
             if opts.resume and opts.checkpoint is not None and opts.checkpoint.exists():
                 state, raw, start = _restore(program, state, opts.checkpoint)
                 total = config.algorithm.iterations

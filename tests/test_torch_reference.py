@@ -23,6 +23,8 @@ class _ImportedAtFirstUse:
         self._name = name
 
     def __getattr__(self, attr: str):
+        if attr.startswith("_"):  # pytest's collection probes names such as ``__test__``
+            raise AttributeError(attr)
         return getattr(importlib.import_module(self._name), attr)
 
 
