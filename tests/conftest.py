@@ -69,7 +69,7 @@ LONGEST_FIRST = {
     for rank, name in enumerate(
         (
             "test_sweep.py",  # 48-55 s
-            "test_engine.py",  # 47-50
+            "test_engine.py",  # 34 (47-50 before its by-hand iteration was compared as jaxprs)
             "test_gdice_defaults.py",  # 37-43
             "test_one_truth.py",  # 33-34
             "test_cognet_dice.py",  # 27
