@@ -18,9 +18,28 @@ from cognet_jax.exact import exact_values, policy_tree_transitions, tree_num_nod
 from cognet_jax.io.dpomdp import parse_dpomdp
 
 
+def _reachable_part(actions, transitions, num_obs):
+    """The nodes of one agent's controller (``actions [nodes]``, ``transitions [nodes, obs]``)
+    that node 0 reaches through its ``num_obs`` observations, renumbered in the order found:
+    the same policy on fewer nodes."""
+    order, seen = [0], {0}
+    for q in order:
+        for nxt in transitions[q, :num_obs]:
+            if int(nxt) not in seen:
+                seen.add(int(nxt))
+                order.append(int(nxt))
+    new_id = np.zeros(len(actions), np.int64)
+    new_id[order] = np.arange(len(order))
+    return actions[order], new_id[transitions[order]]
+
+
 def _tree_values(model, other_actions, other_trans, agent, horizon):
     """Exact value of every deterministic policy tree of ``agent`` against the other agent's
-    fixed controller (brute force, numpy, one batch)."""
+    fixed controller (brute force, numpy, one batch; the other controller cut to the nodes it
+    reaches, so joint nodes are fewer)."""
+    other_actions, other_trans = _reachable_part(
+        other_actions, other_trans, model.obs_counts[1 - agent]
+    )
     z, a = model.obs_counts[agent], model.action_counts[agent]
     nodes = tree_num_nodes(z, horizon)
     trees = np.array(list(itertools.product(range(a), repeat=nodes)), np.int64)
