@@ -259,6 +259,31 @@ def roofline(out: dict) -> list[str]:
     return lines
 
 
+def roofline_verdict(out: dict) -> str:
+    """What the roofline table says, from its numbers: which kinds run far below their compute
+    bound (then moving fewer bytes between kernels is the next factor) and which near it."""
+    peak, far, near = out.get("machine_peak"), [], []
+    for c in out.get("rollout_cost", []) if peak else []:
+        rate = (_measured_rate(out, c) or 0) / 1e6
+        name = f"{c.get('kind', 'neural (COGNet-DICE)')} at {c['nodes']} nodes"
+        (far if rate < 0.5 * peak["matmul_gflops"] * 1e3 / c["flops"] else near).append(name)
+    text = []
+    if far:
+        text.append(
+            f"Far below the compute bound and near (or above) the DRAM estimate: {', '.join(far)}; "
+            "there the next factor comes from moving fewer bytes between kernels (fusing the "
+            "simulator step, the controller and the draws of one time step into fewer kernels), "
+            "not from faster arithmetic."
+        )
+    if near:
+        text.append(
+            f"At half the compute bound or more: {', '.join(near)}; there the operations XLA "
+            "counts are the bound, and the next factor needs fewer of them per agent-step (a "
+            "rate above the bound means they ran faster than the matmul peak measured)."
+        )
+    return " ".join(text + ["benchmarks/NOTES.md: the cycles per agent-step by part."])
+
+
 def parser_table(row: dict) -> list[str]:
     """The parser benchmark row (``benchmarks/parser.py``)."""
     return [
@@ -429,16 +454,9 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
         "(bytes = traffic between compiled kernels); compute bound = matmul peak / flops; "
         "all bytes from DRAM = streaming bandwidth / bytes, the rate if every byte between "
         "kernels went to main memory (measured above it means part of that traffic stays in "
-        "cache). Every kind runs far below its compute bound and near (or above) the DRAM "
-        "estimate: the next factor comes from moving fewer bytes between kernels (fusing the "
-        "simulator step, the controller and the draws of one time step into fewer kernels), "
-        "not from faster arithmetic (benchmarks/NOTES.md: the kernel passes so far)."
-        if all(
-            (_measured_rate(out, c) or 0) / 1e6
-            < 0.5 * out["machine_peak"]["matmul_gflops"] * 1e3 / c["flops"]
-            for c in out.get("rollout_cost", [])
-        )
-        else "cache).",
+        "cache).",
+        "",
+        roofline_verdict(out),
         "",
     ]
     if out.get("parser"):

@@ -42,3 +42,23 @@ def test_torch_headline_is_the_least_favourable_size():
     ratio, nodes, best, each = smallest_torch_ratio(rows, "jax", 100_000)
     assert (round(ratio, 6), nodes, best["impl"]) == (5.0, 3, "torch-compiled")
     assert each == "3 nodes 5.0x, 6 nodes 15.0x"
+
+
+def test_roofline_section_defines_its_columns_and_reads_its_numbers(tmp_path: Path):
+    """The README's roofline paragraph, written from the published results.json: the columns
+    defined, and each controller kind named on the side of half its compute bound that its
+    table row shows (it once printed a stray 'cache).' instead, when a kind ran near it)."""
+    import json
+
+    from benchmarks.report import write_readme
+
+    write_readme(json.loads((HERE / "results.json").read_text()), tmp_path / "README.md")
+    section = (tmp_path / "README.md").read_text().split("## Roofline")[1].split("\n## ")[0]
+    assert "compute bound = matmul peak / flops" in section
+    rows = [line.split(" | ") for line in section.splitlines() if line.startswith("| ")][2:]
+    assert rows
+    far = section.split("Far below the compute bound")[-1].split(";")[0]
+    near = section.split("At half the compute bound or more")[-1].split(";")[0]
+    for row in rows:
+        name = f"{row[0].strip('| ')} at {row[1]} nodes"
+        assert name in (near if float(row[7]) >= 0.5 else far), (name, row[7])
