@@ -1,12 +1,15 @@
 """Test-session set-up.
 
 **A compilation cache per test process**, so a program with the same HLO (the same small config
-built in two tests of a file, or in a test and the ``cognet-jax`` process it starts:
-``shared_files.compile_cache_env``) is compiled once. One folder per process, not one for all
-xdist workers: JAX writes cache entries without a lock unless a size bound is set, and with one
-it lists the folder at every write, which made the suite slower than compiling twice. (One
-folder shared by both workers without a bound, tried 2026-11-27: as many compiles, about 3,700,
-and no faster.) The folder is removed at the end of the session.
+built in two tests of a file, or in a test and the ``cognet-jax`` process it starts: the
+environment of ``shared_files.compile_cache_env``, set for every process a test starts) is
+compiled once. One folder per process, not one for all xdist workers: JAX writes cache entries
+without a lock unless a size bound is set, and with one it lists the folder at every write,
+which made the suite slower than compiling twice. (One folder shared by both workers without a
+bound, tried 2026-11-27: as many compiles, about 3,700, and no faster; of the 2,183 programs the
+two workers kept in one later run (the cache key made independent of the folder: JAX's
+``jax_persistent_cache_enable_xla_caches = 'none'``), 190 were the same in both, 7 s of
+compiling.) The folder is removed at the end of the session.
 
 **Most optimisations off for the tests**: JAX's own ``jax_disable_most_optimizations`` (XLA's
 backend at optimisation level 0 and LLVM's expensive passes off), set in this process and,
@@ -42,7 +45,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from shared_files import with_suite_xla_flags
+from shared_files import compile_cache_env, with_suite_xla_flags
 
 #: JAX's flag (and its environment variable, read when JAX is imported and by subprocesses)
 FAST_COMPILE = "JAX_DISABLE_MOST_OPTIMIZATIONS"
@@ -56,6 +59,11 @@ _CACHE = Path(tempfile.mkdtemp(prefix="cognet-jax-test-cache-"))
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+# every process a test starts uses this folder too, unless the test chooses (the command line's
+# own default, ~/.cache/cognet-jax, is never read or written: a warm one would make the suite
+# faster here than on a fresh machine)
+os.environ.update(compile_cache_env())
+os.environ["COGNET_JAX_CACHE"] = str(_CACHE)
 
 
 #: the test files taking 5 s or more, longest first (seconds of test time, both workers, on the
@@ -85,9 +93,10 @@ LONGEST_FIRST = {
             "test_checkpoint.py",  # 16-17
             "test_gdice.py",  # 14-16
             "test_cli_errors.py",  # 13-16
-            "test_best_response.py",  # 11-12
             "test_shard_rollouts.py",  # 11
             "test_registry.py",  # 9-10
+            "test_compile_cache.py",  # 9
+            "test_best_response.py",  # 7-8 (11-12 before its brute force cut the other agent)
             "test_exact_jax.py",  # 7-8
             "test_torch_reference.py",  # 7-8
             "test_cogdice.py",  # 7

@@ -1,0 +1,77 @@
+"""The command line keeps compiled programs in JAX's persistent compilation cache: the folder
+it picks, a repeated run in a fresh process that loads instead of compiling, and the switch
+that turns it off (README, "Compile once")."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from cognet_jax.cli import compile_cache_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = [
+    "algorithm.iterations=3",
+    "algorithm.rollouts=40",
+    "algorithm.top=8",
+    "algorithm.keep=3",
+    "algorithm.eval_rollouts=8",
+    "evaluation.rollouts=100",
+    "run.plots=false",
+]
+
+
+def test_the_folder_is_the_variable_else_xdg_else_home(monkeypatch, tmp_path):
+    monkeypatch.setenv("COGNET_JAX_CACHE", str(tmp_path / "mine"))
+    assert compile_cache_dir() == tmp_path / "mine"
+    for off in ("off", "0", "false", "None"):
+        monkeypatch.setenv("COGNET_JAX_CACHE", off)
+        assert compile_cache_dir() is None
+    monkeypatch.delenv("COGNET_JAX_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert compile_cache_dir() == tmp_path / "xdg" / "cognet-jax" / "xla"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert compile_cache_dir() == tmp_path / "home" / ".cache" / "cognet-jax" / "xla"
+
+
+def _cli(cache: Path, *args: str) -> str:
+    """``cognet-jax ARGS`` in a fresh process whose only cache setting is ``COGNET_JAX_CACHE``
+    (the suite's optimisation settings kept: conftest.py); returns its stderr."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(_JAX_CACHE_VARIABLES)}
+    env.update(COGNET_JAX_CACHE=str(cache), PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [sys.executable, "-m", "cognet_jax", *args], env=env, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stderr
+
+
+_JAX_CACHE_VARIABLES = ("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE")
+
+
+def _train(out: Path, cache: Path) -> tuple[dict, str]:
+    args = ["train", "tagging-thesis-spec-n3", "--seed", "1", "--out", str(out), "--no-progress"]
+    log = _cli(cache, *args, *[x for s in TINY for x in ("--set", s)])
+    return json.loads((out / "results.json").read_text()), log
+
+
+def test_a_repeated_run_loads_its_programs_and_off_keeps_none(tmp_path):
+    """The first run says it compiles and how long that took; the same run again in a fresh
+    process compiles in at most 1 s (``compile_s``: the initial state's and the iteration's
+    programs) and gives the same numbers. With ``--no-compile-cache`` nothing is written."""
+    cache = tmp_path / "cache"
+    first, log = _train(tmp_path / "a", cache)
+    assert "compiling tagging-thesis-spec-n3" in log and "compiled tagging-thesis-spec-n3 in" in log
+    assert any(cache.iterdir())
+    second, _ = _train(tmp_path / "b", cache)
+    assert second["compile_s"] <= 1.0 and second["compile_s"] < first["compile_s"], (
+        first["compile_s"],
+        second["compile_s"],
+    )
+    assert second["final_value"] == first["final_value"]
+    assert second["values_per_iteration"] == first["values_per_iteration"]
+    unused = tmp_path / "unused"
+    _cli(unused, "evaluate", str(tmp_path / "a"), "--rollouts", "50", "--no-compile-cache")
+    assert not unused.exists() or not any(unused.iterdir())
