@@ -1,6 +1,6 @@
 """The command line keeps compiled programs in JAX's persistent compilation cache: the folder
 it picks, a repeated run in a fresh process that loads instead of compiling, and the switch
-that turns it off (README, "Compile once")."""
+that turns it off (README, "Compiled programs are kept")."""
 
 import json
 import os
@@ -59,17 +59,17 @@ def _train(out: Path, cache: Path) -> tuple[dict, str]:
 
 def test_a_repeated_run_loads_its_programs_and_off_keeps_none(tmp_path):
     """The first run says it compiles and how long that took; the same run again in a fresh
-    process compiles in at most 1 s (``compile_s``: the initial state's and the iteration's
-    programs) and gives the same numbers. With ``--no-compile-cache`` nothing is written."""
+    process loads its programs: ``compile_s`` (the initial state's and the iteration's
+    programs) under a third of the first run's, and the same numbers. (Alone on the 2-core CPU
+    the second run's ``compile_s`` is 0.4 s against 2.7 s, with two busy loops beside it 0.66 s
+    against 4.4 s, so an absolute bound would depend on the suite's load; a run without the
+    cache compiles as long as the first.) With ``--no-compile-cache`` nothing is written."""
     cache = tmp_path / "cache"
     first, log = _train(tmp_path / "a", cache)
     assert "compiling tagging-thesis-spec-n3" in log and "compiled tagging-thesis-spec-n3 in" in log
     assert any(cache.iterdir())
     second, _ = _train(tmp_path / "b", cache)
-    assert second["compile_s"] <= 1.0 and second["compile_s"] < first["compile_s"], (
-        first["compile_s"],
-        second["compile_s"],
-    )
+    assert second["compile_s"] < first["compile_s"] / 3, (first["compile_s"], second["compile_s"])
     assert second["final_value"] == first["final_value"]
     assert second["values_per_iteration"] == first["values_per_iteration"]
     unused = tmp_path / "unused"
