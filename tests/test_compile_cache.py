@@ -36,19 +36,24 @@ def test_the_folder_is_the_variable_else_xdg_else_home(monkeypatch, tmp_path):
     assert compile_cache_dir() == tmp_path / "home" / ".cache" / "cognet-jax" / "xla"
 
 
+#: the suite's cache settings (conftest.py), left out of the processes these tests start
+_JAX_CACHE_VARIABLES = ("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE")
+
+
 def _cli(cache: Path, *args: str) -> str:
     """``cognet-jax ARGS`` in a fresh process whose only cache setting is ``COGNET_JAX_CACHE``
     (the suite's optimisation settings kept: conftest.py); returns its stderr."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(_JAX_CACHE_VARIABLES)}
     env.update(COGNET_JAX_CACHE=str(cache), PYTHONPATH=str(ROOT))
     proc = subprocess.run(
-        [sys.executable, "-m", "cognet_jax", *args], env=env, capture_output=True, text=True
+        [sys.executable, "-m", "cognet_jax", *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stderr
-
-
-_JAX_CACHE_VARIABLES = ("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE")
 
 
 def _train(out: Path, cache: Path) -> tuple[dict, str]:
