@@ -231,6 +231,15 @@ def _measured_rate(out: dict, cost: dict) -> float | None:
     return None
 
 
+def _compute_bound(peak: dict, cost: dict) -> float:
+    """Agent-steps/s (millions) if every flop of ``cost`` ran at the measured matmul peak."""
+    return peak["matmul_gflops"] * 1e3 / cost["flops"]
+
+
+def _kind(cost: dict) -> str:
+    return cost.get("kind", "neural (COGNet-DICE)")
+
+
 def roofline(out: dict) -> list[str]:
     """Bound on agent-steps/s from XLA's cost analysis and the measured machine peaks, one
     line per controller kind, and which bound the measured rate is nearer."""
@@ -247,12 +256,12 @@ def roofline(out: dict) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in out.get("rollout_cost", []):
-        compute = peak["matmul_gflops"] * 1e9 / c["flops"] / 1e6
+        compute = _compute_bound(peak, c)
         memory = peak["bandwidth_gbs"] * 1e9 / c["bytes"] / 1e6
         rate = _measured_rate(out, c)
         measured = rate / 1e6 if rate else float("nan")
         lines.append(
-            f"| {c.get('kind', 'neural (COGNet-DICE)')} | {c['nodes']} | {c['flops']:.0f} | "
+            f"| {_kind(c)} | {c['nodes']} | {c['flops']:.0f} | "
             f"{c['bytes']:.0f} | {compute:.0f} | {memory:.1f} | {measured:.2f} | "
             f"{measured / compute:.2f} | {measured / memory:.2f} |"
         )
@@ -265,8 +274,8 @@ def roofline_verdict(out: dict) -> str:
     peak, far, near = out.get("machine_peak"), [], []
     for c in out.get("rollout_cost", []) if peak else []:
         rate = (_measured_rate(out, c) or 0) / 1e6
-        name = f"{c.get('kind', 'neural (COGNet-DICE)')} at {c['nodes']} nodes"
-        (far if rate < 0.5 * peak["matmul_gflops"] * 1e3 / c["flops"] else near).append(name)
+        name = f"{_kind(c)} at {c['nodes']} nodes"
+        (far if rate < 0.5 * _compute_bound(peak, c) else near).append(name)
     text = []
     if far:
         text.append(
