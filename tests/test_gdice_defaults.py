@@ -149,7 +149,7 @@ def test_default_gdice_reaches_dectiger_h4_optimum():
         [
             f"problem.path={str(_file('dectiger'))!r}",
             "problem.horizon=4",
-            "algorithm.iterations=60",
+            "algorithm.iterations=30",
         ],
     )
     algo, _ = build_algorithm(config)
