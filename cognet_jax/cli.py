@@ -675,13 +675,19 @@ def limit_malloc_arenas() -> None:
         pass
 
 
-def run() -> None:
-    """The ``cognet-jax`` executable: ``main`` with the process's arguments. After a stop
-    signal the process ends with ``os._exit`` (the output flushed first): the interpreter's
-    shutdown would otherwise wait for, or tear down under, a computation still running in XLA
-    (a segmentation fault). The garbage collector runs less often (``GC_THRESHOLDS``)."""
+def set_up_process() -> None:
+    """What the executable sets in its process before ``main``: malloc's arenas
+    (``limit_malloc_arenas``) and the garbage collector's thresholds (``GC_THRESHOLDS``)."""
     limit_malloc_arenas()
     gc.set_threshold(*GC_THRESHOLDS)
+
+
+def run() -> None:
+    """The ``cognet-jax`` executable: ``main`` with the process's arguments, in a process set
+    up by ``set_up_process``. After a stop signal the process ends with ``os._exit`` (the
+    output flushed first): the interpreter's shutdown would otherwise wait for, or tear down
+    under, a computation still running in XLA (a segmentation fault)."""
+    set_up_process()
     code = main()
     if _STOPPED["signum"] is not None:
         sys.stdout.flush()

@@ -98,8 +98,8 @@ def test_fire_fighting_four_houses_is_the_2025_state_model(models):
 #: (``VmHWM``, KiB) on stderr: the parent's ``ru_maxrss`` of a child counts the memory of the
 #: process it was forked from
 PEAK_RSS = (
-    "import sys; from cognet_jax.cli import limit_malloc_arenas, main; "
-    "limit_malloc_arenas(); code = main(sys.argv[1:]); "
+    "import sys; from cognet_jax.cli import main, set_up_process; "
+    "set_up_process(); code = main(sys.argv[1:]); "
     "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]; "
     "print('peak-rss-kib', hwm, file=sys.stderr); sys.exit(code)"
 )
