@@ -166,7 +166,8 @@ def test_two_devices_same_table(one_process, tmp_path):
     _, result = one_process
     code = (
         "import sys, jax; assert jax.local_device_count() == 2; "
-        "from cognet_jax.cli import main; sys.exit(main(sys.argv[1:]))"
+        "from cognet_jax.cli import main, set_up_process; set_up_process(); "
+        "sys.exit(main(sys.argv[1:]))"
     )
     out = tmp_path / "dev2"
     proc = subprocess.run(
