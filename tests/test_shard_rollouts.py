@@ -26,8 +26,8 @@ import json, sys
 import jax
 from cognet_jax.cli import set_up_process
 from cognet_jax.driver import rollout_mesh, train
-set_up_process()  # as the executable's process
 from cognet_jax.registry import load_config
+set_up_process()  # as the executable's process
 assert jax.local_device_count() == 2, jax.local_devices()
 out, sets = sys.argv[1], sys.argv[2:]
 for shard in ("false", "true"):
