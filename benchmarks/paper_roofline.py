@@ -19,7 +19,15 @@ step to step so that XLA cannot hoist it out of the loop:
 
 Cycles are ``seconds x logical CPUs x clock / agent-steps`` at the clock /proc/cpuinfo reports.
 The parts alone need not add up to the rollouts: in the rollouts XLA fuses them (less memory
-traffic) and schedules them on both cores together.
+traffic) and schedules them on both cores together. Beside each part: the operations XLA's
+cost analysis counts per agent-step and the cycles they take at the float32 matmul peak
+measured first (``jax_cases.machine_peak``, fused multiply-adds counted as 2), the compute
+bound of those operations. XLA counts a loop's body once: one time step of the scan over the
+horizon, and below 4 nodes (``neural.UNROLL_MIN_NODES``: a ``lax.scan`` over the members) one
+member network instead of all of them, so there the network's count is a third of what runs.
+Likewise the bytes XLA counts between its kernels per agent-step, and the cycles they take at
+the streaming bandwidth (every byte from main memory). The whole iteration, loops in loops,
+has none of these columns.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import os
 import jax
 import jax.numpy as jnp
 
+from benchmarks.jax_cases import machine_peak
 from benchmarks.timing import time_jax
 
 #: (label, experiment): one chunk of candidates of each -full experiment as its iteration
@@ -110,26 +119,49 @@ def parts(env, ctrl, params, policies, candidates: int, num: int) -> dict:
     }
 
 
-def timed_row(name: str, fn, args: tuple, steps: int, calls: int, hz: float) -> str:
-    """``| name | ms | cycles per agent-step |`` of the median call of ``jax.jit(fn)`` (after
-    the benchmark runner's warm-up, ``timing.time_jax``); printed as it is measured."""
+def cycles(seconds: float, steps: float, hz: float) -> str:
+    """``seconds`` of both CPUs as cycles per agent-step ("-" when the clock is unknown)."""
+    return f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
+
+
+def timed_row(name: str, fn, args: tuple, steps: int, calls: int, hz: float, cost=None) -> str:
+    """``| name | ms | cycles per agent-step | flops | their cycles | bytes | their cycles |``
+    of the median call of ``jax.jit(fn)`` (after the benchmark runner's warm-up,
+    ``timing.time_jax``), printed as it is measured: XLA's counts per agent-step and the
+    cycles they take at the machine's peaks. ``cost``: ``(agent-steps of one loop body,
+    machine_peak())``, or None for no cost columns."""
     seconds = time_jax(fn, *args, runs=calls).median_s
-    cycles = f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
-    row = f"| {name} | {seconds * 1e3:.1f} | {cycles} |"
+    counts = ["-"] * 4
+    if cost is not None:
+        per_body, peak = cost
+        analysis = jax.jit(fn).lower(*args).compile().cost_analysis()
+        flops, moved = analysis["flops"] / per_body, analysis["bytes accessed"] / per_body
+        counts = [
+            f"{flops:.0f}",
+            cycles(flops / (peak["matmul_gflops"] * 1e9), 1, hz),
+            f"{moved:.0f}",
+            cycles(moved / (peak["bandwidth_gbs"] * 1e9), 1, hz),
+        ]
+    row = f"| {name} | {seconds * 1e3:.1f} | {cycles(seconds, steps, hz)} | {' | '.join(counts)} |"
     print(f"  {row}", flush=True)
     return row
 
 
-def measure_parts(label, env, ctrl, params, policies, candidates, num, calls, hz) -> list[str]:
-    """Table rows ``| label: part | ms | cycles per agent-step |`` of every part."""
-    steps = max(candidates, 1) * num * env.horizon * env.num_agents
+def measure_parts(
+    label, env, ctrl, params, policies, candidates, num, calls, hz, peak
+) -> list[str]:
+    """Table rows of every part (``timed_row``; ``peak``: ``jax_cases.machine_peak()``)."""
+    per_body = max(candidates, 1) * num * env.num_agents  # agent-steps of one time step
+    steps = per_body * env.horizon
     return [
-        timed_row(f"{label}: {name}", fn, (jax.random.key(1),), steps, calls, hz)
+        timed_row(f"{label}: {name}", fn, (jax.random.key(1),), steps, calls, hz, (per_body, peak))
         for name, fn in parts(env, ctrl, params, policies, candidates, num).items()
     ]
 
 
-def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: float) -> list[str]:
+def paper_rows(
+    label: str, experiment: str, sets: list[str], calls: int, hz: float, peak: dict
+) -> list[str]:
     """Every part of one chunk of candidates of ``experiment``'s iteration, and the iteration."""
     from cognet_jax.api import build_algorithm
     from cognet_jax.memory import candidate_chunk
@@ -161,6 +193,7 @@ def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: flo
         s.eval_rollouts,
         calls,
         hz,
+        peak,
     )
     steps = algorithm.rollouts_per_iteration * env.horizon * env.num_agents
     iteration = lambda k, st: algorithm.step(k, st, params)  # noqa: E731
@@ -169,7 +202,7 @@ def paper_rows(label: str, experiment: str, sets: list[str], calls: int, hz: flo
     return rows
 
 
-def rollout_rows(nodes: int, calls: int, hz: float) -> list[str]:
+def rollout_rows(nodes: int, calls: int, hz: float, peak: dict) -> list[str]:
     """Every part of the rollout benchmark's case (benchmarks.jax_cases.rollout_throughput)."""
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
@@ -178,7 +211,7 @@ def rollout_rows(nodes: int, calls: int, hz: float) -> list[str]:
     ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     policy = ctrl.init(jax.random.key(0))
     label = f"rollouts, {nodes} nodes, h 3, 1e5"
-    return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz)
+    return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz, peak)
 
 
 def main() -> None:
@@ -188,13 +221,24 @@ def main() -> None:
     parser.add_argument("--rollouts", type=int, nargs="+", metavar="NODES")
     args = parser.parse_args()
     hz = clock_hz()
-    lines = ["| part | ms per call | cycles per agent-step |", "|---|---|---|"]
+    peak = machine_peak()
+    print(
+        f"float32 matmul peak {peak['matmul_gflops']:.0f} GFLOP/s, "
+        f"streaming bandwidth {peak['bandwidth_gbs']:.1f} GB/s",
+        flush=True,
+    )
+    lines = [
+        "| part | ms per call | cycles per agent-step | XLA flops per agent-step "
+        "| their cycles at the matmul peak | XLA bytes per agent-step "
+        "| their cycles at the bandwidth |",
+        "|---|---|---|---|---|---|---|",
+    ]
     if args.rollouts:
         for nodes in args.rollouts:
-            lines += rollout_rows(nodes, max(args.calls, 15), hz)
+            lines += rollout_rows(nodes, max(args.calls, 15), hz, peak)
     else:
         for label, experiment in EXPERIMENTS:
-            lines += paper_rows(label, experiment, args.set, args.calls, hz)
+            lines += paper_rows(label, experiment, args.set, args.calls, hz, peak)
     print(f"\n{os.cpu_count()} logical CPUs at {hz / 1e9:.2f} GHz (/proc/cpuinfo)\n")
     print("\n".join(lines))
 
