@@ -130,12 +130,13 @@ def timed_row(name: str, fn, args: tuple, steps: int, calls: int, hz: float, cos
     ``timing.time_jax``), printed as it is measured: XLA's counts per agent-step and the
     cycles they take at the machine's peaks. ``cost``: ``(agent-steps of one loop body,
     machine_peak())``, or None for no cost columns."""
-    seconds = time_jax(fn, *args, runs=calls).median_s
+    timing = time_jax(fn, *args, runs=calls)
+    seconds = timing.median_s
     counts = ["-"] * 4
     if cost is not None:
         per_body, peak = cost
-        analysis = jax.jit(fn).lower(*args).compile().cost_analysis()
-        flops, moved = analysis["flops"] / per_body, analysis["bytes accessed"] / per_body
+        flops = timing.cost["flops"] / per_body
+        moved = timing.cost["bytes accessed"] / per_body
         counts = [
             f"{flops:.0f}",
             cycles(flops / (peak["matmul_gflops"] * 1e9), 1, hz),

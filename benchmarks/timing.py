@@ -18,6 +18,8 @@ class Timing:
     max_s: float
     runs: int
     compile_s: float | None = None
+    #: XLA's cost analysis of the compiled program (``time_jax``): "flops", "bytes accessed", ...
+    cost: dict | None = None
 
     def row(self) -> str:
         return f"{self.median_s * 1e3:.2f} ms ({self.min_s * 1e3:.2f}-{self.max_s * 1e3:.2f})"
@@ -53,12 +55,13 @@ def time_calls(fn: Callable[[], object], runs: int = 5, warmup: int = 1) -> Timi
 
 
 def time_jax(fn, *args, runs: int = 5) -> Timing:
-    """Compile ``jax.jit(fn)`` ahead of time (timed apart), then time calls on ``args``."""
+    """Compile ``jax.jit(fn)`` ahead of time (timed apart, its cost analysis kept), then time
+    calls on ``args``."""
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
     timing = time_calls(lambda: compiled(*args), runs=runs)
-    timing.compile_s = compile_s
+    timing.compile_s, timing.cost = compile_s, compiled.cost_analysis()
     return timing
 
 
