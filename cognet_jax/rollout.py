@@ -107,7 +107,7 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     )(k_reset)
     gamma = jnp.asarray(env_params.discount, jnp.float32)
     act = lane(jax.vmap(controller.act, (0, None, 0)), key_axis, policy_axes, 0)
-    move = lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
+    move = _node_mover(controller, lane, key_axis, policy_axes)
     env_step = lane(jax.vmap(env.step, (0, 0, 0, None)), key_axis, 0, 0, None)
     nodes = jnp.zeros((num, n), jnp.int32)
     ret = jnp.zeros(num, jnp.float32)
@@ -150,6 +150,40 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     out = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), out, out_last)
     nodes, actions, obs, next_nodes, rewards = (jnp.swapaxes(x, 0, 1) for x in out)
     return Trajectory(nodes, actions, obs, next_nodes, rewards, ret)
+
+
+def _node_mover(controller, lane, key_axis, policy_axes):
+    """The batched ``controller.next_node``: ``(u [*lead, agents], policy, nodes [*lead,
+    agents], obs [*lead, agents, *raw]) -> [*lead, agents]`` with ``lead`` the ``[rollouts]``
+    (one policy) or ``[candidates, rollouts]`` axes; ``lane`` maps a function over the
+    candidates (``_simulate``).
+
+    Controllers with ``agents_major`` (small written-out node networks) are applied to arrays
+    laid out ``[agents, *lead]``: their per-agent function ``agent_next_node`` is ``vmap``-ed
+    over the rollouts, the candidates, then the agents, so the rollouts are the arrays' minor
+    axis, and the inputs and the result are transposed around it. The same operations on
+    every element, so the same numbers (tests/test_rollout.py); with the agents (2 for
+    tagging) as the minor axis XLA's CPU loops ran the networks at half the speed
+    (benchmarks/NOTES.md, "Eighth pass")."""
+    if not getattr(controller, "agents_major", False):
+        return lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
+    inputs = lane(jax.vmap(controller.node_inputs), 0)
+    per_agent = lane(
+        jax.vmap(controller.agent_next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0
+    )
+    # the agents' axis of every policy leaf: after the candidates' axis where there is one
+    agent_axes = jax.tree.map(
+        lambda ax: 0 if ax is None else ax + 1, policy_axes, is_leaf=lambda x: x is None
+    )
+    per_agent = jax.vmap(per_agent, (0, agent_axes, 0, 0))
+
+    def move(u, policy, nodes, obs):
+        lead = nodes.ndim - 1
+        first = lambda x, axis: jnp.moveaxis(x, axis, 0)  # noqa: E731
+        out = per_agent(first(u, -1), policy, first(nodes, -1), first(inputs(obs), lead))
+        return jnp.moveaxis(out, 0, -1)
+
+    return move
 
 
 def _batched(policy_axes, policies, fn):

@@ -60,6 +60,44 @@ def test_rollouts_do_not_depend_on_the_form(monkeypatch):
     assert jnp.size(jax.tree.leaves(unrolled)[0]) > 0
 
 
+def test_agents_major_rollouts_are_the_per_rollout_ones(monkeypatch):
+    """The engine draws the next nodes of small-network controllers with fewer than
+    ``UNROLL_MIN_NODES`` nodes laid out ``[agents, candidates, rollouts]`` (``agents_major``):
+    the same returns and trajectories bit for bit as ``next_node`` per rollout, for one policy
+    and for candidates with their own or shared networks, compiled as a user's process
+    compiles them."""
+    from cognet_jax.controllers.neural import NeuralPolicy
+    from cognet_jax.rollout import evaluate_candidates
+
+    env, params = make_tagging("cogdice-paper")  # noisy, respawn
+    ctrl = NeuralController(env.num_agents, 3, env.num_actions)
+    assert ctrl.agents_major
+    policies = jax.vmap(ctrl.init)(jax.random.split(jax.random.key(5), 4))
+    shared = NeuralPolicy(policies.action_probs, jax.tree.map(lambda p: p[0], policies.net_params))
+    key = jax.random.key(6)
+
+    def run():
+        one = jax.tree.map(lambda p: p[1], policies)
+        programs = [
+            lambda: rollouts(env, ctrl, key, 256, params, one, record=True),
+            lambda: evaluate_candidates(env, ctrl, key, 128, params, policies),
+            lambda: evaluate_candidates(
+                env, ctrl, key, 128, params, shared, NeuralPolicy(0, None), None, False
+            ),
+        ]
+        out = [jax.jit(p).lower().compile(compiler_options=DEFAULT_EMITTERS)() for p in programs]
+        return jax.tree.map(np.asarray, out)
+
+    agents_major = run()
+    monkeypatch.setattr(NeuralController, "agents_major", property(lambda self: False))
+    per_rollout = run()
+    for a, b in zip(jax.tree.leaves(agents_major), jax.tree.leaves(per_rollout), strict=True):
+        np.testing.assert_array_equal(
+            a.view(np.uint32) if a.dtype == np.float32 else a,
+            b.view(np.uint32) if b.dtype == np.float32 else b,
+        )
+
+
 def _jit_calls(jaxpr, name: str) -> list:
     """The ``jit`` equations named ``name`` in ``jaxpr`` and every jaxpr nested in it."""
     found = []
@@ -87,14 +125,14 @@ def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch):
         return lambda k, p: rollouts(env, ctrl, k, 512, params, p, record=True)
 
     jaxpr = jax.make_jaxpr(fresh())(key, policy).jaxpr
-    for name in ("normal_from_uniform", "_written_out_mlp"):
+    for name in ("normal_from_uniform", "_written_out_outputs"):
         calls = _jit_calls(jaxpr, name)
         assert len(calls) >= 2, name  # the scan's body and the last step
         assert len({id(c.params["jaxpr"]) for c in calls}) == 1, name
     jitted = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
     monkeypatch.setattr(base, "normal_from_uniform", base.normal_from_uniform.__wrapped__)
-    monkeypatch.setattr(neural, "_written_out_mlp", neural._written_out_mlp.__wrapped__)
-    for name in ("normal_from_uniform", "_written_out_mlp"):
+    monkeypatch.setattr(neural, "_written_out_outputs", neural._written_out_outputs.__wrapped__)
+    for name in ("normal_from_uniform", "_written_out_outputs"):
         assert not _jit_calls(jax.make_jaxpr(fresh())(key, policy).jaxpr, name)
     plain = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
     for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):

@@ -132,58 +132,89 @@ class NeuralController:
         ``self.net.apply`` (the Flax module, used for training), up to float rounding."""
         if not self.unrolled:
             return self.net.apply(member_params, obs)
+        self.check_inputs(obs)
+        return _written_out_mlp(member_params["params"], obs)
+
+    def check_inputs(self, obs: jax.Array) -> None:
+        """Refuse an observation with another number of inputs than the networks read."""
         if math.prod(obs.shape) != self.in_features:
             raise ValueError(
                 f"node network reads {self.in_features} inputs, got an observation of shape "
                 f"{tuple(obs.shape)}"
             )
-        return _written_out_mlp(member_params["params"], obs)
 
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
-        """Logits ``[agents, nodes]`` of each agent's current-node network on its observation.
+        """Logits ``[agents, nodes]`` of each agent's current-node network on its observation
+        (``agent_node_logits`` for every agent)."""
+        return jax.vmap(self.agent_node_logits)(net_params, nodes, obs)
 
-        Every member of each agent is applied and its logits kept where the agent is in that
-        node (``where``), instead of gathering each rollout's member weights: under ``vmap`` over
-        rollouts each member is then one fused loop (or one batched matmul) over all rollouts and
-        no per-rollout copy of the weights is made (benchmarks/NOTES.md: on the heatmap's
+    def agent_node_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
+        """Logits ``[nodes]`` of one agent's current-node network: ``members`` the agent's
+        networks (leaves ``[nodes, ...]``), ``node`` its current node (int scalar), ``obs`` its
+        network input ``[*obs_shape]``.
+
+        Every member is applied and its logits kept where the agent is in that node (``where``),
+        instead of gathering each rollout's member weights: under ``vmap`` over rollouts each
+        member is then one fused loop (or one batched matmul) over all rollouts and no
+        per-rollout copy of the weights is made (benchmarks/NOTES.md: on the heatmap's
         16 -> 160 -> 4 networks the gather is about 4x slower).
 
         Two forms of the same arithmetic, the same numbers bit for bit with XLA's default CPU
         emitters (tests/test_neural.py):
-        ``lax.scan`` over the nodes (``scan_node_logits``), whose carry is written to memory
+        ``lax.scan`` over the nodes (``scan_agent_logits``), whose carry is written to memory
         after each member, or the members written out one after the other
-        (``unrolled_node_logits``), which XLA computes in one fused loop and writes once. The
+        (``unrolled_agent_logits``), which XLA computes in one fused loop and writes once. The
         second is used for small (``unrolled``) networks with at least
         ``UNROLL_MIN_NODES`` nodes: 1.3-1.9x the rollout throughput at 4-8 nodes. With fewer
         nodes XLA fuses the written-out networks into the softmax and draw that read the
         logits, and computes them again for each read (3x slower at 3 nodes), so the scan's
         stores are the cheaper way there (benchmarks/NOTES.md, "Fifth pass")."""
         if self.unrolled and self.num_nodes >= UNROLL_MIN_NODES:
-            return self.unrolled_node_logits(net_params, nodes, obs)
-        return self.scan_node_logits(net_params, nodes, obs)
+            return self.unrolled_agent_logits(members, node, obs)
+        return self.scan_agent_logits(members, node, obs)
 
-    def scan_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
-        """``node_logits`` as a ``lax.scan`` over the nodes (carry ``[agents, nodes]``)."""
-        members = jax.tree.map(lambda p: jnp.moveaxis(p, 1, 0), net_params)  # [nodes, agents, ..]
+    def scan_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
+        """``agent_node_logits`` as a ``lax.scan`` over the nodes, whose carry is one scalar
+        per next node (``member_outputs``)."""
 
         def keep_if_current(out, node_and_member):
             n, member = node_and_member
-            logits = jax.vmap(self.one_net_logits)(member, obs)  # [agents, next]
-            return jnp.where((nodes == n)[:, None], logits, out), None
+            new = self.member_outputs(member, obs)
+            return tuple(jnp.where(node == n, a, b) for a, b in zip(new, out, strict=True)), None
 
-        init = jnp.zeros((self.num_agents, self.num_nodes), jnp.float32)
+        init = (jnp.zeros((), jnp.float32),) * self.num_nodes
         out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
+        return jnp.stack(out)
+
+    def unrolled_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
+        """``agent_node_logits`` with the members written out in a Python loop, each member's
+        logits one ``[nodes]`` vector (the same operations in the same order as
+        ``scan_agent_logits``)."""
+        out = jnp.zeros(self.num_nodes, jnp.float32)
+        for n in range(self.num_nodes):
+            member = jax.tree.map(lambda p, n=n: p[n], members)
+            out = jnp.where(node == n, self.one_net_logits(member, obs), out)
         return out
+
+    def member_outputs(self, member_params: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
+        """``one_net_logits`` as a tuple of ``nodes`` scalars: under ``vmap`` each output is an
+        array of its own, ``[agents, candidates, rollouts]`` in the rollout engine, whose minor
+        axis is the rollouts, and every weight is one number for the whole loop over them.
+        With the outputs as the minor axis of one array (``[..., nodes]``) XLA's CPU loops ran
+        the networks at half the speed (benchmarks/NOTES.md, "Eighth pass")."""
+        if not self.unrolled:
+            logits = self.one_net_logits(member_params, obs)
+            return tuple(logits[k] for k in range(self.num_nodes))
+        self.check_inputs(obs)
+        return _written_out_outputs(member_params["params"], obs)
+
+    def scan_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
+        """``node_logits`` with the scan form for every agent."""
+        return jax.vmap(self.scan_agent_logits)(net_params, nodes, obs)
 
     def unrolled_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
-        """``node_logits`` with the members written out in a Python loop (same operations in
-        the same order as ``scan_node_logits``)."""
-        out = jnp.zeros((self.num_agents, self.num_nodes), jnp.float32)
-        for n in range(self.num_nodes):
-            member = jax.tree.map(lambda p, n=n: p[:, n], net_params)  # leaves [agents, ...]
-            logits = jax.vmap(self.one_net_logits)(member, obs)  # [agents, next]
-            out = jnp.where((nodes == n)[:, None], logits, out)
-        return out
+        """``node_logits`` with the written-out form for every agent."""
+        return jax.vmap(self.unrolled_agent_logits)(net_params, nodes, obs)
 
     def all_node_logits(self, net_params: dict, obs: jax.Array) -> jax.Array:
         """Logits ``[agents, nodes, next_nodes]`` of every member on its agent's ``obs``."""
@@ -193,18 +224,37 @@ class NeuralController:
         probs = rows_at(policy.action_probs, nodes)
         return sample_categorical(u, probs)
 
+    def node_inputs(self, obs: jax.Array) -> jax.Array:
+        """The networks' inputs ``[agents, *obs_shape]`` from raw observations ``[agents, *raw]``
+        (``features``, or the observations themselves)."""
+        return obs if self.features is None else self.features(obs)
+
     def next_node(self, u, policy: NeuralPolicy, nodes, obs):
         """Next nodes ``[agents]`` from the raw observations ``obs [agents, *raw]``."""
-        if self.features is not None:
-            obs = self.features(obs)
-        weights = softmax_weights(self.node_logits(policy.net_params, nodes, obs))
+        return jax.vmap(self.agent_next_node)(u, policy, nodes, self.node_inputs(obs))
+
+    @property
+    def agents_major(self) -> bool:
+        """Whether the rollout engine should draw next nodes with the agents' axis first
+        (``agent_next_node``; ``rollout._node_mover``): for written-out (``unrolled``) networks,
+        whose elementwise arithmetic gives the same numbers in any layout, and fewer than
+        ``UNROLL_MIN_NODES`` nodes (the ``lax.scan`` form)."""
+        return self.unrolled and self.num_nodes < UNROLL_MIN_NODES
+
+    def agent_next_node(self, u, policy: NeuralPolicy, node, inputs):
+        """One agent's next node (int32 scalar): ``u`` uniform scalar, ``policy`` that agent's
+        slice (leaves ``[nodes, ...]``), ``node`` its current node, ``inputs`` its network input
+        ``[*obs_shape]`` (``node_inputs``)."""
+        weights = softmax_weights(self.agent_node_logits(policy.net_params, node, inputs))
         return sample_categorical(u, weights)
 
 
 @jax.jit
 def _written_out_mlp(p: dict, obs: jax.Array) -> jax.Array:
     """``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as scalar multiply-adds
-    (``NeuralController.one_net_logits``): logits ``[nodes]`` from ``obs`` (``in`` numbers).
+    (``NeuralController.one_net_logits``): logits ``[nodes]`` from ``obs`` (``in`` numbers),
+    each hidden unit added to all logits at once (``_written_out_outputs`` computes the same
+    numbers as one scalar per logit).
 
     Jitted, so its ``hidden * (in + 1)`` traced operations are traced once per shape and the
     trace reused: a rollout applies it in the scan's body and in its last step, for every
@@ -215,11 +265,37 @@ def _written_out_mlp(p: dict, obs: jax.Array) -> jax.Array:
     x = obs.reshape(-1).astype(jnp.float32)
     out = b2
     for j in range(w1.shape[1]):
-        pre = b1[j]
-        for i in range(w1.shape[0]):
-            pre = pre + x[i] * w1[i, j]
-        out = out + jnp.maximum(pre, 0.0) * w2[j]
+        out = out + jnp.maximum(_hidden_unit(w1, b1, x, j), 0.0) * w2[j]
     return out
+
+
+def _hidden_unit(w1: jax.Array, b1: jax.Array, x: jax.Array, j: int) -> jax.Array:
+    """Pre-activation of hidden unit ``j``: ``b1[j] + x[0] w1[0, j] + x[1] w1[1, j] + ...``."""
+    pre = b1[j]
+    for i in range(w1.shape[0]):
+        pre = pre + x[i] * w1[i, j]
+    return pre
+
+
+@jax.jit
+def _written_out_outputs(p: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
+    """``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as scalar multiply-adds
+    (``NeuralController.one_net_logits``): the ``nodes`` logits, one scalar each, from ``obs``
+    (``in`` numbers). Logit k is ``b2[k] + relu(h_0) w2[0, k] + relu(h_1) w2[1, k] + ...``
+    summed in that order.
+
+    Jitted, so its ``hidden * (in + 1)`` traced operations are traced once per shape and the
+    trace reused: a rollout applies it in the scan's body and in its last step, for every
+    rollout engine of an iteration, and every program of a process (``envs.base.
+    normal_from_uniform``, ``_written_out_mlp``). XLA inlines it."""
+    w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
+    w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
+    x = obs.reshape(-1).astype(jnp.float32)
+    outs = [b2[k] for k in range(w2.shape[1])]
+    for j in range(w1.shape[1]):
+        hidden = jnp.maximum(_hidden_unit(w1, b1, x, j), 0.0)
+        outs = [out + hidden * w2[j, k] for k, out in enumerate(outs)]
+    return tuple(outs)
 
 
 def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
