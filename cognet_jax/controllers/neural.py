@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.controllers.base import sample_categorical, uniform_distribution
-from cognet_jax.envs.base import UNROLLED_CATEGORIES
+from cognet_jax.envs.base import UNROLLED_CATEGORIES, categorical_from_columns
 
 #: Node nets with at most this many inputs and hidden units are evaluated as unrolled scalar
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
@@ -174,8 +174,12 @@ class NeuralController:
         return self.scan_agent_logits(members, node, obs)
 
     def scan_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
-        """``agent_node_logits`` as a ``lax.scan`` over the nodes, whose carry is one scalar
-        per next node (``member_outputs``)."""
+        """``agent_node_logits`` as a ``lax.scan`` over the nodes (``scan_agent_outputs``)."""
+        return jnp.stack(self.scan_agent_outputs(members, node, obs))
+
+    def scan_agent_outputs(self, members: dict, node: jax.Array, obs: jax.Array) -> tuple:
+        """The current-node network's logits as ``nodes`` scalars, from a ``lax.scan`` over
+        the nodes whose carry is one scalar per next node (``member_outputs``)."""
 
         def keep_if_current(out, node_and_member):
             n, member = node_and_member
@@ -184,7 +188,7 @@ class NeuralController:
 
         init = (jnp.zeros((), jnp.float32),) * self.num_nodes
         out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
-        return jnp.stack(out)
+        return out
 
     def unrolled_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
         """``agent_node_logits`` with the members written out in a Python loop, each member's
@@ -245,6 +249,9 @@ class NeuralController:
         """One agent's next node (int32 scalar): ``u`` uniform scalar, ``policy`` that agent's
         slice (leaves ``[nodes, ...]``), ``node`` its current node, ``inputs`` its network input
         ``[*obs_shape]`` (``node_inputs``)."""
+        if self.unrolled and self.num_nodes < UNROLL_MIN_NODES:
+            logits = self.scan_agent_outputs(policy.net_params, node, inputs)
+            return categorical_from_columns(u, softmax_columns(logits))
         weights = softmax_weights(self.agent_node_logits(policy.net_params, node, inputs))
         return sample_categorical(u, weights)
 
@@ -310,6 +317,15 @@ def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
     for q in range(1, n):
         out = jnp.where((nodes == q)[:, None], table[:, q], out)
     return out
+
+
+def softmax_columns(logits) -> list[jax.Array]:
+    """``softmax_weights`` of logits given as K arrays (one per category): the K weights as K
+    arrays, the same operations on every element."""
+    top = logits[0]
+    for column in logits[1:]:
+        top = jnp.maximum(top, column)
+    return [jnp.exp(column - top) for column in logits]
 
 
 def softmax_weights(logits: jax.Array) -> jax.Array:

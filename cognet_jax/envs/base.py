@@ -137,9 +137,15 @@ def categorical_from_uniform(u: jax.Array, probs: jax.Array) -> jax.Array:
         cdf = jnp.cumsum(probs, axis=-1)
         idx = jnp.sum(cdf <= u[..., None] * cdf[..., -1:], axis=-1)
         return jnp.minimum(idx, k - 1).astype(jnp.int32)
-    running = [probs[..., 0]]
-    for i in range(1, k):
-        running.append(running[-1] + probs[..., i])
+    return categorical_from_columns(u, [probs[..., i] for i in range(k)])
+
+
+def categorical_from_columns(u: jax.Array, columns: list[jax.Array]) -> jax.Array:
+    """``categorical_from_uniform`` with the K probabilities given as K arrays of ``u``'s shape
+    (K written-out running sums and comparisons): the same operations on every element."""
+    running = [columns[0]]
+    for column in columns[1:]:
+        running.append(running[-1] + column)
     threshold = u * running[-1]
     idx = sum((c <= threshold).astype(jnp.int32) for c in running)
-    return jnp.minimum(idx, k - 1).astype(jnp.int32)
+    return jnp.minimum(idx, len(columns) - 1).astype(jnp.int32)
