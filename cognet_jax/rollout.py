@@ -107,8 +107,10 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     )(k_reset)
     gamma = jnp.asarray(env_params.discount, jnp.float32)
     act = lane(jax.vmap(controller.act, (0, None, 0)), key_axis, policy_axes, 0)
-    move = _node_mover(controller, lane, key_axis, policy_axes)
+    move, agents_first = _node_mover(controller, lane, key_axis, policy_axes)
     env_step = lane(jax.vmap(env.step, (0, 0, 0, None)), key_axis, 0, 0, None)
+    # the carried nodes: [agents, *lead] when the mover takes them agents first, else [*lead,
+    # agents] (lead: [rollouts] or [candidates, rollouts])
     nodes = jnp.zeros((num, n), jnp.int32)
     ret = jnp.zeros(num, jnp.float32)
     if lanes is not None:
@@ -117,6 +119,9 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
         nodes, ret = lead(nodes), lead(ret)
         if key_axis is None:  # every candidate starts from the same states
             states = jax.tree.map(lead, states)
+    if agents_first:
+        nodes = jnp.moveaxis(nodes, -1, 0)
+    per_rollout = (lambda x: jnp.moveaxis(x, 0, -1)) if agents_first else (lambda x: x)  # noqa: E731
 
     width = 2 * n + env.step_noise
 
@@ -127,11 +132,13 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     def one_step(carry, u):
         states, nodes, ret, disc = carry
         u_ctrl, u_env = u
-        actions = act(u_ctrl[..., :n], policy, nodes)
+        actions = act(u_ctrl[..., :n], policy, per_rollout(nodes))
         states, obs, reward = env_step(u_env, states, actions, env_params)
         next_nodes = move(u_ctrl[..., n:], policy, nodes, obs)
         ret = ret + disc * reward
-        out = (nodes, actions, obs, next_nodes, reward) if record else None
+        out = None
+        if record:
+            out = (per_rollout(nodes), actions, obs, per_rollout(next_nodes), reward)
         return (states, next_nodes, ret, disc * gamma), out
 
     def body(carry, k_next):
@@ -153,20 +160,23 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
 
 
 def _node_mover(controller, lane, key_axis, policy_axes):
-    """The batched ``controller.next_node``: ``(u [*lead, agents], policy, nodes [*lead,
-    agents], obs [*lead, agents, *raw]) -> [*lead, agents]`` with ``lead`` the ``[rollouts]``
-    (one policy) or ``[candidates, rollouts]`` axes; ``lane`` maps a function over the
-    candidates (``_simulate``).
+    """The batched ``controller.next_node`` and whether it takes and returns the nodes agents
+    first: ``(move, agents_first)``, ``move(u [*lead, agents], policy, nodes, obs [*lead,
+    agents, *raw]) -> next nodes``, the nodes ``[agents, *lead]`` when ``agents_first``, else
+    ``[*lead, agents]``; ``lead`` is ``[rollouts]`` (one policy) or ``[candidates, rollouts]``,
+    and ``lane`` maps a function over the candidates (``_simulate``).
 
     Controllers with ``agents_major`` (small written-out node networks) are applied to arrays
     laid out ``[agents, *lead]``: their per-agent function ``agent_next_node`` is ``vmap``-ed
-    over the rollouts, the candidates, then the agents, so the rollouts are the arrays' minor
-    axis, and the inputs and the result are transposed around it. The same operations on
-    every element, so the same numbers (tests/test_rollout.py); with the agents (2 for
-    tagging) as the minor axis XLA's CPU loops ran the networks at half the speed
-    (benchmarks/NOTES.md, "Eighth pass")."""
+    over the rollouts, the candidates, then the agents, so the rollouts are the minor axis of
+    every array the networks compute. The observations are transposed to that layout, and
+    the engine carries the nodes in it from step to step (the action draw reads them
+    transposed). The same operations on every element, so the same numbers
+    (tests/test_neural.py). With the agents (2 for tagging) as the minor axis XLA's CPU loops
+    ran the networks at half the speed (benchmarks/NOTES.md, "Eighth pass")."""
     if not getattr(controller, "agents_major", False):
-        return lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
+        move = lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
+        return move, False
     inputs = lane(jax.vmap(controller.node_inputs), 0)
     per_agent = lane(
         jax.vmap(controller.agent_next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0
@@ -180,10 +190,9 @@ def _node_mover(controller, lane, key_axis, policy_axes):
     def move(u, policy, nodes, obs):
         lead = nodes.ndim - 1
         first = lambda x, axis: jnp.moveaxis(x, axis, 0)  # noqa: E731
-        out = per_agent(first(u, -1), policy, first(nodes, -1), first(inputs(obs), lead))
-        return jnp.moveaxis(out, 0, -1)
+        return per_agent(first(u, -1), policy, nodes, first(inputs(obs), lead))
 
-    return move
+    return move, True
 
 
 def _batched(policy_axes, policies, fn):
