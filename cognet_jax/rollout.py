@@ -84,7 +84,11 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     tracing its body again, twice when the carry becomes batched (the default COGNet-DICE
     iteration's candidates: 0.28 s against 0.76 s with the memory probe it also spares, at
     XLA's level 0 on the 2-core CPU; the whole iteration 0.67 s against 0.80 s; one
-    measurement each)."""
+    measurement each).
+
+    Layout (``_Steps``): the step functions are ``vmap``-ed over the rollouts, which are the
+    leading axis of every array, or, for controllers with ``agents_major`` (small written-out
+    node networks), the last."""
     if record and lanes is not None:
         raise ValueError("rollouts of several candidates are not recorded")
     n, h = env.num_agents, env.horizon
@@ -101,17 +105,11 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     def uniforms(k, width):
         return shard_rollouts(jax.random.uniform(fast_key(k), (num, width)))
 
+    steps = _Steps(env, controller, lane, key_axis, policy_axes)
     k_reset, k_steps = per_key(lambda k: tuple(jax.random.split(k)))(key)
-    states = per_key(
-        lambda k: jax.vmap(env.reset, (0, None))(uniforms(k, env.reset_noise), env_params)
-    )(k_reset)
+    states = per_key(lambda k: steps.reset(uniforms(k, env.reset_noise), env_params))(k_reset)
     gamma = jnp.asarray(env_params.discount, jnp.float32)
-    act = lane(jax.vmap(controller.act, (0, None, 0)), key_axis, policy_axes, 0)
-    move, agents_first = _node_mover(controller, lane, key_axis, policy_axes)
-    env_step = lane(jax.vmap(env.step, (0, 0, 0, None)), key_axis, 0, 0, None)
-    # the carried nodes: [agents, *lead] when the mover takes them agents first, else [*lead,
-    # agents] (lead: [rollouts] or [candidates, rollouts])
-    nodes = jnp.zeros((num, n), jnp.int32)
+    nodes = steps.initial_nodes(num, n)
     ret = jnp.zeros(num, jnp.float32)
     if lanes is not None:
         count = _count(policy, policy_axes)
@@ -119,26 +117,22 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
         nodes, ret = lead(nodes), lead(ret)
         if key_axis is None:  # every candidate starts from the same states
             states = jax.tree.map(lead, states)
-    if agents_first:
-        nodes = jnp.moveaxis(nodes, -1, 0)
-    per_rollout = (lambda x: jnp.moveaxis(x, 0, -1)) if agents_first else (lambda x: x)  # noqa: E731
 
     width = 2 * n + env.step_noise
 
     def draw(k):
-        u = per_key(lambda k: uniforms(k, width))(k)
-        return u[..., : 2 * n], u[..., 2 * n :]
+        u = steps.uniform_layout(per_key(lambda k: uniforms(k, width))(k))
+        return steps.split_uniforms(u, 2 * n)
 
     def one_step(carry, u):
         states, nodes, ret, disc = carry
         u_ctrl, u_env = u
-        actions = act(u_ctrl[..., :n], policy, per_rollout(nodes))
-        states, obs, reward = env_step(u_env, states, actions, env_params)
-        next_nodes = move(u_ctrl[..., n:], policy, nodes, obs)
+        u_act, u_move = steps.split_uniforms(u_ctrl, n)
+        actions = steps.act(u_act, policy, nodes)
+        states, obs, reward = steps.env_step(u_env, states, actions, env_params)
+        next_nodes = steps.move(u_move, policy, nodes, obs)
         ret = ret + disc * reward
-        out = None
-        if record:
-            out = (per_rollout(nodes), actions, obs, per_rollout(next_nodes), reward)
+        out = (nodes, actions, obs, next_nodes, reward) if record else None
         return (states, next_nodes, ret, disc * gamma), out
 
     def body(carry, k_next):
@@ -155,44 +149,73 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     if not record:
         return ret
     out = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), out, out_last)
-    nodes, actions, obs, next_nodes, rewards = (jnp.swapaxes(x, 0, 1) for x in out)
-    return Trajectory(nodes, actions, obs, next_nodes, rewards, ret)
+    return Trajectory(*(steps.trajectory_layout(x) for x in out), ret)
 
 
-def _node_mover(controller, lane, key_axis, policy_axes):
-    """The batched ``controller.next_node`` and whether it takes and returns the nodes agents
-    first: ``(move, agents_first)``, ``move(u [*lead, agents], policy, nodes, obs [*lead,
-    agents, *raw]) -> next nodes``, the nodes ``[agents, *lead]`` when ``agents_first``, else
-    ``[*lead, agents]``; ``lead`` is ``[rollouts]`` (one policy) or ``[candidates, rollouts]``,
-    and ``lane`` maps a function over the candidates (``_simulate``).
+class _Steps:
+    """The batched step functions of ``_simulate`` and the layout of their arrays.
 
-    Controllers with ``agents_major`` (small written-out node networks) are applied to arrays
-    laid out ``[agents, *lead]``: their per-agent function ``agent_next_node`` is ``vmap``-ed
-    over the rollouts, the candidates, then the agents, so the rollouts are the minor axis of
-    every array the networks compute. The observations are transposed to that layout, and
-    the engine carries the nodes in it from step to step (the action draw reads them
-    transposed). The same operations on every element, so the same numbers
-    (tests/test_neural.py). With the agents (2 for tagging) as the minor axis XLA's CPU loops
-    ran the networks at half the speed (benchmarks/NOTES.md, "Eighth pass")."""
-    if not getattr(controller, "agents_major", False):
-        move = lane(jax.vmap(controller.next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0)
-        return move, False
-    inputs = lane(jax.vmap(controller.node_inputs), 0)
-    per_agent = lane(
-        jax.vmap(controller.agent_next_node, (0, None, 0, 0)), key_axis, policy_axes, 0, 0
-    )
-    # the agents' axis of every policy leaf: after the candidates' axis where there is one
-    agent_axes = jax.tree.map(
-        lambda ax: 0 if ax is None else ax + 1, policy_axes, is_leaf=lambda x: x is None
-    )
-    per_agent = jax.vmap(per_agent, (0, agent_axes, 0, 0))
+    Rollouts first (every controller but those below): ``vmap`` over the rollouts of the
+    per-rollout functions (``controller.act``, ``env.step``, ``controller.next_node``), so
+    every array is ``[*C, R, ...]`` (``C`` the candidates when there are several).
 
-    def move(u, policy, nodes, obs):
-        lead = nodes.ndim - 1
-        first = lambda x, axis: jnp.moveaxis(x, axis, 0)  # noqa: E731
-        return per_agent(first(u, -1), policy, nodes, first(inputs(obs), lead))
+    Rollouts last (controllers with ``agents_major``: small written-out node networks): the
+    rollouts are the minor axis of every array, ``[*C, ..., R]``. The controller's per-agent
+    functions (``agent_act``, ``agent_next_node``) are ``vmap``-ed over the rollouts, then
+    the agents, so the networks' arrays are ``[*C, agents, R]``; ``env.step`` is ``vmap``-ed
+    with the rollouts' axis last (``in_axes``/``out_axes`` -1); each step's uniform block is
+    transposed once, to ``[*C, width, R]``. The same operations on every element, so the same
+    numbers (tests/test_neural.py); with the agents (2 for tagging) or a network's logits as
+    the minor axis XLA's CPU loops ran the networks at half the speed (benchmarks/NOTES.md,
+    "Eighth pass"). The trajectories of ``record`` are transposed back at the end."""
 
-    return move, True
+    def __init__(self, env, controller, lane, key_axis, policy_axes):
+        self.rollouts_last = bool(getattr(controller, "agents_major", False))
+        self.axis = -1 if self.rollouts_last else 0  # the rollouts' axis of one lane's arrays
+        axis = self.axis
+        self.reset = jax.vmap(env.reset, (0, None), axis)
+        self.env_step = lane(
+            jax.vmap(env.step, (axis, axis, axis, None), axis), key_axis, 0, 0, None
+        )
+        if not self.rollouts_last:
+            self.act = lane(jax.vmap(controller.act, (0, None, 0)), key_axis, policy_axes, 0)
+            move = jax.vmap(controller.next_node, (0, None, 0, 0))
+            self.move = lane(move, key_axis, policy_axes, 0, 0)
+            return
+        self.act = lane(_per_agent(controller.agent_act, 0, None, 0), key_axis, policy_axes, 0)
+        inputs = lane(jax.vmap(controller.node_inputs, -1, -1), 0)
+        move = lane(
+            _per_agent(controller.agent_next_node, 0, None, 0, -1), key_axis, policy_axes, 0, 0
+        )
+        self.move = lambda u, policy, nodes, obs: move(u, policy, nodes, inputs(obs))
+
+    def uniform_layout(self, u: jax.Array) -> jax.Array:
+        """A step's block ``[*C, R, width]`` in this layout."""
+        return jnp.swapaxes(u, -1, -2) if self.rollouts_last else u
+
+    def split_uniforms(self, u: jax.Array, at: int) -> tuple[jax.Array, jax.Array]:
+        """The first ``at`` uniforms of each rollout and the rest."""
+        if self.rollouts_last:
+            return u[..., :at, :], u[..., at:, :]
+        return u[..., :at], u[..., at:]
+
+    def initial_nodes(self, num: int, agents: int) -> jax.Array:
+        """Every agent in node 0: ``[R, agents]``, or ``[agents, R]`` with the rollouts last."""
+        shape = (agents, num) if self.rollouts_last else (num, agents)
+        return jnp.zeros(shape, jnp.int32)
+
+    def trajectory_layout(self, x: jax.Array) -> jax.Array:
+        """A recorded ``[H, ...]`` array (one step's array stacked over time) as ``[R, H,
+        ...]``."""
+        return jnp.moveaxis(x, -1, 0) if self.rollouts_last else jnp.swapaxes(x, 0, 1)
+
+
+def _per_agent(fn, *rollout_axes):
+    """``fn`` of one agent (its uniform, its slice of the policy, its node, ...) ``vmap``-ed
+    over the rollouts (the last axis of the result; ``rollout_axes`` the ``in_axes``), then
+    over the agents (the leading axis of every argument, of the policy's leaves too)."""
+    over_rollouts = jax.vmap(fn, rollout_axes, -1)
+    return jax.vmap(over_rollouts, tuple(0 for _ in rollout_axes))
 
 
 def _batched(policy_axes, policies, fn):

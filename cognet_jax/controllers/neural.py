@@ -239,11 +239,25 @@ class NeuralController:
 
     @property
     def agents_major(self) -> bool:
-        """Whether the rollout engine should draw next nodes with the agents' axis first
-        (``agent_next_node``; ``rollout._node_mover``): for written-out (``unrolled``) networks,
-        whose elementwise arithmetic gives the same numbers in any layout, and fewer than
-        ``UNROLL_MIN_NODES`` nodes (the ``lax.scan`` form)."""
+        """Whether the rollout engine should lay its arrays out with the rollouts last and
+        call the per-agent functions (``agent_act``, ``agent_next_node``; ``rollout._Steps``):
+        for written-out (``unrolled``) networks, whose elementwise arithmetic gives the same
+        numbers in any layout, with fewer than ``UNROLL_MIN_NODES`` nodes (the ``lax.scan``
+        form)."""
         return self.unrolled and self.num_nodes < UNROLL_MIN_NODES
+
+    def agent_act(self, u, policy: NeuralPolicy, node):
+        """One agent's action (int32 scalar) from its slice of ``policy`` (``action_probs
+        [nodes, actions]``) at ``node``: ``act`` for one agent, the probabilities of the current
+        node as one scalar per action (``categorical_from_columns``)."""
+        table = policy.action_probs
+        columns = []
+        for k in range(table.shape[1]):
+            column = table[0, k]
+            for q in range(1, table.shape[0]):
+                column = jnp.where(node == q, table[q, k], column)
+            columns.append(column)
+        return categorical_from_columns(u, columns)
 
     def agent_next_node(self, u, policy: NeuralPolicy, node, inputs):
         """One agent's next node (int32 scalar): ``u`` uniform scalar, ``policy`` that agent's
