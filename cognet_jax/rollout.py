@@ -159,7 +159,8 @@ class _Steps:
     per-rollout functions (``controller.act``, ``env.step``, ``controller.next_node``), so
     every array is ``[*C, R, ...]`` (``C`` the candidates when there are several).
 
-    Rollouts last (controllers with ``agents_major``: small written-out node networks): the
+    Rollouts last (controllers with ``agents_major``: small written-out node networks read
+    from the observations themselves): the
     rollouts are the minor axis of every array, ``[*C, ..., R]``. The controller's per-agent
     functions (``agent_act``, ``agent_next_node``) are ``vmap``-ed over the rollouts, then
     the agents, so the networks' arrays are ``[*C, agents, R]``; ``env.step`` is ``vmap``-ed
@@ -171,8 +172,7 @@ class _Steps:
 
     def __init__(self, env, controller, lane, key_axis, policy_axes):
         self.rollouts_last = bool(getattr(controller, "agents_major", False))
-        self.axis = -1 if self.rollouts_last else 0  # the rollouts' axis of one lane's arrays
-        axis = self.axis
+        axis = -1 if self.rollouts_last else 0  # the rollouts' axis of one lane's arrays
         self.reset = jax.vmap(env.reset, (0, None), axis)
         self.env_step = lane(
             jax.vmap(env.step, (axis, axis, axis, None), axis), key_axis, 0, 0, None
@@ -183,11 +183,10 @@ class _Steps:
             self.move = lane(move, key_axis, policy_axes, 0, 0)
             return
         self.act = lane(_per_agent(controller.agent_act, 0, None, 0), key_axis, policy_axes, 0)
-        inputs = lane(jax.vmap(controller.node_inputs, -1, -1), 0)
-        move = lane(
+        # agents-major controllers read the observations themselves (no ``features``)
+        self.move = lane(
             _per_agent(controller.agent_next_node, 0, None, 0, -1), key_axis, policy_axes, 0, 0
         )
-        self.move = lambda u, policy, nodes, obs: move(u, policy, nodes, inputs(obs))
 
     def uniform_layout(self, u: jax.Array) -> jax.Array:
         """A step's block ``[*C, R, width]`` in this layout."""

@@ -1,6 +1,7 @@
-"""The two forms of ``NeuralController.node_logits`` (scan over the nodes, members written out)
-give the same numbers bit for bit with XLA's default CPU emitters, alone and inside the rollout
-engine."""
+"""The forms of ``NeuralController``'s node networks give the same numbers bit for bit with XLA's
+default CPU emitters: the scan over the nodes and the members written out, alone and inside the
+rollout engine, and the engine's rollouts-last layout (``agents_major``) against the per-rollout
+one."""
 
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ def test_rollouts_do_not_depend_on_the_form(monkeypatch):
         return jax.tree.map(np.asarray, out)
 
     unrolled = run()
-    monkeypatch.setattr(NeuralController, "node_logits", NeuralController.scan_node_logits)
+    monkeypatch.setattr(NeuralController, "agent_node_logits", NeuralController.scan_agent_logits)
     scanned = run()
     for a, b in zip(jax.tree.leaves(unrolled), jax.tree.leaves(scanned), strict=True):
         np.testing.assert_array_equal(a, b)
@@ -61,11 +62,11 @@ def test_rollouts_do_not_depend_on_the_form(monkeypatch):
 
 
 def test_agents_major_rollouts_are_the_per_rollout_ones(monkeypatch):
-    """The engine draws the next nodes of small-network controllers with fewer than
-    ``UNROLL_MIN_NODES`` nodes laid out ``[agents, candidates, rollouts]`` (``agents_major``):
-    the same returns and trajectories bit for bit as ``next_node`` per rollout, for one policy
-    and for candidates with their own or shared networks, compiled as a user's process
-    compiles them."""
+    """The engine lays the arrays of small-network controllers with fewer than
+    ``UNROLL_MIN_NODES`` nodes out with the rollouts last (``agents_major``: per-agent draws,
+    one array per logit): the same returns and trajectories bit for bit as the per-rollout
+    ``act`` / ``next_node`` with the ``[nodes]`` logits, for one policy and for candidates with
+    their own or shared networks, compiled as a user's process compiles them."""
     from cognet_jax.controllers.neural import NeuralPolicy
     from cognet_jax.rollout import evaluate_candidates
 
@@ -109,15 +110,20 @@ def _jit_calls(jaxpr, name: str) -> list:
     return found
 
 
-def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch):
-    """``normal_from_uniform`` and the written-out networks are ``jit``s so that a rollout
-    traces each once per shape (envs/base.py): every call site of a rollout holds the same
-    traced jaxpr, and the rollouts are the numbers of the same code without the ``jit``s."""
+@pytest.mark.parametrize(
+    "nodes,network", [(3, "_written_out_outputs"), (UNROLL_MIN_NODES, "_written_out_mlp")]
+)
+def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch, nodes, network):
+    """``normal_from_uniform`` and the written-out networks (one array per logit for the
+    rollouts-last layout, one ``[nodes]`` vector from ``UNROLL_MIN_NODES`` nodes) are ``jit``s
+    so that a rollout traces each once per shape (envs/base.py): every call site of a rollout
+    holds the same traced jaxpr, and the rollouts are the numbers of the same code without the
+    ``jit``s."""
     import cognet_jax.controllers.neural as neural
     import cognet_jax.envs.base as base
 
     env, params = make_tagging("cogdice-paper", motion_noise=0.3, obs_noise=0.3)  # normal draws
-    ctrl = NeuralController(env.num_agents, 3, env.num_actions)  # written-out networks
+    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)  # written-out networks
     policy = ctrl.init(jax.random.key(3))
     key = jax.random.key(4)
 
@@ -125,14 +131,14 @@ def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch):
         return lambda k, p: rollouts(env, ctrl, k, 512, params, p, record=True)
 
     jaxpr = jax.make_jaxpr(fresh())(key, policy).jaxpr
-    for name in ("normal_from_uniform", "_written_out_outputs"):
+    for name in ("normal_from_uniform", network):
         calls = _jit_calls(jaxpr, name)
         assert len(calls) >= 2, name  # the scan's body and the last step
         assert len({id(c.params["jaxpr"]) for c in calls}) == 1, name
     jitted = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
     monkeypatch.setattr(base, "normal_from_uniform", base.normal_from_uniform.__wrapped__)
-    monkeypatch.setattr(neural, "_written_out_outputs", neural._written_out_outputs.__wrapped__)
-    for name in ("normal_from_uniform", "_written_out_outputs"):
+    monkeypatch.setattr(neural, network, getattr(neural, network).__wrapped__)
+    for name in ("normal_from_uniform", network):
         assert not _jit_calls(jax.make_jaxpr(fresh())(key, policy).jaxpr, name)
     plain = jax.tree.map(np.asarray, jax.jit(fresh())(key, policy))
     for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):

@@ -29,7 +29,8 @@ from cognet_jax.envs.base import UNROLLED_CATEGORIES, categorical_from_columns
 UNROLL_MAX_IN = 8
 UNROLL_MAX_HIDDEN = 32
 #: Small node nets of controllers with at least this many nodes are applied in one fused loop
-#: (``NeuralController.unrolled_node_logits``); fewer nodes use a ``lax.scan`` over the nodes.
+#: (``NeuralController.unrolled_agent_logits``); fewer nodes use a ``lax.scan`` over the nodes
+#: and the rollout engine's rollouts-last layout (``NeuralController.agents_major``).
 UNROLL_MIN_NODES = 4
 
 
@@ -77,7 +78,9 @@ class NeuralPolicy:
 
 @dataclasses.dataclass(frozen=True)
 class NeuralController:
-    """Static shape facts of a neural FSC; ``act`` / ``next_node`` are the rollout hooks.
+    """Static shape facts of a neural FSC; ``act`` / ``next_node`` are the rollout hooks, and
+    ``agent_act`` / ``agent_next_node`` their per-agent forms (the engine's rollouts-last
+    layout, ``agents_major``).
 
     ``obs_shape`` is the shape the node networks read. ``features`` (optional) maps the
     environment's observation ``[agents, *raw]`` to that input ``[agents, *obs_shape]`` before
@@ -174,12 +177,19 @@ class NeuralController:
         return self.scan_agent_logits(members, node, obs)
 
     def scan_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
-        """``agent_node_logits`` as a ``lax.scan`` over the nodes (``scan_agent_outputs``)."""
-        return jnp.stack(self.scan_agent_outputs(members, node, obs))
+        """``agent_node_logits`` as a ``lax.scan`` over the nodes (carry ``[nodes]``)."""
+
+        def keep_if_current(out, node_and_member):
+            n, member = node_and_member
+            return jnp.where(node == n, self.one_net_logits(member, obs), out), None
+
+        init = jnp.zeros(self.num_nodes, jnp.float32)
+        out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
+        return out
 
     def scan_agent_outputs(self, members: dict, node: jax.Array, obs: jax.Array) -> tuple:
-        """The current-node network's logits as ``nodes`` scalars, from a ``lax.scan`` over
-        the nodes whose carry is one scalar per next node (``member_outputs``)."""
+        """``scan_agent_logits`` as ``nodes`` scalars: the carry of the scan over the nodes is
+        one scalar per next node (``member_outputs``), the same operations on every element."""
 
         def keep_if_current(out, node_and_member):
             n, member = node_and_member
@@ -202,8 +212,9 @@ class NeuralController:
 
     def member_outputs(self, member_params: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
         """``one_net_logits`` as a tuple of ``nodes`` scalars: under ``vmap`` each output is an
-        array of its own, ``[agents, candidates, rollouts]`` in the rollout engine, whose minor
-        axis is the rollouts, and every weight is one number for the whole loop over them.
+        array of its own, ``[candidates, agents, rollouts]`` in the rollout engine's
+        rollouts-last layout, whose minor axis is the rollouts, and every weight is one number
+        for the whole loop over them.
         With the outputs as the minor axis of one array (``[..., nodes]``) XLA's CPU loops ran
         the networks at half the speed (benchmarks/NOTES.md, "Eighth pass")."""
         if not self.unrolled:
@@ -243,13 +254,15 @@ class NeuralController:
         call the per-agent functions (``agent_act``, ``agent_next_node``; ``rollout._Steps``):
         for written-out (``unrolled``) networks, whose elementwise arithmetic gives the same
         numbers in any layout, with fewer than ``UNROLL_MIN_NODES`` nodes (the ``lax.scan``
-        form)."""
-        return self.unrolled and self.num_nodes < UNROLL_MIN_NODES
+        form) and no ``features`` (an encoder's matrix products might round differently in
+        another layout)."""
+        return self.unrolled and self.num_nodes < UNROLL_MIN_NODES and self.features is None
 
     def agent_act(self, u, policy: NeuralPolicy, node):
         """One agent's action (int32 scalar) from its slice of ``policy`` (``action_probs
         [nodes, actions]``) at ``node``: ``act`` for one agent, the probabilities of the current
-        node as one scalar per action (``categorical_from_columns``)."""
+        node as one scalar per action (``categorical_from_columns``; a ``where`` chain over the
+        nodes as ``rows_at``)."""
         table = policy.action_probs
         columns = []
         for k in range(table.shape[1]):
@@ -257,13 +270,17 @@ class NeuralController:
             for q in range(1, table.shape[0]):
                 column = jnp.where(node == q, table[q, k], column)
             columns.append(column)
+        if len(columns) > UNROLLED_CATEGORIES:  # the draw of ``categorical_from_uniform``
+            return sample_categorical(u, jnp.stack(columns))
         return categorical_from_columns(u, columns)
 
     def agent_next_node(self, u, policy: NeuralPolicy, node, inputs):
         """One agent's next node (int32 scalar): ``u`` uniform scalar, ``policy`` that agent's
         slice (leaves ``[nodes, ...]``), ``node`` its current node, ``inputs`` its network input
-        ``[*obs_shape]`` (``node_inputs``)."""
-        if self.unrolled and self.num_nodes < UNROLL_MIN_NODES:
+        ``[*obs_shape]`` (``node_inputs``). Agents-major controllers draw from one array per
+        logit (``scan_agent_outputs``, ``softmax_columns``, ``categorical_from_columns``),
+        the others from the ``[nodes]`` logits: the same numbers."""
+        if self.agents_major:
             logits = self.scan_agent_outputs(policy.net_params, node, inputs)
             return categorical_from_columns(u, softmax_columns(logits))
         weights = softmax_weights(self.agent_node_logits(policy.net_params, node, inputs))
@@ -281,13 +298,19 @@ def _written_out_mlp(p: dict, obs: jax.Array) -> jax.Array:
     trace reused: a rollout applies it in the scan's body and in its last step, for every
     rollout engine of an iteration, and every program of a process (``envs.base.
     normal_from_uniform``, the same change). XLA inlines it: the same numbers bit for bit."""
-    w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
-    w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
-    x = obs.reshape(-1).astype(jnp.float32)
+    w1, b1, w2, b2, x = _operands(p, obs)
     out = b2
     for j in range(w1.shape[1]):
         out = out + jnp.maximum(_hidden_unit(w1, b1, x, j), 0.0) * w2[j]
     return out
+
+
+def _operands(p: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
+    """``NodeNet``'s weights and input: ``w1 [in, hidden]``, ``b1 [hidden]``, ``w2 [hidden,
+    nodes]``, ``b2 [nodes]`` and ``x [in]`` (float32)."""
+    w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]
+    w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]
+    return w1, b1, w2, b2, obs.reshape(-1).astype(jnp.float32)
 
 
 def _hidden_unit(w1: jax.Array, b1: jax.Array, x: jax.Array, j: int) -> jax.Array:
@@ -309,9 +332,7 @@ def _written_out_outputs(p: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
     trace reused: a rollout applies it in the scan's body and in its last step, for every
     rollout engine of an iteration, and every program of a process (``envs.base.
     normal_from_uniform``, ``_written_out_mlp``). XLA inlines it."""
-    w1, b1 = p["Dense_0"]["kernel"], p["Dense_0"]["bias"]  # [in, hidden], [hidden]
-    w2, b2 = p["Dense_1"]["kernel"], p["Dense_1"]["bias"]  # [hidden, nodes], [nodes]
-    x = obs.reshape(-1).astype(jnp.float32)
+    w1, b1, w2, b2, x = _operands(p, obs)
     outs = [b2[k] for k in range(w2.shape[1])]
     for j in range(w1.shape[1]):
         hidden = jnp.maximum(_hidden_unit(w1, b1, x, j), 0.0)
