@@ -124,31 +124,54 @@ def sweep_ratio(
 ) -> dict:
     """Process wall seconds of ``cognet-jax sweep EXPERIMENT --seeds 1`` and ``--seeds N``
     (fresh processes, as a user runs them: imports, compile, all iterations, honest evaluation
-    and outputs included), ``repeats`` times each, alternating; the medians and their ratio."""
+    and outputs included), ``repeats`` times each, alternating; the medians and their ratio.
+
+    The target's measure compiles in every process (``COGNET_JAX_CACHE=off``), as every
+    process did when the target was set (issue 7, before the persistent compilation cache).
+    ``warm`` repeats the measurement with a compilation cache of its own, filled by one run of
+    each first: the processes then compile nothing, and the ratio is that of the iterations
+    themselves (32 runs' work against one run's) plus the start-up of a process."""
+    import os
     import statistics
-    import subprocess
-    import sys
     import tempfile
 
-    walls: dict[int, list[float]] = {1: [], seeds: []}
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(repeats):
-            for n in (1, seeds):
-                cmd = [sys.executable, "-m", "cognet_jax", "sweep", experiment, "--seeds", str(n)]
-                cmd += ["--no-progress", "--out", f"{tmp}/s{n}-{r}"]
-                t0 = time.perf_counter()
-                subprocess.run(cmd, check=True, capture_output=True)
-                walls[n].append(time.perf_counter() - t0)
-    one, many = statistics.median(walls[1]), statistics.median(walls[seeds])
+        cold = _sweep_walls(seeds, repeats, experiment, f"{tmp}/cold", {"COGNET_JAX_CACHE": "off"})
+        env = {"COGNET_JAX_CACHE": os.path.join(tmp, "cache")}
+        _sweep_walls(seeds, 1, experiment, f"{tmp}/prime", env)
+        warm = _sweep_walls(seeds, repeats, experiment, f"{tmp}/warm", env)
+
+    def summary(walls: dict[int, list[float]]) -> dict:
+        one, many = statistics.median(walls[1]), statistics.median(walls[seeds])
+        return dict(
+            walls_one=walls[1],
+            walls_many=walls[seeds],
+            median_one_s=one,
+            median_many_s=many,
+            ratio=many / one,
+        )
+
     return dict(
-        experiment=experiment,
-        seeds=seeds,
-        walls_one=walls[1],
-        walls_many=walls[seeds],
-        median_one_s=one,
-        median_many_s=many,
-        ratio=many / one,
+        experiment=experiment, seeds=seeds, cache="off", **summary(cold), warm=summary(warm)
     )
+
+
+def _sweep_walls(seeds: int, repeats: int, experiment: str, out: str, env: dict) -> dict:
+    """``{1: [walls], seeds: [walls]}`` of ``repeats`` alternating sweep processes run with
+    ``env`` added to the environment."""
+    import os
+    import subprocess
+    import sys
+
+    walls: dict[int, list[float]] = {1: [], seeds: []}
+    for r in range(repeats):
+        for n in (1, seeds):
+            cmd = [sys.executable, "-m", "cognet_jax", "sweep", experiment, "--seeds", str(n)]
+            cmd += ["--no-progress", "--out", f"{out}/s{n}-{r}"]
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True, env={**os.environ, **env})
+            walls[n].append(time.perf_counter() - t0)
+    return walls
 
 
 def full_run(experiment: str = "tagging-thesis-spec-n3") -> tuple[float, dict]:
