@@ -159,9 +159,9 @@ class _Steps:
     per-rollout functions (``controller.act``, ``env.step``, ``controller.next_node``), so
     every array is ``[*C, R, ...]`` (``C`` the candidates when there are several).
 
-    Rollouts last (controllers with ``agents_major``: small written-out node networks read
-    from the observations themselves): the
-    rollouts are the minor axis of every array, ``[*C, ..., R]``. The controller's per-agent
+    Rollouts last (controllers with ``agents_major``: small written-out node networks that
+    read the observations themselves): the rollouts are the minor axis of every array,
+    ``[*C, ..., R]``. The controller's per-agent
     functions (``agent_act``, ``agent_next_node``) are ``vmap``-ed over the rollouts, then
     the agents, so the networks' arrays are ``[*C, agents, R]``; ``env.step`` is ``vmap``-ed
     with the rollouts' axis last (``in_axes``/``out_axes`` -1); each step's uniform block is
