@@ -216,10 +216,8 @@ class NeuralController:
         rollouts-last layout, whose minor axis is the rollouts, and every weight is one number
         for the whole loop over them.
         With the outputs as the minor axis of one array (``[..., nodes]``) XLA's CPU loops ran
-        the networks at half the speed (benchmarks/NOTES.md, "Eighth pass")."""
-        if not self.unrolled:
-            logits = self.one_net_logits(member_params, obs)
-            return tuple(logits[k] for k in range(self.num_nodes))
+        the networks at half the speed (benchmarks/NOTES.md, "Eighth pass"). Written-out
+        (``unrolled``) networks only: those of ``agents_major`` controllers."""
         self.check_inputs(obs)
         return _written_out_outputs(member_params["params"], obs)
 
