@@ -1,7 +1,7 @@
 """The forms of ``NeuralController``'s node networks give the same numbers bit for bit with XLA's
-default CPU emitters: the scan over the nodes and the members written out, alone and inside the
-rollout engine, and the engine's rollouts-last layout (``agents_major``) against the per-rollout
-one."""
+default CPU emitters: the scan over the nodes, the members written out and the current node's
+member alone with its picked weights, alone and inside the rollout engine, and the engine's
+rollouts-last layout (``agents_major``) against the per-rollout one."""
 
 from __future__ import annotations
 
@@ -11,7 +11,11 @@ import numpy as np
 import pytest
 from jax.extend.core import jaxprs_in_params
 
-from cognet_jax.controllers.neural import UNROLL_MIN_NODES, NeuralController
+from cognet_jax.controllers.neural import (
+    AGENTS_MAJOR_MAX_NODES,
+    UNROLL_MIN_NODES,
+    NeuralController,
+)
 from cognet_jax.envs.tagging import make_tagging
 from cognet_jax.rollout import rollouts
 
@@ -43,9 +47,32 @@ def test_unrolled_and_scan_node_logits_are_identical(nodes, obs_shape):
     np.testing.assert_allclose(unrolled[at, 1], direct, rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("nodes,obs_shape,hidden", [(3, (), 10), (6, (), 10), (3, (3,), 32)])
+def test_selected_member_logits_are_the_scan_ones(nodes, obs_shape, hidden):
+    """The current node's member alone, its weights picked by ``where``s (``agents_major``
+    controllers), gives the logits of every member kept where the agent is in that node."""
+    ctrl = NeuralController(2, nodes, 3, obs_shape=obs_shape, hidden=hidden)
+    assert ctrl.unrolled
+    params = ctrl.init(jax.random.key(0)).net_params
+    k_obs, k_nodes = jax.random.split(jax.random.key(1))
+    obs = 8.0 * jax.random.normal(k_obs, (4096, 2, *obs_shape))
+    current = jax.random.randint(k_nodes, (4096, 2), 0, nodes)
+
+    def batched(fn):  # compiled with XLA's default emitters, as a user's process compiles
+        lowered = jax.jit(jax.vmap(jax.vmap(fn), (None, 0, 0))).lower(params, current, obs)
+        return lowered.compile(compiler_options=DEFAULT_EMITTERS)(params, current, obs)
+
+    picked = np.stack(batched(ctrl.selected_member_logits), axis=-1)
+    scanned = np.asarray(batched(ctrl.scan_agent_logits))
+    np.testing.assert_array_equal(picked.view(np.uint32), scanned.view(np.uint32))
+    assert len(np.unique(picked)) > nodes * 100
+
+
 def test_rollouts_do_not_depend_on_the_form(monkeypatch):
+    """The per-rollout engine (``agents_major`` off) with the members written out or scanned."""
     env, params = make_tagging("cogdice-paper")  # noisy, respawn
     ctrl = NeuralController(env.num_agents, 6, env.num_actions)
+    monkeypatch.setattr(NeuralController, "agents_major", property(lambda self: False))
     policy = ctrl.init(jax.random.key(3))
     key = jax.random.key(4)
 
@@ -61,17 +88,19 @@ def test_rollouts_do_not_depend_on_the_form(monkeypatch):
     assert jnp.size(jax.tree.leaves(unrolled)[0]) > 0
 
 
-def test_agents_major_rollouts_are_the_per_rollout_ones(monkeypatch):
-    """The engine lays the arrays of small-network controllers with fewer than
-    ``UNROLL_MIN_NODES`` nodes out with the rollouts last (``agents_major``: per-agent draws,
-    one array per logit): the same returns and trajectories bit for bit as the per-rollout
-    ``act`` / ``next_node`` with the ``[nodes]`` logits, for one policy and for candidates with
-    their own or shared networks, compiled as a user's process compiles them."""
+@pytest.mark.parametrize("nodes", [3, AGENTS_MAJOR_MAX_NODES])
+def test_agents_major_rollouts_are_the_per_rollout_ones(monkeypatch, nodes):
+    """The engine lays the arrays of small-network controllers with at most
+    ``AGENTS_MAJOR_MAX_NODES`` nodes out with the rollouts last (``agents_major``: per-agent
+    draws, one array per logit, the current member's picked weights): the same returns and
+    trajectories bit for bit as the per-rollout ``act`` / ``next_node`` with the ``[nodes]``
+    logits, for one policy and for candidates with their own or shared networks, compiled as a
+    user's process compiles them."""
     from cognet_jax.controllers.neural import NeuralPolicy
     from cognet_jax.rollout import evaluate_candidates
 
     env, params = make_tagging("cogdice-paper")  # noisy, respawn
-    ctrl = NeuralController(env.num_agents, 3, env.num_actions)
+    ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     assert ctrl.agents_major
     policies = jax.vmap(ctrl.init)(jax.random.split(jax.random.key(5), 4))
     shared = NeuralPolicy(policies.action_probs, jax.tree.map(lambda p: p[0], policies.net_params))
@@ -111,11 +140,13 @@ def _jit_calls(jaxpr, name: str) -> list:
 
 
 @pytest.mark.parametrize(
-    "nodes,network", [(3, "_written_out_outputs"), (UNROLL_MIN_NODES, "_written_out_mlp")]
+    "nodes,network",
+    [(3, "_selected_member_outputs"), (AGENTS_MAJOR_MAX_NODES + 1, "_written_out_mlp")],
 )
 def test_jitted_helpers_are_traced_once_and_change_no_number(monkeypatch, nodes, network):
-    """``normal_from_uniform`` and the written-out networks (one array per logit for the
-    rollouts-last layout, one ``[nodes]`` vector from ``UNROLL_MIN_NODES`` nodes) are ``jit``s
+    """``normal_from_uniform`` and the written-out networks (the current member's, one array
+    per logit, for the rollouts-last layout; every member's ``[nodes]`` vector from
+    ``UNROLL_MIN_NODES`` nodes in the per-rollout one) are ``jit``s
     so that a rollout traces each once per shape (envs/base.py): every call site of a rollout
     holds the same traced jaxpr, and the rollouts are the numbers of the same code without the
     ``jit``s."""

@@ -29,9 +29,16 @@ from cognet_jax.envs.base import UNROLLED_CATEGORIES, categorical_from_columns
 UNROLL_MAX_IN = 8
 UNROLL_MAX_HIDDEN = 32
 #: Small node nets of controllers with at least this many nodes are applied in one fused loop
-#: (``NeuralController.unrolled_agent_logits``); fewer nodes use a ``lax.scan`` over the nodes
-#: and the rollout engine's rollouts-last layout (``NeuralController.agents_major``).
+#: (``NeuralController.unrolled_agent_logits``); fewer nodes use a ``lax.scan`` over the nodes.
 UNROLL_MIN_NODES = 4
+#: Controllers with small written-out networks, at most this many nodes, and at most this many
+#: ``where``s to pick a rollout's member weights run in the rollout engine's rollouts-last
+#: layout and draw from the current node's network alone (``NeuralController.agents_major``,
+#: ``selected_member_logits``). Measured limits: at 7 nodes (10 hidden units), or 6 nodes with
+#: 32 hidden units, the paper's iteration ran 2x slower than the other forms
+#: (benchmarks/NOTES.md, "Ninth pass").
+AGENTS_MAJOR_MAX_NODES = 6
+AGENTS_MAJOR_MAX_WHERES = 600
 
 
 def _torch_uniform(fan_in: int):
@@ -187,18 +194,19 @@ class NeuralController:
         out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
         return out
 
-    def scan_agent_outputs(self, members: dict, node: jax.Array, obs: jax.Array) -> tuple:
-        """``scan_agent_logits`` as ``nodes`` scalars: the carry of the scan over the nodes is
-        one scalar per next node (``member_outputs``), the same operations on every element."""
-
-        def keep_if_current(out, node_and_member):
-            n, member = node_and_member
-            new = self.member_outputs(member, obs)
-            return tuple(jnp.where(node == n, a, b) for a, b in zip(new, out, strict=True)), None
-
-        init = (jnp.zeros((), jnp.float32),) * self.num_nodes
-        out, _ = jax.lax.scan(keep_if_current, init, (jnp.arange(self.num_nodes), members))
-        return out
+    def selected_member_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> tuple:
+        """``agent_node_logits`` as ``nodes`` scalars, computed by the current node's member
+        alone: each of its weights is picked from the ``[nodes]`` members by a ``where`` chain
+        over the nodes, then the written-out network runs on them. Under ``vmap`` over
+        rollouts (the rollouts-last layout, ``agents_major``) each output is an array of its
+        own whose minor axis is the rollouts, and XLA fuses the picks, the network, the softmax
+        and the draw into one loop over the rollouts: one network per rollout instead of one
+        per member and rollout, and no logit written to memory (1.15x the 3-node rollout
+        throughput and 1.4x the paper's iteration, benchmarks/NOTES.md, "Ninth pass").
+        The same operations on the same numbers as every member's network kept where the
+        agent is in that node (``scan_agent_logits``): the same logits bit for bit."""
+        self.check_inputs(obs)
+        return _selected_member_outputs(members["params"], node, obs)
 
     def unrolled_agent_logits(self, members: dict, node: jax.Array, obs: jax.Array) -> jax.Array:
         """``agent_node_logits`` with the members written out in a Python loop, each member's
@@ -209,17 +217,6 @@ class NeuralController:
             member = jax.tree.map(lambda p, n=n: p[n], members)
             out = jnp.where(node == n, self.one_net_logits(member, obs), out)
         return out
-
-    def member_outputs(self, member_params: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
-        """``one_net_logits`` as a tuple of ``nodes`` scalars: under ``vmap`` each output is an
-        array of its own, ``[candidates, agents, rollouts]`` in the rollout engine's
-        rollouts-last layout, whose minor axis is the rollouts, and every weight is one number
-        for the whole loop over them.
-        With the outputs as the minor axis of one array (``[..., nodes]``) XLA's CPU loops ran
-        the networks at half the speed (benchmarks/NOTES.md, "Eighth pass"). Written-out
-        (``unrolled``) networks only: those of ``agents_major`` controllers."""
-        self.check_inputs(obs)
-        return _written_out_outputs(member_params["params"], obs)
 
     def scan_node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:
         """``node_logits`` with the scan form for every agent."""
@@ -251,10 +248,17 @@ class NeuralController:
         """Whether the rollout engine should lay its arrays out with the rollouts last and
         call the per-agent functions (``agent_act``, ``agent_next_node``; ``rollout._Steps``):
         for written-out (``unrolled``) networks, whose elementwise arithmetic gives the same
-        numbers in any layout, with fewer than ``UNROLL_MIN_NODES`` nodes (the ``lax.scan``
-        form) and no ``features`` (an encoder's matrix products might round differently in
-        another layout)."""
-        return self.unrolled and self.num_nodes < UNROLL_MIN_NODES and self.features is None
+        numbers in any layout, with at most ``AGENTS_MAJOR_MAX_NODES`` nodes and
+        ``AGENTS_MAJOR_MAX_WHERES`` picks of member weights (``selected_member_logits``), and no
+        ``features`` (an encoder's matrix products might round differently in another
+        layout)."""
+        weights = self.hidden * (self.in_features + 1) + self.num_nodes * (self.hidden + 1)
+        return (
+            self.unrolled
+            and self.num_nodes <= AGENTS_MAJOR_MAX_NODES
+            and (self.num_nodes - 1) * weights <= AGENTS_MAJOR_MAX_WHERES
+            and self.features is None
+        )
 
     def agent_act(self, u, policy: NeuralPolicy, node):
         """One agent's action (int32 scalar) from its slice of ``policy`` (``action_probs
@@ -262,12 +266,7 @@ class NeuralController:
         node as one scalar per action (``categorical_from_columns``; a ``where`` chain over the
         nodes as ``rows_at``)."""
         table = policy.action_probs
-        columns = []
-        for k in range(table.shape[1]):
-            column = table[0, k]
-            for q in range(1, table.shape[0]):
-                column = jnp.where(node == q, table[q, k], column)
-            columns.append(column)
+        columns = [pick(node, table[:, k]) for k in range(table.shape[1])]
         if len(columns) > UNROLLED_CATEGORIES:  # the draw of ``categorical_from_uniform``
             return sample_categorical(u, jnp.stack(columns))
         return categorical_from_columns(u, columns)
@@ -276,10 +275,10 @@ class NeuralController:
         """One agent's next node (int32 scalar): ``u`` uniform scalar, ``policy`` that agent's
         slice (leaves ``[nodes, ...]``), ``node`` its current node, ``inputs`` its network input
         ``[*obs_shape]`` (``node_inputs``). Agents-major controllers draw from one array per
-        logit (``scan_agent_outputs``, ``softmax_columns``, ``categorical_from_columns``),
+        logit (``selected_member_logits``, ``softmax_columns``, ``categorical_from_columns``),
         the others from the ``[nodes]`` logits: the same numbers."""
         if self.agents_major:
-            logits = self.scan_agent_outputs(policy.net_params, node, inputs)
+            logits = self.selected_member_logits(policy.net_params, node, inputs)
             return categorical_from_columns(u, softmax_columns(logits))
         weights = softmax_weights(self.agent_node_logits(policy.net_params, node, inputs))
         return sample_categorical(u, weights)
@@ -289,8 +288,8 @@ class NeuralController:
 def _written_out_mlp(p: dict, obs: jax.Array) -> jax.Array:
     """``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as scalar multiply-adds
     (``NeuralController.one_net_logits``): logits ``[nodes]`` from ``obs`` (``in`` numbers),
-    each hidden unit added to all logits at once (``_written_out_outputs`` computes the same
-    numbers as one scalar per logit).
+    each hidden unit added to all logits at once (``_selected_member_outputs`` computes the
+    same numbers as one scalar per logit).
 
     Jitted, so its ``hidden * (in + 1)`` traced operations are traced once per shape and the
     trace reused: a rollout applies it in the scan's body and in its last step, for every
@@ -320,22 +319,41 @@ def _hidden_unit(w1: jax.Array, b1: jax.Array, x: jax.Array, j: int) -> jax.Arra
 
 
 @jax.jit
-def _written_out_outputs(p: dict, obs: jax.Array) -> tuple[jax.Array, ...]:
-    """``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as scalar multiply-adds
-    (``NeuralController.one_net_logits``): the ``nodes`` logits, one scalar each, from ``obs``
-    (``in`` numbers). Logit k is ``b2[k] + relu(h_0) w2[0, k] + relu(h_1) w2[1, k] + ...``
-    summed in that order.
+def _selected_member_outputs(p: dict, node: jax.Array, obs: jax.Array) -> tuple[jax.Array, ...]:
+    """The current node's ``NodeNet`` (``Dense_0``, relu, ``Dense_1``) on one observation, as
+    scalar multiply-adds (``NeuralController.selected_member_logits``): ``p`` the members'
+    params (leaves ``[nodes, ...]``), ``node`` the current node (int scalar), ``obs`` the input
+    (``in`` numbers); the ``nodes`` logits, one scalar each. Each weight is ``pick``ed from the
+    members; logit k is ``b2[k] + relu(h_0) w2[0, k] + relu(h_1) w2[1, k] + ...`` summed in
+    that order, as ``_written_out_mlp`` sums it.
 
-    Jitted, so its ``hidden * (in + 1)`` traced operations are traced once per shape and the
-    trace reused: a rollout applies it in the scan's body and in its last step, for every
-    rollout engine of an iteration, and every program of a process (``envs.base.
-    normal_from_uniform``, ``_written_out_mlp``). XLA inlines it."""
+    Jitted, so its traced operations are traced once per shape and the trace reused: a rollout
+    applies it in the scan's body and in its last step, for every rollout engine of an
+    iteration, and every program of a process (``envs.base.normal_from_uniform``). XLA
+    inlines it."""
     w1, b1, w2, b2, x = _operands(p, obs)
-    outs = [b2[k] for k in range(w2.shape[1])]
-    for j in range(w1.shape[1]):
-        hidden = jnp.maximum(_hidden_unit(w1, b1, x, j), 0.0)
-        outs = [out + hidden * w2[j, k] for k, out in enumerate(outs)]
+
+    def weight(a: jax.Array, *index: int) -> jax.Array:
+        return pick(node, a[(slice(None), *index)])
+
+    outs = [weight(b2, k) for k in range(w2.shape[2])]
+    for j in range(w1.shape[2]):
+        pre = weight(b1, j)
+        for i in range(w1.shape[1]):
+            pre = pre + x[i] * weight(w1, i, j)
+        hidden = jnp.maximum(pre, 0.0)
+        outs = [out + hidden * weight(w2, j, k) for k, out in enumerate(outs)]
     return tuple(outs)
+
+
+def pick(node: jax.Array, values: jax.Array) -> jax.Array:
+    """``values[node]`` of a ``[nodes]`` vector as a chain of ``where``s over the nodes: under
+    ``vmap`` over rollouts a select XLA fuses into the loop that reads it, where a gather would
+    be a kernel of its own writing each rollout's value to memory."""
+    out = values[0]
+    for q in range(1, values.shape[0]):
+        out = jnp.where(node == q, values[q], out)
+    return out
 
 
 def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
