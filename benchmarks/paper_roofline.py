@@ -11,8 +11,10 @@ step to step so that XLA cannot hoist it out of the loop:
 - **random numbers**: the per-step block of uniforms ``[rollouts, 2 agents + noise]`` the
   rollouts draw (``rollout.rollouts``; shared by all candidates, common random numbers);
 - **action draw**: ``controller.act`` for every agent;
-- **network and node draw**: ``controller.next_node`` (COGNet-DICE: every member network of the
-  agent, softmax, inverse-CDF draw; COG-DICE: the region of the observation and its next node);
+- **network and node draw**: ``controller.next_node`` (COGNet-DICE: the current node's network,
+  its weights picked from the members, up to ``neural.AGENTS_MAJOR_MAX_NODES`` nodes, or every
+  member network of the agent beyond; softmax, inverse-CDF draw; COG-DICE: the region of the
+  observation and its next node);
 - **simulator**: the tagging step;
 - **rollouts**: the real thing (``rollout.evaluate_candidates``), and **iteration**: one
   compiled ``step`` of the search (the rest is selection and update).
@@ -23,8 +25,8 @@ traffic) and schedules them on both cores together. Beside each part: the operat
 cost analysis counts per agent-step and the cycles they take at the float32 matmul peak
 measured first (``jax_cases.machine_peak``, fused multiply-adds counted as 2), the compute
 bound of those operations. XLA counts a loop's body once: one time step of the scan over the
-horizon, and below 4 nodes (``neural.UNROLL_MIN_NODES``: a ``lax.scan`` over the members) one
-member network instead of all of them, so there the network's count is a third of what runs.
+horizon (and, where a controller scans over its members, one member network instead of all of
+them).
 Likewise the bytes XLA counts between its kernels per agent-step, and the cycles they take at
 the streaming bandwidth (every byte from main memory). The whole iteration, loops in loops,
 has none of these columns.
