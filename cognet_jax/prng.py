@@ -83,19 +83,27 @@ def _as_threefry(key: jax.Array) -> jax.Array:
     return jax.random.wrap_key_data(key, impl="threefry2x32")
 
 
-def _counters(shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
-    """The 64-bit flat index of every element of ``shape`` as (high, low) uint32 words."""
+def _counters(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
+    """The 64-bit flat index of every element of ``shape`` as (high, low) uint32 words.
+
+    The low words are the index plus a zero XLA cannot prove is zero (``key[0] > 2**32 - 1``),
+    so they depend on the key: in a rollout's time loop, whose key changes every step, XLA
+    then computes them inside the generator's loop instead of hoisting them out as a
+    ``[*shape]`` array that every step reads back from memory (4.4 MB per step for the
+    ``[1e5, 11]`` tagging block; 1.08x the 3-node rollout throughput, benchmarks/NOTES.md,
+    "Ninth pass"). The same numbers."""
     n = math.prod(shape)
     if n >= 2**32:
         raise ValueError(f"random draws of {n} >= 2**32 elements at once are not supported")
-    low = jax.lax.iota(jnp.uint32, n).reshape(shape)
+    zero = (key[0] > np.uint32(2**32 - 1)).astype(jnp.uint32)
+    low = (jax.lax.iota(jnp.uint32, n) + zero).reshape(shape)
     return jnp.zeros(shape, jnp.uint32), low
 
 
 def _threefry_bits(key: jax.Array, bit_width: int, shape: tuple[int, ...]) -> jax.Array:
     if not _partitionable():
         return jax.random.bits(_as_threefry(key), shape, _UINT[bit_width])
-    b1, b2 = threefry2x32(key[0], key[1], *_counters(shape))
+    b1, b2 = threefry2x32(key[0], key[1], *_counters(key, shape))
     if bit_width == 64:
         return (b1.astype(jnp.uint64) << np.uint64(32)) | b2.astype(jnp.uint64)
     bits = b1 ^ b2
@@ -109,7 +117,7 @@ def _threefry_seed(seed: jax.Array) -> jax.Array:
 def _threefry_split(key: jax.Array, shape: tuple[int, ...]) -> jax.Array:
     if not _partitionable():
         return jax.random.key_data(jax.random.split(_as_threefry(key), shape))
-    b1, b2 = threefry2x32(key[0], key[1], *_counters(shape))
+    b1, b2 = threefry2x32(key[0], key[1], *_counters(key, shape))
     return jnp.stack([b1, b2], axis=-1)
 
 
