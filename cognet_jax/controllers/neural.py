@@ -347,7 +347,7 @@ def _selected_member_outputs(p: dict, node: jax.Array, obs: jax.Array) -> tuple[
 
 
 def pick(node: jax.Array, values: jax.Array) -> jax.Array:
-    """``values[node]`` of a ``[nodes]`` vector as a chain of ``where``s over the nodes: under
+    """``values[node]`` of ``values [nodes, ...]`` as a chain of ``where``s over the nodes: under
     ``vmap`` over rollouts a select XLA fuses into the loop that reads it, where a gather would
     be a kernel of its own writing each rollout's value to memory."""
     out = values[0]
@@ -359,15 +359,12 @@ def pick(node: jax.Array, values: jax.Array) -> jax.Array:
 def rows_at(table: jax.Array, nodes: jax.Array) -> jax.Array:
     """``table[a, nodes[a]]`` for every agent a: ``table [agents, nodes, K]`` -> ``[agents, K]``.
 
-    With few nodes a chain of ``where`` over the nodes, which XLA fuses into the draw that uses
-    it; a gather of each rollout's row is a kernel of its own and writes the rows to memory."""
-    n = table.shape[1]
-    if n > UNROLLED_CATEGORIES:
+    With few nodes each agent's row is ``pick``ed (a chain of ``where`` over the nodes, which
+    XLA fuses into the draw that uses it); a gather of each rollout's row is a kernel of its own
+    and writes the rows to memory."""
+    if table.shape[1] > UNROLLED_CATEGORIES:
         return table[jnp.arange(table.shape[0]), nodes]
-    out = table[:, 0]
-    for q in range(1, n):
-        out = jnp.where((nodes == q)[:, None], table[:, q], out)
-    return out
+    return jax.vmap(pick)(nodes, table)
 
 
 def softmax_columns(logits) -> list[jax.Array]:
