@@ -30,6 +30,7 @@ UNROLL_MAX_IN = 8
 UNROLL_MAX_HIDDEN = 32
 #: Small node nets of controllers with at least this many nodes are applied in one fused loop
 #: (``NeuralController.unrolled_agent_logits``); fewer nodes use a ``lax.scan`` over the nodes.
+#: Both forms serve the per-rollout engine: controllers that are not ``agents_major``.
 UNROLL_MIN_NODES = 4
 #: Controllers with small written-out networks, at most this many nodes, and at most this many
 #: ``where``s to pick a rollout's member weights run in the rollout engine's rollouts-last
