@@ -19,8 +19,9 @@ def rollout_throughput(
     """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
     (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``);
     the policy is passed to the compiled program as an argument, compiled as the driver
-    compiles COGNet-DICE's programs (``NeuralController.compiler_options``).
+    compiles COGNet-DICE's programs (``Search.compiler_options``).
     ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
+    from cognet_jax.algorithms.cognet_weights import CognetWeights
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
     from cognet_jax.prng import make_key
@@ -36,7 +37,7 @@ def rollout_throughput(
         make_key(1, prng),
         policy,
         runs=runs,
-        options=ctrl.compiler_options,
+        options=CognetWeights.compiler_options,
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 

@@ -215,6 +215,7 @@ def paper_rows(
 
 def rollout_rows(nodes: int, calls: int, hz: float, peak: dict) -> list[str]:
     """Every part of the rollout benchmark's case (benchmarks.jax_cases.rollout_throughput)."""
+    from cognet_jax.algorithms.cognet_weights import CognetWeights
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
 
@@ -222,7 +223,7 @@ def rollout_rows(nodes: int, calls: int, hz: float, peak: dict) -> list[str]:
     ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     policy = ctrl.init(jax.random.key(0))
     label = f"rollouts, {nodes} nodes, h 3, 1e5"
-    options = ctrl.compiler_options
+    options = CognetWeights.compiler_options
     return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz, peak, options)
 
 

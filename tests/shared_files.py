@@ -38,16 +38,6 @@ SUITE_XLA_FLAGS = (
     "--xla_llvm_disable_expensive_passes=true",
 )
 
-#: compiler options that compile one program as a user's process would in the suite's
-#: processes: XLA's defaults for every flag of ``SUITE_XLA_FLAGS`` and for what JAX's
-#: ``jax_disable_most_optimizations`` lowers (the optimisation level, LLVM's expensive passes)
-AS_A_USER_COMPILES = {
-    "xla_cpu_use_fusion_emitters": True,
-    "xla_cpu_parallel_codegen_split_count": 32,
-    "xla_backend_optimization_level": 3,
-    "xla_llvm_disable_expensive_passes": False,
-}
-
 
 def with_suite_xla_flags(env: dict) -> dict:
     """``env`` with ``SUITE_XLA_FLAGS`` added to its ``XLA_FLAGS`` (once)."""

@@ -7,7 +7,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from shared_files import AS_A_USER_COMPILES
 
 from cognet_jax.algorithms.cognet_dice import (
     candidate_action_probs,
@@ -115,10 +114,13 @@ def test_network_training_fits_pairs_and_masks_idle_members():
 
 
 def test_step_compiles_once_and_keeps_distributions_valid():
+    """Also: the driver compiles COGNet-DICE with ``compiler_options`` (512-bit vectors); a
+    user's plain ``jax.jit`` of the same iterations gives the same bits (the thesis variant;
+    the default one: tests/test_one_truth.py)."""
     config = load_config("tagging-thesis-spec-n3", SMALL)
     algorithm, params, step = make_step(config)
     k_init, k_run, _ = split_seed_key(seed_key(config, 0))
-    state = algorithm.init(k_init, params)
+    start = state = algorithm.init(k_init, params)
     traced = chex.assert_max_traces(step, n=1)
     jitted = jax.jit(traced)
     for _ in range(4):
@@ -128,25 +130,12 @@ def test_step_compiles_once_and_keeps_distributions_valid():
     assert probs.min() >= 0
     assert int(state.progress.iteration) == 4
 
-
-def test_wide_vectors_change_no_number_of_the_training():
-    """The driver compiles COGNet-DICE with 512-bit vectors (``compiler_options``); a user's
-    plain ``jax.jit`` gives the same networks (the thesis variant's training, compiled as in a
-    user's process; its rollouts: tests/test_neural.py; the whole default search:
-    tests/test_one_truth.py)."""
-    config = load_config("tagging-thesis-spec-n3", SMALL)
-    algorithm, params, _ = make_step(config)
     assert algorithm.compiler_options == WIDE_VECTORS
-    state = algorithm.init(jax.random.key(0), params)
-    rng = np.random.default_rng(0)
-    obs = jnp.asarray(rng.normal(size=(2, 500)), jnp.float32)
-    src, tgt = (jnp.asarray(rng.integers(0, 3, (2, 500)), jnp.int32) for _ in range(2))
-    pairs = (obs, src, tgt, jnp.asarray(rng.random((2, 500)) < 0.8))
-    args = (state.policy.net_params, state.opt_state, pairs, params.hyper)
-    lowered = jax.jit(algorithm.train_networks).lower(*args)
-    plain = lowered.compile(AS_A_USER_COMPILES)(*args)
-    wide = lowered.compile({**AS_A_USER_COMPILES, **WIDE_VECTORS})(*args)
-    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(wide), strict=True):
+    wide = jax.jit(step).lower(k_run, start, params).compile(WIDE_VECTORS)
+    for _ in range(4):
+        start, wide_metrics = wide(k_run, start, params)
+    plain, widened = jax.tree.leaves((state, metrics)), jax.tree.leaves((start, wide_metrics))
+    for a, b in zip(plain, widened, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 

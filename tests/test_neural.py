@@ -10,16 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.extend.core import jaxprs_in_params
-from shared_files import AS_A_USER_COMPILES
 
 from cognet_jax.controllers.neural import (
     AGENTS_MAJOR_MAX_NODES,
     UNROLL_MIN_NODES,
-    WIDE_VECTORS,
-    WIDE_VECTORS_MAX_WHERES,
     NeuralController,
 )
-from cognet_jax.envs.heatmap import make_heatmap
 from cognet_jax.envs.tagging import make_tagging
 from cognet_jax.rollout import rollouts
 
@@ -221,34 +217,3 @@ def test_eager_controller_set_up_is_a_few_programs_and_the_numbers_of_the_plain_
     for jitted, plain in pairs:
         for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(plain), strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-
-
-@pytest.mark.parametrize(
-    "nodes, hidden, wide",
-    [(3, 10, True), (5, 10, True), (6, 6, True), (3, 32, False), (6, 10, False), (10, 10, True)],
-)
-def test_wide_vectors_where_measured_faster(nodes, hidden, wide):
-    """512-bit vectors for the rollouts of every controller but the agents-major ones with
-    more than ``WIDE_VECTORS_MAX_WHERES`` picks of member weights (measured slower there)."""
-    ctrl = NeuralController(2, nodes, 3, hidden=hidden)
-    assert (ctrl.member_picks > WIDE_VECTORS_MAX_WHERES and ctrl.agents_major) is not wide
-    assert ctrl.compiler_options == (WIDE_VECTORS if wide else {})
-
-
-@pytest.mark.parametrize("env_name, nodes", [("tagging", 3), ("tagging", 10), ("heatmap", 4)])
-def test_wide_vectors_change_no_rollout(env_name, nodes):
-    """Rollouts compiled with the controller's 512-bit vectors are a plain ``jax.jit``'s, bit
-    for bit, compiled as in a user's process: the agents-major engine (3 nodes), the
-    per-rollout one with written-out networks (10) and with ``dot`` (the heatmap's 16 inputs)."""
-    env, params = make_tagging("thesis") if env_name == "tagging" else make_heatmap()
-    ctrl = NeuralController(
-        env.num_agents, nodes, env.num_actions, obs_shape=env.obs_shape, action_counts=None
-    )
-    assert ctrl.compiler_options == WIDE_VECTORS
-    assert ctrl.agents_major is (nodes == 3) and ctrl.unrolled is (env_name == "tagging")
-    policy = ctrl.init(jax.random.key(0))
-    key = jax.random.key(1)
-    lowered = jax.jit(lambda k, p: rollouts(env, ctrl, k, 3000, params, p)).lower(key, policy)
-    plain = lowered.compile(AS_A_USER_COMPILES)(key, policy)
-    wide = lowered.compile({**AS_A_USER_COMPILES, **WIDE_VECTORS})(key, policy)
-    np.testing.assert_array_equal(np.asarray(plain), np.asarray(wide))

@@ -40,18 +40,14 @@ UNROLL_MIN_NODES = 4
 #: (benchmarks/NOTES.md, "Ninth pass").
 AGENTS_MAJOR_MAX_NODES = 6
 AGENTS_MAJOR_MAX_WHERES = 600
-#: XLA options for 512-bit vectors on a CPU that has them (XLA's CPU default prefers 256), the
-#: ``compiler_options`` the driver compiles COGNet-DICE's programs with where they are faster
-#: (``NeuralController.compiler_options``). They change no number (tests/test_one_truth.py
-#: compiles ``make_train`` without them). A CPU without AVX-512 keeps its widest vectors;
-#: other backends ignore the option.
+#: XLA options the command line compiles COGNet-DICE's programs with (``Search.compiler_options``;
+#: the same keys as ``jax.jit(..., compiler_options=...)``): 512-bit vectors on a CPU that has
+#: them (XLA's CPU default prefers 256), which the rollouts' kernels -- the node networks and
+#: threefry -- fill. 3-node rollout benchmark, alternated in one process: 2.7-3.3 against
+#: 3.4-7.0 ms per call; the same returns, and the same COGNet-DICE iterations bit for bit
+#: (tests/test_one_truth.py compiles ``make_train`` without them; benchmarks/NOTES.md, "Tenth
+#: pass"). A CPU without AVX-512 keeps its widest vectors; other backends ignore the option.
 WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
-#: Agents-major controllers with more picks of member weights than this keep XLA's 256-bit
-#: vectors. Rollout benchmark (h 3, 1e5), 512 against 256 bits alternated in one process:
-#: 1.15-1.18x faster at 270-300 picks (6 nodes x 6 hidden, 4 x 16, 5 x 10), 1.16-1.20x at 3 x 10
-#: (106), 0.99x at 326 (3 x 32), 0.75-0.93x at 430 (6 x 10); the per-rollout engine 1.04x at 7
-#: nodes, 1.7x at 10 (benchmarks/NOTES.md, "Tenth pass").
-WIDE_VECTORS_MAX_WHERES = 320
 
 
 def _torch_uniform(fan_in: int):
@@ -265,28 +261,13 @@ class NeuralController:
         ``AGENTS_MAJOR_MAX_WHERES`` picks of member weights (``selected_member_logits``), and no
         ``features`` (an encoder's matrix products might round differently in another
         layout)."""
+        weights = self.hidden * (self.in_features + 1) + self.num_nodes * (self.hidden + 1)
         return (
             self.unrolled
             and self.num_nodes <= AGENTS_MAJOR_MAX_NODES
-            and self.member_picks <= AGENTS_MAJOR_MAX_WHERES
+            and (self.num_nodes - 1) * weights <= AGENTS_MAJOR_MAX_WHERES
             and self.features is None
         )
-
-    @property
-    def member_picks(self) -> int:
-        """``where``s that pick one member's weights for a rollout (``selected_member_logits``):
-        ``nodes - 1`` per weight of a member network."""
-        weights = self.hidden * (self.in_features + 1) + self.num_nodes * (self.hidden + 1)
-        return (self.num_nodes - 1) * weights
-
-    @property
-    def compiler_options(self) -> dict:
-        """XLA's ``compiler_options`` for programs that roll this controller out: 512-bit
-        vectors (``WIDE_VECTORS``), except for agents-major controllers with more than
-        ``WIDE_VECTORS_MAX_WHERES`` picks, whose rollouts they slow down."""
-        if self.agents_major and self.member_picks > WIDE_VECTORS_MAX_WHERES:
-            return {}
-        return WIDE_VECTORS
 
     def agent_act(self, u, policy: NeuralPolicy, node):
         """One agent's action (int32 scalar) from its slice of ``policy`` (``action_probs
