@@ -18,10 +18,8 @@ def rollout_throughput(
 ) -> tuple[Timing, float]:
     """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
     (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``);
-    the policy is passed to the compiled program as an argument, compiled as the driver
-    compiles COGNet-DICE's programs (``Search.compiler_options``).
+    the policy is passed to the compiled program as an argument.
     ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
-    from cognet_jax.algorithms.cognet_weights import CognetWeights
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
     from cognet_jax.prng import make_key
@@ -37,7 +35,6 @@ def rollout_throughput(
         make_key(1, prng),
         policy,
         runs=runs,
-        options=CognetWeights.compiler_options,
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
@@ -52,9 +49,8 @@ CONTROLLER_KINDS = {
 
 
 def controller_case(kind: str, nodes: int):
-    """``(env, params, controller, policy, options)`` of one controller kind of
-    ``CONTROLLER_KINDS``: one controller drawn from the algorithm's initial distribution, and
-    the XLA options the driver compiles the algorithm's programs with."""
+    """``(env, params, controller, policy)`` of one controller kind of ``CONTROLLER_KINDS``:
+    one controller drawn from the algorithm's initial distribution."""
     from cognet_jax.api import build_algorithm
     from cognet_jax.registry import load_config
 
@@ -70,7 +66,7 @@ def controller_case(kind: str, nodes: int):
         policy = jax.tree.map(lambda x: x[0], sample.policy)
     else:
         policy = ctrl.sample(jax.random.key(0), ctrl.init_distribution())
-    return env, params, ctrl, policy, algorithm.compiler_options
+    return env, params, ctrl, policy
 
 
 def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[Timing, float]:
@@ -79,13 +75,12 @@ def controller_throughput(kind: str, nodes: int, num: int, runs: int) -> tuple[T
     of the compiled program)."""
     from cognet_jax.rollout import rollouts
 
-    env, params, ctrl, policy, options = controller_case(kind, nodes)
+    env, params, ctrl, policy = controller_case(kind, nodes)
     timing = time_jax(
         lambda k, pol: rollouts(env, ctrl, k, num, params, pol),
         jax.random.key(1),
         policy,
         runs=runs,
-        options=options,
     )
     return timing, num * env.horizon * env.num_agents / timing.median_s
 
@@ -103,8 +98,7 @@ def iteration(experiment: str, sets: list[str], runs: int) -> tuple[Timing, dict
     key = jax.random.key(1)
     t0 = time.perf_counter()
     # the params are constants of the program, as the command line compiles it
-    program = jax.jit(lambda k, s: step(k, s, params)).lower(key, state)
-    compiled = program.compile(algorithm.compiler_options)
+    compiled = jax.jit(lambda k, s: step(k, s, params)).lower(key, state).compile()
     compile_s = time.perf_counter() - t0
     holder = {"state": state}
 
@@ -215,11 +209,11 @@ def rollout_cost(kind: str, nodes: int, num: int = 1_000) -> dict:
     agents`` gives the per agent-step figures (the reset is under 1 %)."""
     from cognet_jax.rollout import rollouts
 
-    env, params, ctrl, policy, options = controller_case(kind, nodes)
+    env, params, ctrl, policy = controller_case(kind, nodes)
     compiled = (
         jax.jit(lambda k, pol: rollouts(env, ctrl, k, num, params, pol))
         .lower(jax.random.key(1), policy)
-        .compile(options)
+        .compile()
     )
     cost = compiled.cost_analysis()
     per = num * env.num_agents

@@ -64,8 +64,7 @@ def seconds_per_iteration(experiment: str, sets: list[str], calls: int = 3) -> t
     algorithm, params, step = make_step(load_config(experiment, sets))
     state = algorithm.init(jax.random.key(0), params)
     # the params are constants of the program, as the command line compiles it
-    program = jax.jit(lambda k, s: step(k, s, params)).lower(jax.random.key(1), state)
-    compiled = program.compile(algorithm.compiler_options)
+    compiled = jax.jit(lambda k, s: step(k, s, params)).lower(jax.random.key(1), state).compile()
     state, metrics = compiled(jax.random.key(1), state)
     jax.block_until_ready(metrics)
     times = []

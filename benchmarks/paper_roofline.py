@@ -126,16 +126,13 @@ def cycles(seconds: float, steps: float, hz: float) -> str:
     return f"{seconds * (os.cpu_count() or 1) * hz / steps:.1f}" if hz else "-"
 
 
-def timed_row(
-    name: str, fn, args: tuple, steps: int, calls: int, hz: float, cost=None, options=None
-) -> str:
+def timed_row(name: str, fn, args: tuple, steps: int, calls: int, hz: float, cost=None) -> str:
     """``| name | ms | cycles per agent-step | flops | their cycles | bytes | their cycles |``
     of the median call of ``jax.jit(fn)`` (after the benchmark runner's warm-up,
     ``timing.time_jax``), printed as it is measured: XLA's counts per agent-step and the
     cycles they take at the machine's peaks. ``cost``: ``(agent-steps of one loop body,
-    machine_peak())``, or None for no cost columns. ``options``: the
-    algorithm's XLA ``compiler_options``, as the driver compiles it."""
-    timing = time_jax(fn, *args, runs=calls, options=options)
+    machine_peak())``, or None for no cost columns."""
+    timing = time_jax(fn, *args, runs=calls)
     seconds = timing.median_s
     counts = ["-"] * 4
     if cost is not None:
@@ -154,15 +151,13 @@ def timed_row(
 
 
 def measure_parts(
-    label, env, ctrl, params, policies, candidates, num, calls, hz, peak, options
+    label, env, ctrl, params, policies, candidates, num, calls, hz, peak
 ) -> list[str]:
     """Table rows of every part (``timed_row``; ``peak``: ``jax_cases.machine_peak()``)."""
     per_body = max(candidates, 1) * num * env.num_agents  # agent-steps of one time step
     steps = per_body * env.horizon
-    cost = (per_body, peak)
-    key = (jax.random.key(1),)
     return [
-        timed_row(f"{label}: {name}", fn, key, steps, calls, hz, cost, options)
+        timed_row(f"{label}: {name}", fn, (jax.random.key(1),), steps, calls, hz, (per_body, peak))
         for name, fn in parts(env, ctrl, params, policies, candidates, num).items()
     ]
 
@@ -202,20 +197,16 @@ def paper_rows(
         calls,
         hz,
         peak,
-        algorithm.compiler_options,
     )
     steps = algorithm.rollouts_per_iteration * env.horizon * env.num_agents
     iteration = lambda k, st: algorithm.step(k, st, params)  # noqa: E731
     name = f"{label}: whole iteration ({count} candidates)"
-    args = (jax.random.key(1), state)
-    options = algorithm.compiler_options
-    rows.append(timed_row(name, iteration, args, steps, calls, hz, None, options))
+    rows.append(timed_row(name, iteration, (jax.random.key(1), state), steps, calls, hz))
     return rows
 
 
 def rollout_rows(nodes: int, calls: int, hz: float, peak: dict) -> list[str]:
     """Every part of the rollout benchmark's case (benchmarks.jax_cases.rollout_throughput)."""
-    from cognet_jax.algorithms.cognet_weights import CognetWeights
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
 
@@ -223,8 +214,7 @@ def rollout_rows(nodes: int, calls: int, hz: float, peak: dict) -> list[str]:
     ctrl = NeuralController(env.num_agents, nodes, env.num_actions)
     policy = ctrl.init(jax.random.key(0))
     label = f"rollouts, {nodes} nodes, h 3, 1e5"
-    options = CognetWeights.compiler_options
-    return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz, peak, options)
+    return measure_parts(label, env, ctrl, params, policy, 0, 100_000, calls, hz, peak)
 
 
 def main() -> None:

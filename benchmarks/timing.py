@@ -54,11 +54,11 @@ def time_calls(fn: Callable[[], object], runs: int = 5, warmup: int = 1) -> Timi
     return Timing(statistics.median(times), min(times), max(times), runs)
 
 
-def time_jax(fn, *args, runs: int = 5, options: dict | None = None) -> Timing:
-    """Compile ``jax.jit(fn)`` ahead of time with XLA's compiler ``options`` (timed apart, its
-    cost analysis kept), then time calls on ``args``."""
+def time_jax(fn, *args, runs: int = 5) -> Timing:
+    """Compile ``jax.jit(fn)`` ahead of time (timed apart, its cost analysis kept), then time
+    calls on ``args``."""
     t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile(options)
+    compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
     timing = time_calls(lambda: compiled(*args), runs=runs)
     timing.compile_s, timing.cost = compile_s, compiled.cost_analysis()

@@ -263,12 +263,7 @@ def make_train(config: Config):
     ``params``: a ``SearchParams`` like ``build_algorithm(config)[1]`` (``None``: that one, as
     constants of the program, as the command line runs it), e.g. with another ``alpha`` or
     noise level, so ``jax.vmap(train, in_axes=(None, 0))(key, stacked_params)`` searches with
-    many settings in one program. ``make_evaluate(config)`` gives the honest value.
-
-    The command line compiles with the algorithm's XLA options
-    (``build_algorithm(config)[0].compiler_options``; COGNet-DICE: 512-bit vectors, about 15%
-    faster rollouts on an AVX-512 CPU). A plain ``jax.jit(train)`` gives the same numbers;
-    ``jax.jit(train, compiler_options=...)`` gives the speed as well."""
+    many settings in one program. ``make_evaluate(config)`` gives the honest value."""
     algorithm, default = build_algorithm(config)
     run = search_program(algorithm, config.algorithm.iterations)
 

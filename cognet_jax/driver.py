@@ -225,22 +225,14 @@ def _digest_of(path: Path, size: int, mtime_ns: int) -> str:
 
 
 def compiled_program(
-    config: Config,
-    what: str,
-    fn,
-    args: tuple,
-    constants,
-    identity: dict,
-    before_compile=None,
-    options: dict | None = None,
+    config: Config, what: str, fn, args: tuple, constants, identity: dict, before_compile=None
 ):
     """``fn(*args)`` compiled once (``traced.compile_kept``: kept in this process and, traced,
     between processes, while the compilation cache is on), ``what`` naming it in the memory
     check's refusal (``before_compile()`` is called once the check passed, when it is
-    compiled afresh); ``constants`` are the arrays of ``config``'s params baked into it;
-    ``options``: the algorithm's XLA ``compiler_options``. A simulator or algorithm
-    registered from outside the package is compiled afresh each time (its source is not in
-    the key)."""
+    compiled afresh); ``constants`` are the arrays of ``config``'s params baked into it. A
+    simulator or algorithm registered from outside the package is compiled afresh each time
+    (its source is not in the key)."""
     before_compile = before_compile or (lambda: None)
     builtin = config.env.name in BUILTIN_ENVS and config.experiment.algorithm in BUILTIN_ALGORITHMS
     key = program_key(what, identity, constants, args) if builtin else None
@@ -250,7 +242,7 @@ def compiled_program(
         trace_checked(jitted, leaves, memory, what)
         before_compile()
 
-    return compile_kept(fn, args, key, check, options)
+    return compile_kept(fn, args, key, check)
 
 
 class Program:
@@ -322,10 +314,7 @@ class Program:
             identity = program_identity(
                 self.config, search=True, devices=devices, shared=self.shared_env
             )
-        options = self.algorithm.compiler_options
-        return compiled_program(
-            self.config, what, fn, args, constants, identity, before_compile, options
-        )
+        return compiled_program(self.config, what, fn, args, constants, identity, before_compile)
 
     def _one(self, method):
         """``method(*args, params)`` as a function of a single run's arguments and the held
@@ -422,13 +411,7 @@ def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: in
         shapes = str(jax.tree.map(lambda x: (x.shape, x.dtype), args[1]))
         if shapes not in compiled:
             compiled[shapes] = compiled_program(
-                config,
-                "the honest evaluation",
-                returns,
-                args,
-                constants,
-                identity,
-                options=algorithm.compiler_options,
+                config, "the honest evaluation", returns, args, constants, identity
             )
         return return_summary(compiled[shapes](*args))
 

@@ -22,8 +22,7 @@ compilation cache (``--no-compile-cache``, ``COGNET_JAX_CACHE=off``). A file tha
 read is traced afresh and written again.
 
 Within one process a kept program is compiled once: the compiled program is kept in memory by
-its key, the compiler options it is compiled with (an algorithm's ``compiler_options``) and
-JAX's settings that change compilation (``COMPILE_SETTINGS``), so a second run of
+its key and JAX's settings that change compilation (``COMPILE_SETTINGS``), so a second run of
 the same program in the process (a resumed run, an evaluation after ``train`` in one Python
 session) neither traces, nor lowers, nor reads the compilation cache. The ``KEPT_IN_PROCESS``
 programs used last are kept. A program that is not kept (no key, or the cache off) is traced
@@ -197,11 +196,7 @@ def _caller(compiled, out_tree) -> Callable:
 
 
 def compile_kept(
-    fn: Callable,
-    args: tuple,
-    key: str | None,
-    check: Callable[[Callable, tuple], None],
-    options: dict | None = None,
+    fn: Callable, args: tuple, key: str | None, check: Callable[[Callable, tuple], None]
 ) -> Callable:
     """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)`` (with
     ``call.out_shapes``, the output's shapes).
@@ -210,22 +205,20 @@ def compile_kept(
     ``check(jitted, leaves)`` runs before a program is traced afresh (the memory check), with
     ``fn`` jitted as a function of the flat leaves of ``args``; a kept program passed it when it
     was traced. When ``check`` traces (the memory check does), the export reads that trace
-    (JAX keeps it with the jitted function) instead of tracing again. ``options``: XLA's
-    compiler options (``jax.jit``'s ``compiler_options``); they change the compiled program,
-    not the traced one, and JAX's compilation cache keys them. A program compiled earlier in
-    this process is returned as it is (see the module docstring)."""
+    (JAX keeps it with the jitted function) instead of tracing again. A program compiled
+    earlier in this process is returned as it is (see the module docstring)."""
     folder = trace_cache_dir()
     keep = key is not None and folder is not None
     if not keep:
         jitted, leaves, out_trees = _flat(fn, args)
         check(jitted, leaves)
-        return _caller(jitted.lower(*leaves).compile(options), out_trees[0])
-    in_process = _in_process_key(key, options)
+        return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+    in_process = _in_process_key(key)
     with _COMPILED_LOCK:
         if in_process in _COMPILED:
             _COMPILED.move_to_end(in_process)
             return _COMPILED[in_process]
-    caller = _compiled_from_file(fn, args, folder / f"{key}.bin", check, options)
+    caller = _compiled_from_file(fn, args, folder / f"{key}.bin", check)
     with _COMPILED_LOCK:
         _COMPILED[in_process] = caller
         while len(_COMPILED) > KEPT_IN_PROCESS:
@@ -233,13 +226,13 @@ def compile_kept(
     return caller
 
 
-def _in_process_key(key: str, options: dict | None = None) -> str:
-    """``key``, the compiler ``options`` and the JAX settings that change how it compiles."""
+def _in_process_key(key: str) -> str:
+    """``key`` and the JAX settings that change how it compiles."""
     settings = [str(jax.config.values.get(s)) for s in COMPILE_SETTINGS]
-    return "|".join([key, json.dumps(options or {}, sort_keys=True), *settings])
+    return "|".join([key, *settings])
 
 
-def _compiled_from_file(fn: Callable, args: tuple, path: Path, check, options=None) -> Callable:
+def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callable:
     """The program kept in ``path`` compiled (JAX's compilation cache may hold it); traced,
     checked and exported to ``path`` first when ``path`` holds none. Not written when several
     processes run together (``jax.distributed``), which trace their own (a file written
@@ -250,12 +243,11 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check, options=No
         check(jitted, leaves)
         exported = _export(jitted, leaves) if jax.process_count() == 1 else None
         if exported is None:  # not exportable: compiled as usual
-            return _caller(jitted.lower(*leaves).compile(options), out_trees[0])
+            return _caller(jitted.lower(*leaves).compile(), out_trees[0])
         kept = (exported, out_trees[0])
         _save(path, *kept)
     exported, out_tree = kept
-    lowered = jax.jit(exported.call).lower(*jax.tree.leaves(args))
-    return _caller(lowered.compile(options), out_tree)
+    return _caller(jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile(), out_tree)
 
 
 __all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]

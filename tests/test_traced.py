@@ -139,21 +139,6 @@ def test_in_one_process_a_kept_program_is_compiled_once(cache):
         jax.config.update("jax_disable_most_optimizations", setting)
     assert other is not first and len(traces) == 2
     np.testing.assert_array_equal(np.asarray(other(*args)["y"]), np.asarray(first(*args)["y"]))
-    # other compiler options (an algorithm's ``compiler_options``) compile it again too
-    wide = {"xla_cpu_prefer_vector_width": 512}
-    widened = traced.compile_kept(_program(traces, table), args, key, _no_check, wide)
-    assert widened is not first and widened is not other
-    assert traced.compile_kept(_program(traces, table), args, key, _no_check, wide) is widened
-
-
-def test_compiler_options_reach_xla(cache):
-    """Kept or not, the options are XLA's: one it does not know is refused."""
-    args = (jax.random.key(2), jnp.ones(5))
-    for key in (traced.program_key("bad option", {}, jnp.ones(3), args), None):
-        with pytest.raises(Exception, match="xla_no_such_option"):
-            traced.compile_kept(
-                _program([], jnp.ones(3)), args, key, _no_check, {"xla_no_such_option": 1}
-            )
 
 
 def test_the_identity_of_a_program_holds_the_bytes_of_the_files_it_reads(tmp_path):

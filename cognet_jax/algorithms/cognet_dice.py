@@ -60,7 +60,7 @@ from cognet_jax.config import (
     settings_class,
 )
 from cognet_jax.controllers.base import action_support
-from cognet_jax.controllers.neural import WIDE_VECTORS, NeuralController, NeuralPolicy
+from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
     build_pipeline,
@@ -254,7 +254,6 @@ class CognetDice(Search):
     pipeline: ObservationPipeline | None = None
     #: the candidates share the current networks: only their action tables are batched
     candidate_axes = NeuralPolicy(action_probs=0, net_params=None)
-    compiler_options = WIDE_VECTORS
 
     def __post_init__(self):
         s = self.settings

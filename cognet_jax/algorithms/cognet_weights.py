@@ -91,7 +91,7 @@ from cognet_jax.config import (
     settings_class,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
-from cognet_jax.controllers.neural import WIDE_VECTORS, NeuralPolicy
+from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.memory import trace_checked
 from cognet_jax.observations import (
     ObservationPipeline,
@@ -290,7 +290,6 @@ class CognetWeights(Search):
 
     pipeline: ObservationPipeline | None = None
     input_stats: tuple | None = None
-    compiler_options = WIDE_VECTORS
 
     def __post_init__(self):
         s = self.settings

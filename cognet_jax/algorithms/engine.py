@@ -182,11 +182,6 @@ class Search:
     #: the ``vmap`` axes of the asked candidates' policy pytree (0: every leaf has the leading
     #: ``[C]`` axis; the thesis COGNet-DICE batches only the action tables)
     candidate_axes: ClassVar[Any] = 0
-    #: XLA options the driver compiles this search's programs with (its iteration, initial
-    #: state, ``finish`` and honest evaluation; ``jax.jit``'s ``compiler_options``). Only
-    #: options that leave every number as it is: ``make_train`` under a plain ``jax.jit``
-    #: gives what ``cognet-jax train`` writes (pass these to your ``jit`` for the same speed).
-    compiler_options: ClassVar[dict] = {}
 
     def evaluate(self, key, policies, params: SearchParams) -> jax.Array:
         """Mean return ``[C]`` of the asked candidates (leading ``[C]`` axis, ``candidate_axes``),

@@ -40,14 +40,6 @@ UNROLL_MIN_NODES = 4
 #: (benchmarks/NOTES.md, "Ninth pass").
 AGENTS_MAJOR_MAX_NODES = 6
 AGENTS_MAJOR_MAX_WHERES = 600
-#: XLA options the command line compiles COGNet-DICE's programs with (``Search.compiler_options``;
-#: the same keys as ``jax.jit(..., compiler_options=...)``): 512-bit vectors on a CPU that has
-#: them (XLA's CPU default prefers 256), which the rollouts' kernels -- the node networks and
-#: threefry -- fill. 3-node rollout benchmark, alternated in one process: 2.7-3.3 against
-#: 3.4-7.0 ms per call; the same returns, and the same COGNet-DICE iterations bit for bit
-#: (tests/test_one_truth.py compiles ``make_train`` without them; benchmarks/NOTES.md, "Tenth
-#: pass"). A CPU without AVX-512 keeps its widest vectors; other backends ignore the option.
-WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
 
 
 def _torch_uniform(fan_in: int):
