@@ -10,6 +10,8 @@ overwrites the published figures; ``--out DIR`` chooses another folder.
 * rollout throughput (agent-steps/s) on tagging (thesis setting, h 3) with 3- and 6-node neural
   controllers at 1e3, 1e4, 1e5 rollouts (``--quick``: 1e3, 1e4): JAX (default threefry2x32
   generator, and the opt-in ``hash`` generator), torch-vectorised, torch-loop, with ratios;
+  the 10x targets' ratios at 1e5 (not with ``--quick``) in paired rounds, JAX and torch timed
+  back to back (``benchmarks.paired``);
 * one COGNet-DICE iteration at the thesis settings (3 and 6 nodes): JAX vs both references; one
   iteration of COG-DICE (region controllers) and G-DICE (tabular controllers) in JAX;
 * time-to-value: a full ``tagging-thesis-spec-n3`` run (JAX, measured) against the references'
@@ -19,7 +21,8 @@ overwrites the published figures; ``--out DIR`` chooses another folder.
   wall time of a 32-seed ``cognet-jax sweep tagging-thesis-spec-n3`` against one seed (fresh
   processes, median of 3 each).
 
-Every timing is the median of >= 5 runs after a warm-up (min-max beside it), compile time apart.
+Every timing is the median of >= 5 runs after a warm-up (min-max beside it), compile time apart;
+a paired ratio is the median over 11 rounds of 3 calls each.
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ from pathlib import Path
 
 import jax
 
-from benchmarks import jax_cases, numpy_reference, torch_cases
-from benchmarks.report import write_plots, write_readme
+from benchmarks import jax_cases, numpy_reference, paired, torch_cases
+from benchmarks.report import TORCH_VECTORISED, write_plots, write_readme
 from benchmarks.timing import peak_rss_mib
 
 HERE = Path(__file__).resolve().parent
@@ -105,6 +108,30 @@ def measure_rollouts(sizes: list[int], with_torch: bool, log) -> list[dict]:
                 timing, rate = torch_cases.rollout_throughput(impl, nodes, num, runs)
                 rows.append(timing_row(timing, impl=impl, nodes=nodes, rollouts=num, rate=rate))
                 log(f"rollouts {impl} nodes={nodes} R={num}: {timing.row()}, {rate / 1e6:.4f} M/s")
+    return rows
+
+
+def measure_paired(log, num: int = 100_000) -> list[dict]:
+    """The headline ratios in paired rounds (``benchmarks.paired``): at 3 and 6 nodes, ``num``
+    rollouts, both JAX generators against the eager and ``torch.compile``d references."""
+    rows = []
+    for nodes in (3, 6):
+        calls = {
+            "jax": jax_cases.rollout_call(nodes, num),
+            "jax-hash": jax_cases.rollout_call(nodes, num, prng="hash"),
+            **{impl: torch_cases.rollout_call(impl, nodes, num) for impl in TORCH_VECTORISED},
+        }
+        seconds = paired.paired_rounds(calls)
+        row = dict(nodes=nodes, rollouts=num, rounds=len(seconds["jax"]), seconds=seconds)
+        for impl in ("jax", "jax-hash"):
+            row[impl] = s = paired.summary(seconds, impl, list(TORCH_VECTORISED))
+            log(
+                f"paired {impl} nodes={nodes} R={num}: {s['ratio']:.2f}x the best torch "
+                f"(rounds {s['ratio_min']:.2f}-{s['ratio_max']:.2f}x; "
+                + ", ".join(f"{k} {v * 1e3:.2f} ms" for k, v in s["median_s"].items())
+                + ")"
+            )
+        rows.append(row)
     return rows
 
 
@@ -278,6 +305,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     sizes = [1_000, 10_000] if args.quick else [1_000, 10_000, 100_000]
     out["rollouts"] = measure_rollouts(sizes, with_torch, log)
+    if with_torch and not args.quick:
+        out["paired"] = measure_paired(log)
     out["controller_kinds"] = measure_controller_kinds(sizes, log)
     out["iterations"] = measure_iterations(with_torch, args.quick, log)
     wall, results = jax_cases.full_run()

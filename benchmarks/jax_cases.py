@@ -13,13 +13,10 @@ from benchmarks.timing import Timing, time_calls, time_jax
 HERE = Path(__file__).resolve().parent
 
 
-def rollout_throughput(
-    nodes: int, num: int, runs: int, prng: str = "threefry2x32"
-) -> tuple[Timing, float]:
-    """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
-    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``);
-    the policy is passed to the compiled program as an argument.
-    ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
+def _rollout_case(nodes: int, num: int, prng: str):
+    """``(fn, args, agent-steps)`` of the rollout benchmark: ``fn(*args)`` runs ``num``
+    rollouts of a random ``nodes``-node neural controller on tagging (thesis setting, h 3)
+    from a ``prng`` key (``run.prng_impl``)."""
     from cognet_jax.controllers.neural import NeuralController
     from cognet_jax.envs.tagging import make_tagging
     from cognet_jax.prng import make_key
@@ -30,13 +27,27 @@ def rollout_throughput(
     policy = ctrl.init(jax.random.key(0))
     # the policy is an argument of the compiled program, as in the search (a constant would let
     # XLA fold it into the program)
-    timing = time_jax(
-        lambda k, pol: rollouts(env, ctrl, k, num, params, pol),
-        make_key(1, prng),
-        policy,
-        runs=runs,
-    )
-    return timing, num * env.horizon * env.num_agents / timing.median_s
+    fn = lambda k, pol: rollouts(env, ctrl, k, num, params, pol)  # noqa: E731
+    return fn, (make_key(1, prng), policy), num * env.horizon * env.num_agents
+
+
+def rollout_throughput(
+    nodes: int, num: int, runs: int, prng: str = "threefry2x32"
+) -> tuple[Timing, float]:
+    """Timing of ``num`` rollouts of a random ``nodes``-node neural controller on tagging
+    (thesis setting, h 3), and agent-steps per second (``num * horizon * agents / median``);
+    the policy is passed to the compiled program as an argument.
+    ``prng``: the ``run.prng_impl`` whose key drives the rollouts."""
+    fn, args, steps = _rollout_case(nodes, num, prng)
+    timing = time_jax(fn, *args, runs=runs)
+    return timing, steps / timing.median_s
+
+
+def rollout_call(nodes: int, num: int, prng: str = "threefry2x32"):
+    """``call()``: one compiled call of ``rollout_throughput``'s program (outputs ready)."""
+    fn, args, _ = _rollout_case(nodes, num, prng)
+    compiled = jax.jit(fn).lower(*args).compile()
+    return lambda: jax.block_until_ready(compiled(*args))
 
 
 #: controller kind -> (experiment whose controller and env are used, overrides): tagging with

@@ -68,6 +68,12 @@ def _reference(impl: str, nodes: int):
     return cls(settings, seed=0)
 
 
+def rollout_call(impl: str, nodes: int, num: int):
+    """``call()``: ``rollout_throughput``'s work once (the first call compiles)."""
+    algo = _reference(impl, nodes)
+    return lambda: algo.rollout_returns(num)
+
+
 def rollout_throughput(impl: str, nodes: int, num: int, runs: int) -> tuple[Timing, float]:
     """Timing of ``num`` rollouts of the current policy (tagging, thesis setting, h 3) and
     agent-steps per second."""

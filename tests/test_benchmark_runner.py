@@ -62,3 +62,32 @@ def test_roofline_section_defines_its_columns_and_reads_its_numbers(tmp_path: Pa
     for row in rows:
         name = f"{row[0].strip('| ')} at {row[1]} nodes"
         assert name in (near if float(row[7]) >= 0.5 else far), (name, row[7])
+
+
+def test_paired_rounds_time_every_implementation_in_each_round(monkeypatch):
+    """Each round calls every implementation in turn; a round's ratio is the fastest torch
+    reference's seconds over JAX's, and the headline the median over rounds."""
+    from benchmarks import paired
+
+    monkeypatch.setattr(paired, "warm_up", lambda call: None)
+    order = []
+    calls = {name: (lambda n=name: order.append(n)) for name in ("jax", "tv", "tc")}
+    seconds = paired.paired_rounds(calls, rounds=2, per_round=1)
+    assert order == ["jax", "tv", "tc"] * 2 and all(len(s) == 2 for s in seconds.values())
+    fake = {"jax": [1.0, 2.0, 1.0], "tv": [30.0, 30.0, 30.0], "tc": [12.0, 40.0, 9.0]}
+    assert paired.round_ratios(fake, "jax", ["tv", "tc"]) == [12.0, 15.0, 9.0]
+    s = paired.summary(fake, "jax", ["tv", "tc"])
+    assert (s["ratio"], s["ratio_min"], s["ratio_max"]) == (12.0, 9.0, 15.0)
+
+
+def test_paired_headline_is_the_least_favourable_size():
+    from benchmarks.report import smallest_paired_ratio
+
+    def size(nodes, ratio):
+        s = dict(ratio=ratio, ratio_min=ratio - 1, ratio_max=ratio + 1)
+        return {"nodes": nodes, "rollouts": 100_000, "rounds": 11, "jax": s}
+
+    row = smallest_paired_ratio([size(3, 9.5), size(6, 19.0)], "jax")
+    assert "| 9.50x | **missed** |" in row and "(3 nodes;" in row
+    assert "3 nodes 9.5x (rounds 8.5-10.5x), 6 nodes 19.0x (rounds 18.0-20.0x)" in row
+    assert smallest_paired_ratio([size(3, 9.5)], "jax-hash") is None
