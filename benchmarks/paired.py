@@ -6,9 +6,13 @@ call in one block and 13.1 ms in a later block of the same process; torch.compil
 rollouts 33.0 and 48.5 ms). Timed one after the other, seconds apart, the two may meet
 different phases: four such measurements in one process gave the 6-node ratio as 19.6, 17.9,
 6.4 and 6.1x (benchmarks/NOTES.md, tenth pass).
-Here every round times ``CALLS_PER_ROUND`` calls of each implementation in turn (under a
-second), so the ratio of a round compares the implementations in the same phase; the ratio
-reported is the median over the rounds, with the lowest and highest round beside it.
+Here every round runs each implementation in turn: calls for ``SETTLE_S`` untimed, then
+``CALLS_PER_ROUND`` timed calls, so the ratio of a round compares the implementations in the
+same phase; the ratio reported is the median over the rounds, with the lowest and highest
+round beside it. The untimed calls let the previous implementation's threads stop first: right
+after a torch call JAX's next one or two calls took 5-6 ms instead of 3.4-3.5 (torch's OpenMP
+workers keep spinning for a few milliseconds after their work; with ``OMP_WAIT_POLICY=PASSIVE``
+they did not), and after 40 ms of idle cores JAX's calls stayed slow for longer.
 """
 
 from __future__ import annotations
@@ -18,9 +22,11 @@ import time
 
 from benchmarks.timing import warm_up
 
-#: calls of each implementation per round, and rounds
+#: timed calls of each implementation per round, and rounds
 CALLS_PER_ROUND = 3
 ROUNDS = 11
+#: seconds of untimed calls before an implementation's timed calls in a round
+SETTLE_S = 0.05
 
 
 def _median_call(call, calls: int) -> float:
@@ -34,12 +40,14 @@ def _median_call(call, calls: int) -> float:
 
 def paired_rounds(calls: dict, rounds: int = ROUNDS, per_round: int = CALLS_PER_ROUND) -> dict:
     """``{name: [seconds per call, one per round]}``: ``calls`` (name -> ``call()``, each
-    warmed up first) timed in turn in every round, the median of ``per_round`` calls each."""
+    warmed up first) timed in turn in every round, the median of ``per_round`` calls each
+    after ``SETTLE_S`` seconds (at least one call) of untimed ones."""
     for call in calls.values():
         warm_up(call)
     seconds: dict = {name: [] for name in calls}
     for _ in range(rounds):
         for name, call in calls.items():
+            warm_up(call, calls=1, seconds=SETTLE_S)
             seconds[name].append(_median_call(call, per_round))
     return seconds
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.paired import CALLS_PER_ROUND
+from benchmarks.paired import CALLS_PER_ROUND, SETTLE_S
 
 #: Targets of the benchmark issue (2-core CPU).
 ROLLOUT_TARGET_RATE = 20e6  # agent-steps/s, 6 nodes, 1e5 rollouts
@@ -497,8 +497,8 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
             "",
             *paired_table(out),
             "",
-            f"Each round times {CALLS_PER_ROUND} calls of every implementation in turn (their "
-            "median), so "
+            f"Each round runs every implementation in turn, {SETTLE_S:g} s of untimed calls "
+            f"(at least one), then {CALLS_PER_ROUND} timed calls (their median), so "
             "JAX and torch meet the same phase of this VM, which runs for seconds at a time up "
             "to 2-2.5x slower; a round's ratio is the faster torch reference's time over "
             "JAX's, and the targets take the median over the rounds (`benchmarks/paired.py`). "

@@ -69,11 +69,13 @@ def test_paired_rounds_time_every_implementation_in_each_round(monkeypatch):
     reference's seconds over JAX's, and the headline the median over rounds."""
     from benchmarks import paired
 
-    monkeypatch.setattr(paired, "warm_up", lambda call: None)
     order = []
+    monkeypatch.setattr(paired, "warm_up", lambda call, **kw: order.append("settle"))
     calls = {name: (lambda n=name: order.append(n)) for name in ("jax", "tv", "tc")}
     seconds = paired.paired_rounds(calls, rounds=2, per_round=1)
-    assert order == ["jax", "tv", "tc"] * 2 and all(len(s) == 2 for s in seconds.values())
+    assert order[:3] == ["settle"] * 3  # each warmed up once first
+    assert order[3:] == ["settle", "jax", "settle", "tv", "settle", "tc"] * 2
+    assert all(len(s) == 2 for s in seconds.values())
     fake = {"jax": [1.0, 2.0, 1.0], "tv": [30.0, 30.0, 30.0], "tc": [12.0, 40.0, 9.0]}
     assert paired.round_ratios(fake, "jax", ["tv", "tc"]) == [12.0, 15.0, 9.0]
     s = paired.summary(fake, "jax", ["tv", "tc"])
