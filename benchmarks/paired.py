@@ -18,24 +18,14 @@ they did not), and after 40 ms of idle cores JAX's calls stayed slow for longer.
 from __future__ import annotations
 
 import statistics
-import time
 
-from benchmarks.timing import warm_up
+from benchmarks.timing import time_calls, warm_up
 
 #: timed calls of each implementation per round, and rounds
 CALLS_PER_ROUND = 3
 ROUNDS = 11
 #: seconds of untimed calls before an implementation's timed calls in a round
 SETTLE_S = 0.05
-
-
-def _median_call(call, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def paired_rounds(calls: dict, rounds: int = ROUNDS, per_round: int = CALLS_PER_ROUND) -> dict:
@@ -48,7 +38,7 @@ def paired_rounds(calls: dict, rounds: int = ROUNDS, per_round: int = CALLS_PER_
     for _ in range(rounds):
         for name, call in calls.items():
             warm_up(call, calls=1, seconds=SETTLE_S)
-            seconds[name].append(_median_call(call, per_round))
+            seconds[name].append(time_calls(call, runs=per_round, warmup=0).median_s)
     return seconds
 
 
