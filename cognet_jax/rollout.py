@@ -15,12 +15,28 @@ one per rollout. Common random numbers across candidate policies = the same key 
 candidate: ``evaluate_candidates`` draws the block once per step, outside the step functions'
 ``vmap`` over the candidates, and every candidate reads it.
 
-Speed without changing a number: a step's block is drawn one step ahead and carried through
-the scan, so it is computed once, in a kernel of its own, and stored; drawn inside the step,
-XLA fused the generator into every kernel that reads the block (the action draw, the env
-step's outputs, the node draw) and computed it again in each, without vectorising it. Threefry
+Speed without changing a number: each uniform is drawn once, in a kernel XLA cannot fuse it
+into several times, and the loop state XLA must copy at every step is kept small.
+
+- Rollouts last (``agents_major`` controllers) and one key per batch of rollouts
+  (``rollouts``; candidates with keys of their own): the kernel that draws the next nodes of
+  step t also draws their uniforms from step t's block, then the actions of step t + 1 from
+  the next block, and holds node and action as one integer (``node x actions + action``,
+  16-bit for controllers with ``narrow_nodes``). The simulator's uniforms, read by several
+  kernels, are drawn one step ahead and carried through the scan. The loop state is then the
+  simulator's state, that integer, the returns and the simulator's uniforms: no block of the
+  controller's uniforms is stored, nor copied twice per step as XLA copies loop state that
+  several kernels read (1.14x the 3-node rollouts, about 1.3x with the 16-bit integer;
+  benchmarks/NOTES.md, "Eleventh pass").
+- Otherwise the whole block is drawn one step ahead, carried through the scan and read by
+  every kernel and candidate: candidates sharing each step's block (common random numbers in
+  ``evaluate_candidates``) would compute draws made in the kernels again for each candidate,
+  and the rollouts-first layout ran 0.7-0.99x as fast with them.
+
+Drawn inside each step, XLA fused the generator into every kernel that reads the block (the
+action draw, the env step's outputs, the node draw) and computed it again in each. Threefry
 keys are drawn through ``prng.fast_key`` (the same stream, written out without JAX's CPU loop).
-tests/test_rollout.py checks both against the plain scan that draws inside each step.
+tests/test_rollout.py checks the engine against the plain scan that draws inside each step.
 """
 
 from __future__ import annotations
@@ -108,7 +124,6 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     steps = _Steps(env, controller, lane, key_axis, policy_axes)
     k_reset, k_steps = per_key(lambda k: tuple(jax.random.split(k)))(key)
     states = per_key(lambda k: steps.reset(uniforms(k, env.reset_noise), env_params))(k_reset)
-    gamma = jnp.asarray(env_params.discount, jnp.float32)
     nodes = steps.initial_nodes(num, n)
     ret = jnp.zeros(num, jnp.float32)
     if lanes is not None:
@@ -118,38 +133,86 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
         if key_axis is None:  # every candidate starts from the same states
             states = jax.tree.map(lead, states)
 
-    width = 2 * n + env.step_noise
-
-    def draw(k):
-        u = steps.uniform_layout(per_key(lambda k: uniforms(k, width))(k))
-        return steps.split_uniforms(u, 2 * n)
-
-    def one_step(carry, u):
-        states, nodes, ret, disc = carry
-        u_ctrl, u_env = u
-        u_act, u_move = steps.split_uniforms(u_ctrl, n)
-        actions = steps.act(u_act, policy, nodes)
-        states, obs, reward = steps.env_step(u_env, states, actions, env_params)
-        next_nodes = steps.move(u_move, policy, nodes, obs)
-        ret = ret + disc * reward
-        out = (nodes, actions, obs, next_nodes, reward) if record else None
-        return (states, next_nodes, ret, disc * gamma), out
-
-    def body(carry, k_next):
-        carry, u = carry
-        carry, out = one_step(carry, u)
-        return (carry, draw(k_next)), out
-
     step_keys = per_key(lambda k: jax.random.split(k, h))(k_steps)
     if key_axis is not None:
         step_keys = jnp.swapaxes(step_keys, 0, 1)  # [h, C]
-    init = (states, nodes, ret, jnp.float32(1.0))
-    (carry, u_last), out = jax.lax.scan(body, (init, draw(step_keys[0])), step_keys[1:])
-    (_, _, ret, _), out_last = one_step(carry, u_last)
+
+    def block(k):
+        """A step's uniforms ``[*C, R, width]`` in the steps' layout."""
+        return steps.uniform_layout(per_key(lambda k: uniforms(k, 2 * n + env.step_noise))(k))
+
+    # draws in the kernels that read them: rollouts last (the other layout ran 0.7-0.99x as
+    # fast), one block per batch of rollouts (no candidates, or a key each)
+    in_kernel = steps.rollouts_last and (lanes is None or key_axis is not None)
+    loop = _TimeLoop(env, controller, steps, policy, env_params, block, in_kernel, record)
+    ret, out = loop.run(step_keys, states, nodes, ret)
     if not record:
         return ret
-    out = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), out, out_last)
     return Trajectory(*(steps.trajectory_layout(x) for x in out), ret)
+
+
+class _TimeLoop:
+    """The scan over time of ``_simulate`` (see the module docstring, "Speed").
+
+    Step t reads the simulator's states, what is held of the nodes and the uniforms carried
+    from step t - 1, and the keys of steps t and t + 1. ``in_kernel``: the step holds ``node x
+    actions + action`` (16-bit for controllers with ``narrow_nodes``) and the simulator's
+    uniforms, and draws the next nodes' uniforms from step t's key in the kernel that reads
+    them; otherwise it holds the nodes and step t's whole block, drawn one step ahead."""
+
+    def __init__(self, env, controller, steps, policy, env_params, block, in_kernel, record):
+        self.env, self.steps, self.policy, self.env_params = env, steps, policy, env_params
+        self.block, self.in_kernel, self.record = block, in_kernel, record
+        self.base = env.num_actions
+        narrow = getattr(controller, "narrow_nodes", False)
+        fits = controller.num_nodes * self.base < 2**15
+        self.held_dtype = jnp.int16 if narrow and fits else jnp.int32
+        self.gamma = jnp.asarray(env_params.discount, jnp.float32)
+
+    def draw(self, k):
+        """A step's uniforms: the actions', the next nodes' and the simulator's."""
+        n, steps = self.env.num_agents, self.steps
+        u_ctrl, u_env = steps.split_uniforms(self.block(k), 2 * n)
+        return (*steps.split_uniforms(u_ctrl, n), u_env)
+
+    def held(self, nodes, u):
+        """What the next step starts from besides the states: nodes and uniforms."""
+        if not self.in_kernel:
+            return nodes, u
+        u_act, _, u_env = u
+        actions = self.steps.act(u_act, self.policy, nodes)
+        return (nodes * self.base + actions).astype(self.held_dtype), u_env
+
+    def step(self, carry, k, k_next):
+        """Time step t from ``carry`` and the keys of steps t and t + 1 (None at the last):
+        the next carry, or the returns at the last step, and what ``record`` keeps."""
+        steps, policy = self.steps, self.policy
+        states, held_nodes, u, ret, disc = carry
+        if self.in_kernel:  # node * base + action, and the simulator's uniforms
+            nodes, actions = jnp.divmod(held_nodes.astype(jnp.int32), self.base)
+            u_move, u_env = self.draw(k)[1], u
+        else:  # the nodes, and the step's block
+            nodes, (u_act, u_move, u_env) = held_nodes, u
+            actions = steps.act(u_act, policy, nodes)
+        states, obs, reward = steps.env_step(u_env, states, actions, self.env_params)
+        next_nodes = steps.move(u_move, policy, nodes, obs)
+        ret = ret + disc * reward
+        out = (nodes, actions, obs, next_nodes, reward) if self.record else None
+        if k_next is None:
+            return ret, out
+        return (states, *self.held(next_nodes, self.draw(k_next)), ret, disc * self.gamma), out
+
+    def run(self, step_keys, states, nodes, ret):
+        """The returns after every step of ``step_keys [h, ...]``, and the steps' records
+        stacked over time (None without ``record``)."""
+        init = (states, *self.held(nodes, self.draw(step_keys[0])), ret, jnp.float32(1.0))
+        carry, out = jax.lax.scan(
+            lambda c, ks: self.step(c, *ks), init, (step_keys[:-1], step_keys[1:])
+        )
+        ret, out_last = self.step(carry, step_keys[-1], None)
+        if self.record:
+            out = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), out, out_last)
+        return ret, out
 
 
 class _Steps:

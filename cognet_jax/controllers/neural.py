@@ -40,6 +40,10 @@ UNROLL_MIN_NODES = 4
 #: (benchmarks/NOTES.md, "Ninth pass").
 AGENTS_MAJOR_MAX_NODES = 6
 AGENTS_MAJOR_MAX_WHERES = 600
+#: Agents-major controllers with at most this many picks ask the rollout engine for 16-bit
+#: nodes (``narrow_nodes``). Measured: 1.05-1.2x the rollouts from 42 to 326 picks, 0.86-1.0x at
+#: 430 (6 nodes, 10 hidden units) (benchmarks/NOTES.md, "Eleventh pass").
+NARROW_NODES_MAX_WHERES = 330
 
 
 def _torch_uniform(fan_in: int):
@@ -253,13 +257,28 @@ class NeuralController:
         ``AGENTS_MAJOR_MAX_WHERES`` picks of member weights (``selected_member_logits``), and no
         ``features`` (an encoder's matrix products might round differently in another
         layout)."""
-        weights = self.hidden * (self.in_features + 1) + self.num_nodes * (self.hidden + 1)
         return (
             self.unrolled
             and self.num_nodes <= AGENTS_MAJOR_MAX_NODES
-            and (self.num_nodes - 1) * weights <= AGENTS_MAJOR_MAX_WHERES
+            and self.picks <= AGENTS_MAJOR_MAX_WHERES
             and self.features is None
         )
+
+    @property
+    def picks(self) -> int:
+        """The ``where``s that pick one rollout's member weights: ``(nodes - 1) x`` the
+        weights of one member network."""
+        weights = self.hidden * (self.in_features + 1) + self.num_nodes * (self.hidden + 1)
+        return (self.num_nodes - 1) * weights
+
+    @property
+    def narrow_nodes(self) -> bool:
+        """Whether the rollout engine should hold the nodes as 16-bit integers where it can
+        (``rollout._simulate``): the kernel that draws the next nodes then writes 16-bit
+        numbers, and LLVM vectorises it 16 rollouts at a time instead of 8 (two 256-bit
+        registers per float), which pays while the picks' registers fit: agents-major
+        controllers with at most ``NARROW_NODES_MAX_WHERES`` picks. The same numbers."""
+        return self.agents_major and self.picks <= NARROW_NODES_MAX_WHERES
 
     def agent_act(self, u, policy: NeuralPolicy, node):
         """One agent's action (int32 scalar) from its slice of ``policy`` (``action_probs
