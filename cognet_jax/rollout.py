@@ -165,8 +165,8 @@ class _TimeLoop:
         self.block, self.in_kernel, self.record = block, in_kernel, record
         self.base = env.num_actions
         narrow = getattr(controller, "narrow_nodes", False)
-        fits = controller.num_nodes * self.base < 2**15
-        self.held_dtype = jnp.int16 if narrow and fits else jnp.int32
+        narrow = narrow and controller.num_nodes * self.base < 2**15  # node x actions fit
+        self.held_dtype = jnp.int16 if narrow else jnp.int32
         self.gamma = jnp.asarray(env_params.discount, jnp.float32)
 
     def draw(self, k):

@@ -274,7 +274,7 @@ class NeuralController:
     @property
     def narrow_nodes(self) -> bool:
         """Whether the rollout engine should hold the nodes as 16-bit integers where it can
-        (``rollout._simulate``): the kernel that draws the next nodes then writes 16-bit
+        (``rollout._TimeLoop``): the kernel that draws the next nodes then writes 16-bit
         numbers, and LLVM vectorises it 16 rollouts at a time instead of 8 (two 256-bit
         registers per float), which pays while the picks' registers fit: agents-major
         controllers with at most ``NARROW_NODES_MAX_WHERES`` picks. The same numbers."""
