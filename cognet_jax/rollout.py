@@ -84,11 +84,16 @@ def rollouts(
     """``num`` rollouts of one (stochastic or deterministic) joint ``policy``.
 
     Returns the discounted returns ``[num]``, or a ``Trajectory`` when ``record`` is true.
+    Several policies on the same ``key``: ``evaluate_candidates`` draws each step's uniforms
+    once for all of them; ``vmap`` of this function over the policies gives the same numbers
+    but may draw the controller's uniforms again for each policy (module docstring, "Speed").
     """
     return _simulate(env, controller, key, num, env_params, policy, record=record)
 
 
-def _simulate(env, controller, key, num, env_params, policy, record=False, lanes=None):
+def _simulate(
+    env, controller, key, num, env_params, policy, record=False, lanes=None, shared_key=False
+):
     """The rollout engine. ``lanes``: None (one policy, one key), or ``(policy_axes,
     key_axis)`` for C candidate policies at once (``policy_axes`` the vmap ``in_axes`` prefix
     of ``policy``; ``key_axis`` 0 when ``key`` holds one key per candidate, None for one key
@@ -101,6 +106,10 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
     iteration's candidates: 0.28 s against 0.76 s with the memory probe it also spares, at
     XLA's level 0 on the 2-core CPU; the whole iteration 0.67 s against 0.80 s; one
     measurement each).
+
+    ``shared_key``: the caller ``vmap``s this over policies that share ``key`` (one
+    candidate's engine under ``evaluate_candidates``' chunks): the block is then drawn one
+    step ahead and carried, as for candidates sharing a key in ``lanes``.
 
     Layout (``_Steps``): the step functions are ``vmap``-ed over the rollouts, which are the
     leading axis of every array, or, for controllers with ``agents_major`` (small written-out
@@ -143,7 +152,8 @@ def _simulate(env, controller, key, num, env_params, policy, record=False, lanes
 
     # draws in the kernels that read them: rollouts last (the other layout ran 0.7-0.99x as
     # fast), one block per batch of rollouts (no candidates, or a key each)
-    in_kernel = steps.rollouts_last and (lanes is None or key_axis is not None)
+    one_block = key_axis is not None or (lanes is None and not shared_key)
+    in_kernel = steps.rollouts_last and one_block
     loop = _TimeLoop(env, controller, steps, policy, env_params, block, in_kernel, record)
     ret, out = loop.run(step_keys, states, nodes, ret)
     if not record:
@@ -346,7 +356,8 @@ def evaluate_candidates(
     def by_index(i):
         k = keys if common_random_numbers else keys[i]
         policy = _batched(policy_axes, policies, lambda x: x[i])
-        return rollouts(env, controller, k, num, env_params, policy).mean()
+        shared = common_random_numbers  # ``lax.map`` with a batch size ``vmap``s this
+        return _simulate(env, controller, k, num, env_params, policy, shared_key=shared).mean()
 
     return jax.lax.map(by_index, jnp.arange(count), batch_size=chunk)
 
