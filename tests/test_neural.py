@@ -130,44 +130,24 @@ def test_agents_major_rollouts_are_the_per_rollout_ones(monkeypatch, nodes, case
         )
 
 
-def test_narrow_nodes_give_the_wide_numbers(monkeypatch):
+def test_narrow_nodes_hold_16_bit_integers_up_to_the_measured_limit(monkeypatch):
     """Controllers with few picks ask the engine to hold node and action as a 16-bit integer
-    (``narrow_nodes``); the returns, trajectories and candidates' means are those of the
-    32-bit integer bit for bit, compiled as a user's process compiles them."""
-    from cognet_jax.rollout import evaluate_candidates
-
+    (``narrow_nodes``); the 6-node benchmark's 430 picks keep 32 bits. The numbers are those
+    of the per-rollout engine, bit for bit (``test_agents_major_rollouts_are_the_per_rollout_ones``
+    at 3 nodes: recorded rollouts, candidates with their own keys)."""
     assert not NeuralController(2, AGENTS_MAJOR_MAX_NODES, 3).narrow_nodes  # 430 picks
-    env, params = make_tagging("cogdice-paper")  # noisy, respawn
+    env, params = make_tagging("cogdice-paper")
     ctrl = NeuralController(env.num_agents, 3, env.num_actions)
     assert ctrl.narrow_nodes
-    policies = jax.vmap(ctrl.init)(jax.random.split(jax.random.key(7), 3))
-    one = jax.tree.map(lambda p: p[0], policies)
-    key = jax.random.key(8)
-
-    def run():
-        programs = [
-            lambda: rollouts(env, ctrl, key, 200, params, one, record=True),
-            lambda: evaluate_candidates(
-                env, ctrl, key, 100, params, policies, common_random_numbers=False
-            ),
-        ]
-        compiled = [jax.jit(p).lower().compile(compiler_options=DEFAULT_EMITTERS) for p in programs]
-        return jax.tree.map(np.asarray, [c() for c in compiled])
+    one = ctrl.init(jax.random.key(7))
 
     def held_in_16_bits():
-        text = jax.jit(lambda: rollouts(env, ctrl, key, 200, params, one)).lower().as_text()
-        return "x200xi16>" in text
+        fn = lambda: rollouts(env, ctrl, jax.random.key(8), 200, params, one)  # noqa: E731
+        return "x200xi16>" in jax.jit(fn).lower().as_text()
 
     assert held_in_16_bits()
-    narrow = run()
     monkeypatch.setattr(NeuralController, "narrow_nodes", property(lambda self: False))
     assert not held_in_16_bits()
-    wide = run()
-    for a, b in zip(jax.tree.leaves(narrow), jax.tree.leaves(wide), strict=True):
-        np.testing.assert_array_equal(
-            a.view(np.uint32) if a.dtype == np.float32 else a,
-            b.view(np.uint32) if b.dtype == np.float32 else b,
-        )
 
 
 def _jit_calls(jaxpr, name: str) -> list:
