@@ -202,6 +202,10 @@ FINGERPRINT_KEYS = {
         "the model file it was trained on (the file changed since)",
         "restore the file, or train on the new one",
     ),
+    "numerics": (
+        "these numeric settings",
+        "evaluate with the settings and --import modules it was trained with",
+    ),
 }
 
 
@@ -214,9 +218,18 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
         raise CorruptFileError(path, "the fingerprint is not valid JSON") from None
     for key, (what, remedy) in FINGERPRINT_KEYS.items():
         if key in stored and key in expected and stored[key] != expected[key]:
+            differ = ""
+            if isinstance(stored[key], dict) and isinstance(expected[key], dict):
+                names = sorted(set(stored[key]) | set(expected[key]))
+                differ = "; ".join(
+                    f"{n}: trained {stored[key].get(n)!r}, now {expected[key].get(n)!r}"
+                    for n in names
+                    if stored[key].get(n) != expected[key].get(n)
+                )
+                differ = f" ({differ})"
             raise MismatchError(
-                f"{path}: this policy does not belong to {what}; evaluating it would give a "
-                f"number of another policy ({remedy})"
+                f"{path}: this policy does not belong to {what}{differ}; evaluating it would "
+                f"give a number of another policy ({remedy})"
             )
 
 

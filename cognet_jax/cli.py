@@ -1,13 +1,18 @@
 """The ``cognet-jax`` command.
 
-cognet-jax train [EXPERIMENT] [--seed N] [--out DIR] [--set section.key=value ...]
+cognet-jax train [EXPERIMENT] [--seed N] [--out DIR [--overwrite]] [--set section.key=value ...]
                  [--checkpoint-every K] [--resume DIR]
-cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out DIR]
+cognet-jax sweep [EXPERIMENT] --seeds N [--grid section.key=v1,v2,...]... [--out DIR [--overwrite]]
                  [--set section.key=value ...] [--checkpoint-every K] [--resume DIR]
                  [--coordinator HOST:PORT --num-processes P --process-id I | --cluster]
 cognet-jax evaluate DIR [--rollouts N] [--seed N] [--set section.key=value ...]
 cognet-jax vae train [--out DIR] [--seed N] [--epochs N] [--latent N] [--kl-weight W]
+cognet-jax check [EXPERIMENT] [--set section.key=value ...]
+cognet-jax inspect FILE.dpomdp
 cognet-jax list
+
+A run folder that holds a run is never replaced without ``--overwrite``, and one process at a
+time writes it (``cognet_jax.run_folder``).
 
 Every user-facing failure (bad config field, unreadable or corrupt file, a policy that does not
 fit the model, ...) prints one line ``error: ...`` naming the file and line or the field, and
@@ -40,9 +45,10 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
-from cognet_jax.errors import InputError
+from cognet_jax.errors import InputError, UsageError
 from cognet_jax.io.dpomdp import parse_dpomdp
-from cognet_jax.registry import load_config
+from cognet_jax.registry import load_config, note_foreign_code
+from cognet_jax.run_folder import check_out, claim
 from cognet_jax.signals import Stopped, install_stop_handlers
 
 DEFAULT_EXPERIMENT = "tagging-thesis-n3"
@@ -145,8 +151,51 @@ def use_compile_cache(args) -> None:
         return
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    _one_cache_warning(folder)
     if importlib.util.find_spec("filelock") is not None:  # JAX's eviction needs it
+        repair_cache_folder(folder)
         jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+
+
+def repair_cache_folder(folder: Path) -> None:
+    """Make ``folder`` one JAX's size-bounded cache can use: every ``NAME-cache`` entry gets the
+    ``NAME-atime`` file JAX's eviction reads (time 0: evicted first), and access-time files
+    without an entry are removed. A folder filled by runs without the bound lacks them, and
+    JAX then warns at every write and never stores a new entry."""
+    try:
+        names = {p.name for p in folder.iterdir()}
+    except OSError:  # not there yet, or unreadable: JAX reports what it cannot do
+        return
+    for name in names:
+        try:
+            if name.endswith("-cache") and name[: -len("-cache")] + "-atime" not in names:
+                (folder / (name[: -len("-cache")] + "-atime")).write_bytes(bytes(8))
+            elif name.endswith("-atime") and name[: -len("-atime")] + "-cache" not in names:
+                (folder / name).unlink()
+        except OSError:
+            pass
+
+
+def _one_cache_warning(folder: Path) -> None:
+    """JAX's warnings about its compilation cache (an entry it cannot read or write) become
+    one line per process: the first, shortened; the program is compiled all the same."""
+    import warnings
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if "compilation cache" not in text:
+            return shown(message, category, filename, lineno, file, line)
+        if not _CACHE_TOLD:
+            _CACHE_TOLD.append(text)
+            print(f"note: compilation cache {folder}: {text[:160]}", file=sys.stderr)
+
+    warnings.showwarning = show
+
+
+#: the compilation cache's first warning of this process (``_one_cache_warning``)
+_CACHE_TOLD: list[str] = []
 
 
 def _merge_common(args) -> argparse.Namespace:
@@ -162,8 +211,17 @@ def _add_train(sub) -> None:
     _add_experiment(t)
     t.add_argument("--seed", type=int, default=None, help="default 0")
     t.add_argument("--out", default=None, help="output folder (default runs/EXPERIMENT-seedN)")
+    _add_overwrite(t)
     _add_overrides(t, "override a config field; repeatable")
     _add_checkpoints(t, "the interrupted run in DIR from its checkpoint (config and seed from it)")
+
+
+def _add_overwrite(parser) -> None:
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the run already in --out (without it such a folder is refused)",
+    )
 
 
 def _add_sweep(sub) -> None:
@@ -184,6 +242,7 @@ def _add_sweep(sub) -> None:
         help="values of one field to sweep; repeatable (cartesian product)",
     )
     w.add_argument("--out", default=None, help="output folder (default runs/sweep-EXPERIMENT)")
+    _add_overwrite(w)
     _add_overrides(w, "override a config field for every run; repeatable")
     _add_checkpoints(w, "the interrupted sweep in DIR (experiment, seeds, grid from it)")
     w.add_argument(
@@ -322,13 +381,15 @@ def _train(args) -> int:
             flags = {"EXPERIMENT": args.experiment, "--seed": args.seed, "--out": args.out}
             _refuse_with_resume(args, flags)
             config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
-            train(config, seed, Path(args.resume), resume=True)
+            with claim(Path(args.resume), resume=True):
+                train(config, seed, Path(args.resume), resume=True)
             return 0
+        check_out(args.out)
         seed = 0 if args.seed is None else args.seed
         overrides = args.overrides + _run_overrides(args)
         config = load_config(args.experiment or DEFAULT_EXPERIMENT, overrides)
         out = Path(args.out or f"runs/{config.experiment.name}-seed{seed}")
-        with _removed_on_failure(out):
+        with _removed_on_failure(out), claim(out, overwrite=args.overwrite):
             train(config, seed, out)
     except Interrupted as err:
         _STOPPED["signum"] = err.signum
@@ -431,7 +492,7 @@ def set_cpu_devices(requested: int | None, runs: int) -> None:
 
 def _sweep(args) -> int:
     from cognet_jax.driver import Interrupted
-    from cognet_jax.sweep import parse_grid, read_spec, run_sweep, write_outputs
+    from cognet_jax.sweep import parse_grid, read_spec
 
     if args.checkpoint_every is not None and args.checkpoint_every < 0:
         raise ConfigError("checkpoint-every", f"must be >= 0, got {args.checkpoint_every}")
@@ -454,6 +515,7 @@ def _sweep(args) -> int:
         overrides = args.overrides
         first = 0 if args.first_seed is None else args.first_seed
         seeds = list(range(first, first + n))
+        check_out(args.out)
         out = Path(args.out or f"runs/sweep-{Path(experiment).stem}")
     processes = args.num_processes or 1
     total = len(seeds) * math.prod(len(v) for v in grid.values())
@@ -462,22 +524,37 @@ def _sweep(args) -> int:
     import jax
 
     main_process = jax.process_index() == 0
+    held = (
+        claim(out, resume=bool(args.resume), overwrite=args.overwrite)
+        if main_process
+        else contextlib.nullcontext()
+    )
     try:
-        result = run_sweep(
-            experiment,
-            seeds,
-            grid,
-            overrides,
-            progress=not args.no_progress and main_process,
-            log=print if main_process else (lambda *a: None),
-            out=out,
-            resume=bool(args.resume),
-            run_overrides=run_sets,
-        )
+        with held:
+            return _sweep_claimed(
+                args, experiment, seeds, grid, overrides, out, run_sets, main_process
+            )
     except Interrupted as err:
         _STOPPED["signum"] = err.signum
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
+
+
+def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main_process) -> int:
+    """The sweep of ``_sweep`` once its folder is claimed (``run_folder.claim``)."""
+    from cognet_jax.sweep import run_sweep, write_outputs
+
+    result = run_sweep(
+        experiment,
+        seeds,
+        grid,
+        overrides,
+        progress=not args.no_progress and main_process,
+        log=print if main_process else (lambda *a: None),
+        out=out,
+        resume=bool(args.resume),
+        run_overrides=run_sets,
+    )
     if main_process:
         write_outputs(result, out)
         print((out / "summary.md").read_text())
@@ -588,10 +665,6 @@ def _inspect(args) -> int:
     return 0
 
 
-class UsageError(InputError):
-    """A command-line argument out of range (one line, exit 2)."""
-
-
 def _one_line(err: BaseException) -> str:
     """The message of a user-facing error on one line."""
     if isinstance(err, OSError) and err.strerror:
@@ -634,6 +707,7 @@ def import_plugin(name: str) -> None:
                 raise UsageError(f"--import {name}: no module of that name")
             origin = spec.origin
             importlib.import_module(name)
+        note_foreign_code(name, origin)
     except UsageError:
         raise
     except (ModuleNotFoundError, ValueError) as err:

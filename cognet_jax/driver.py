@@ -83,10 +83,11 @@ from cognet_jax.exact import exact_value
 from cognet_jax.memory import budget_bytes, peak_rss_bytes, trace_checked
 from cognet_jax.observations import VAE_FILE
 from cognet_jax.registry import (
-    BUILTIN_ALGORITHMS,
-    BUILTIN_ENVS,
+    algorithm_entry,
     config_from_dict,
     env_entry,
+    foreign_code,
+    is_builtin,
 )
 from cognet_jax.reporting import write_plots
 from cognet_jax.signals import Stopped, deferred_stop, in_background, wait_for
@@ -234,7 +235,11 @@ def compiled_program(
     simulator or algorithm registered from outside the package is compiled afresh each time
     (its source is not in the key)."""
     before_compile = before_compile or (lambda: None)
-    builtin = config.env.name in BUILTIN_ENVS and config.experiment.algorithm in BUILTIN_ALGORITHMS
+    builtin = (
+        not foreign_code()
+        and is_builtin(env_entry(config.env.name))
+        and is_builtin(algorithm_entry(config.experiment.algorithm))
+    )
     key = program_key(what, identity, constants, args) if builtin else None
     memory = budget_bytes(config.run.memory_gb)
 
@@ -730,11 +735,21 @@ def fingerprint(config: Config) -> dict:
     file; ``load_run`` refuses a policy whose results.json or model changed since."""
     shaping = {k: v for k, v in config.to_dict().items() if k not in ("run", "evaluation")}
     text = json.dumps(shaping, sort_keys=True, default=str).encode()
-    out = {"config": hashlib.sha256(text).hexdigest()}
+    out = {"config": hashlib.sha256(text).hexdigest(), "numerics": numeric_settings()}
     path = Path(config.problem.path).expanduser() if config.problem.path else None
     if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
         out["model"] = _file_digest(path)
     return out
+
+
+def numeric_settings() -> dict:
+    """What besides the config changes a policy's numbers: JAX's 64-bit mode and default PRNG,
+    and the modules imported from outside the package (``--import``) with their digests."""
+    return {
+        "x64": bool(jax.config.jax_enable_x64),
+        "prng": str(jax.config.jax_default_prng_impl),
+        "imported": foreign_code(),
+    }
 
 
 def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:

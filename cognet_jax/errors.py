@@ -29,6 +29,10 @@ class MismatchError(InputError):
     """A saved policy or checkpoint does not fit the model or settings it is asked to run with."""
 
 
+class UsageError(InputError):
+    """A command-line argument out of range (one line, exit 2)."""
+
+
 class ResourceError(InputError):
     """A setting asks for more memory than the budget allows (one line, with the numbers)."""
 

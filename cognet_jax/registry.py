@@ -31,8 +31,10 @@ section that neither the simulator nor the algorithm reads (``reads``).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 from cognet_jax.config import (
@@ -107,6 +109,33 @@ class AlgorithmEntry:
 
 _ENVS: dict[str, EnvEntry] = {}
 _ALGORITHMS: dict[str, AlgorithmEntry] = {}
+#: modules imported from outside the package (``--import``): file name -> SHA-256 of its bytes
+_FOREIGN_CODE: dict[str, str] = {}
+
+
+def note_foreign_code(name: str, origin: str | None) -> None:
+    """Record that the module ``name`` (file ``origin``) was imported from outside the package:
+    its code may change any simulator or algorithm, so no program of this process is kept
+    between processes, and policies record its digest (``foreign_code``)."""
+    digest = ""
+    if origin:
+        try:
+            digest = hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
+        except OSError:
+            pass
+    _FOREIGN_CODE[Path(origin).name if origin else name] = digest
+
+
+def foreign_code() -> dict[str, str]:
+    """Modules imported from outside the package, with their digests (``note_foreign_code``)."""
+    return dict(_FOREIGN_CODE)
+
+
+def is_builtin(entry: EnvEntry | AlgorithmEntry) -> bool:
+    """Whether ``entry`` is the package's own entry of its name (not a user's registration of
+    a built-in name, which ``--import`` may make first)."""
+    table = BUILTIN_ENVS if isinstance(entry, EnvEntry) else BUILTIN_ALGORITHMS
+    return getattr(entry.build, "__module__", None) == table.get(entry.name)
 
 
 def _no_hyper(config) -> None:

@@ -31,6 +31,7 @@ and compiled at every request.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -141,10 +142,15 @@ def program_key(what: str, identity: dict, constants, args) -> str | None:
 
 
 def _load(path: Path):
-    """``(exported, out_tree)`` from ``path``, or None when it is missing or unreadable."""
+    """``(exported, out_tree)`` from ``path``, or None when it is missing, unreadable, kept
+    under another key or its bytes differ from the digest written with them."""
     try:
         with path.open("rb") as f:
-            blob, out_tree = pickle.load(f)
+            key, digest, blob, out_tree = pickle.load(f)
+        if key != path.stem:  # a file copied or moved from another key
+            return None
+        if hashlib.sha256(blob).hexdigest() != digest:  # flipped bytes
+            return None
         return jax.export.deserialize(blob), out_tree
     except Exception:  # missing, torn or foreign: trace afresh and write it again
         return None
@@ -156,7 +162,8 @@ def _save(path: Path, exported, out_tree) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
         with tmp.open("wb") as f:
-            pickle.dump((exported.serialize(), out_tree), f)
+            blob = exported.serialize()
+            pickle.dump((path.stem, hashlib.sha256(blob).hexdigest(), blob, out_tree), f)
         os.replace(tmp, path)
     except Exception:  # a read-only or full disk, no flatbuffers, a type JAX cannot serialize
         pass  # (a PRNG implementation of one's own): not kept
@@ -236,18 +243,75 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callabl
     """The program kept in ``path`` compiled (JAX's compilation cache may hold it); traced,
     checked and exported to ``path`` first when ``path`` holds none. Not written when several
     processes run together (``jax.distributed``), which trace their own (a file written
-    earlier by a single process is read all the same: its key names the devices)."""
+    earlier by a single process is read all the same: its key names the devices). A file that
+    cannot be read, does not fit the arguments or does not compile (torn, edited, swapped
+    between keys) is removed with one line on stderr, and the program traced afresh."""
     kept = _load(path)
-    if kept is None:
-        jitted, leaves, out_trees = _flat(fn, args)
-        check(jitted, leaves)
-        exported = _export(jitted, leaves) if jax.process_count() == 1 else None
-        if exported is None:  # not exportable: compiled as usual
-            return _caller(jitted.lower(*leaves).compile(), out_trees[0])
-        kept = (exported, out_trees[0])
-        _save(path, *kept)
-    exported, out_tree = kept
-    return _caller(jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile(), out_tree)
+    if kept is None and path.exists():
+        _discard(path, ValueError("cannot be read"))
+    if kept is not None:
+        exported, out_tree = kept
+        try:
+            if not _fits(exported, out_tree, args):
+                raise ValueError("its arguments or outputs differ from the program's")
+            with _native_stderr_silenced():  # MLIR prints its own lines for a torn file
+                compiled = jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile()
+            return _caller(compiled, out_tree)
+        except Exception as err:
+            _discard(path, err)
+    jitted, leaves, out_trees = _flat(fn, args)
+    check(jitted, leaves)
+    exported = _export(jitted, leaves) if jax.process_count() == 1 else None
+    if exported is None:  # not exportable: compiled as usual
+        return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+    _save(path, exported, out_trees[0])
+    return _caller(jax.jit(exported.call).lower(*leaves).compile(), out_trees[0])
+
+
+def _fits(exported, out_tree, args) -> bool:
+    """Whether a kept program takes as many arguments as ``args`` has leaves and returns as
+    many leaves as ``out_tree`` holds (``exported.call`` checks the shapes and dtypes): a file
+    kept under another key (copied, swapped) does not."""
+    n_in = len(jax.tree.leaves(args))
+    return n_in == len(exported.in_avals) and out_tree.num_leaves == len(exported.out_avals)
+
+
+#: set once an unusable kept program was reported: one line per process at most
+_TOLD = []
+
+
+def _discard(path: Path, err: BaseException) -> None:
+    """Remove an unusable kept program; the first in a process is reported in one line."""
+    with contextlib.suppress(OSError):
+        path.unlink()
+    if not _TOLD:
+        _TOLD.append(path)
+        reason = " ".join(str(err).split())[:100] or type(err).__name__
+        print(
+            f"note: unusable kept programs in {path.parent} are removed and traced afresh "
+            f"({path.name[:12]}: {reason})",
+            file=sys.stderr,
+        )
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """File descriptor 2 pointed at /dev/null while the block runs (native libraries write
+    there directly, past ``sys.stderr``)."""
+    try:
+        saved = os.dup(2)
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        yield
+        return
+    try:
+        sys.stderr.flush()
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
 
 
 __all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]

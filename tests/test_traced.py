@@ -157,3 +157,47 @@ def test_the_identity_of_a_program_holds_the_bytes_of_the_files_it_reads(tmp_pat
     vae.write_bytes(b"other")
     os.utime(vae, ns=(1, 1))  # (a rewrite within the clock's resolution is still seen)
     assert program_identity(config) != first
+
+
+def _kept_then_damaged(cache, damage):
+    """A program kept in ``cache``, its file damaged by ``damage(path, other_path)``, then
+    compiled again as a new process would: returns ``(traces after, output, key)``."""
+    table = jnp.arange(3.0)
+    args = (jax.random.key(2), jnp.linspace(0.0, 1.0, 16))
+    key = traced.program_key("p", {"d": 1}, table, args)
+    other_args = (jax.random.key(2), jnp.ones(5))
+    other = traced.program_key("p", {"d": 2}, table, other_args)
+    traced.compile_kept(_program([], table), args, key, _no_check)
+    traced.compile_kept(_program([], table), other_args, other, _no_check)
+    damage(cache / f"{key}.bin", cache / f"{other}.bin")
+    traced._COMPILED.clear()
+    traces: list = []
+    out = traced.compile_kept(_program(traces, table), args, key, _no_check)(*args)
+    return traces, out, jax.jit(_program([], table))(*args)
+
+
+def _flip(path, _other):
+    data = bytearray(path.read_bytes())
+    for i in range(len(data) // 2, len(data) // 2 + 8):
+        data[i] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _swap(path, other):
+    a, b = path.read_bytes(), other.read_bytes()
+    path.write_bytes(b)
+    other.write_bytes(a)
+
+
+@pytest.mark.parametrize("damage", [_flip, _swap], ids=["flipped-bytes", "swapped-between-keys"])
+def test_a_damaged_or_swapped_file_is_traced_afresh_with_one_line(cache, damage, capsys):
+    monkey_told = traced._TOLD.copy()
+    traced._TOLD.clear()
+    try:
+        traces, out, direct = _kept_then_damaged(cache, damage)
+    finally:
+        traced._TOLD[:] = monkey_told
+    assert traces  # not read from the damaged file
+    np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(direct["y"]))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "traced afresh" in err[0], err

@@ -1,0 +1,78 @@
+"""Claiming a run folder for one writer: nothing a user ran before is lost.
+
+``claim(out, resume=..., overwrite=...)`` is what ``cognet-jax train`` and ``sweep`` hold while
+they write ``out``:
+
+* ``out`` must name a folder (``--out ''`` is refused: it would write into the working folder);
+* a folder that already holds a run (``results.json``, ``runs.json`` or a checkpoint) is
+  refused unless the command continues it (``--resume``) or replaces it (``--overwrite``);
+* an exclusive lock (``flock`` on ``out/.lock``, released by the kernel when the process ends,
+  however it ends) makes a second writer of the same folder fail at once, naming the process
+  that holds it;
+* creating the lock file checks that the folder can be written before the search starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+from cognet_jax.errors import UsageError
+
+#: files whose presence means the folder holds a run (single run, sweep, or a stopped one)
+RUN_FILES = ("results.json", "runs.json", "checkpoint.msgpack", "sweep.json")
+LOCK_NAME = ".lock"
+
+
+def check_out(out: str | None) -> None:
+    """Refuse an empty ``--out`` (it would write into the current folder)."""
+    if out is not None and not str(out).strip():
+        raise UsageError("--out '': give a folder name (the run's files go into that folder)")
+
+
+def held_run(out: Path) -> str | None:
+    """The first of ``RUN_FILES`` present in ``out``, or None."""
+    return next((name for name in RUN_FILES if (out / name).exists()), None)
+
+
+@contextlib.contextmanager
+def claim(out: Path, *, resume: bool = False, overwrite: bool = False):
+    """Hold ``out`` for this process while the block runs (see the module docstring)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: exists and is not a folder")
+    found = held_run(out) if out.is_dir() else None
+    if found and not resume and not overwrite:
+        raise UsageError(
+            f"{out} already holds a run ({found}); continue it with --resume {out}, "
+            f"or replace it with --overwrite"
+        )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
+    try:
+        _lock(fd, out)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield out
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _lock(fd: int, out: Path) -> None:
+    """Exclusive, non-blocking ``flock`` on ``fd``; ``UsageError`` naming the holder's pid."""
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: no lock
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+        raise UsageError(
+            f"{out} is being written by another cognet-jax process (pid {holder}); wait for "
+            "it or choose another --out"
+        ) from None

@@ -1,0 +1,103 @@
+"""A run folder is never lost (cognet_jax/run_folder.py, issue 53): an existing run is refused
+without --resume / --overwrite, a second writer fails at once, --out '' is refused, and a
+policy records the numeric settings and imported code it was made with."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from cognet_jax import cli, registry
+from cognet_jax.checkpoint import policy_bytes, read_policy
+from cognet_jax.errors import MismatchError, UsageError
+from cognet_jax.run_folder import check_out, claim
+
+TINY = [
+    "--set",
+    "algorithm.iterations=2",
+    "--set",
+    "algorithm.candidates=8",
+    "--set",
+    "algorithm.eval_rollouts=4",
+    "--set",
+    "algorithm.elites=2",
+    "--set",
+    "algorithm.best_rollouts=10",
+    "--set",
+    "evaluation.rollouts=50",
+    "--set",
+    "run.plots=false",
+    "--no-progress",
+]
+
+
+def test_an_existing_run_is_refused_unless_resumed_or_overwritten(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["train", "--out", str(out), *TINY]) == 0
+    first = (out / "results.json").read_bytes()
+    capsys.readouterr()
+    assert cli.main(["train", "--out", str(out), "--seed", "1", *TINY]) == 2
+    err = capsys.readouterr().err
+    assert "already holds a run" in err and "--resume" in err and "--overwrite" in err
+    assert (out / "results.json").read_bytes() == first  # untouched
+    assert cli.main(["train", "--out", str(out), "--seed", "1", "--overwrite", *TINY]) == 0
+    assert json.loads((out / "results.json").read_text())["seed"] == 1
+
+
+def test_a_second_writer_fails_at_once_naming_the_holder(tmp_path):
+    with claim(tmp_path / "run"):
+        with pytest.raises(UsageError, match="being written by another cognet-jax process"):
+            with claim(tmp_path / "run", overwrite=True):
+                pass
+    with claim(tmp_path / "run"):  # released when the first writer is done
+        pass
+
+
+def test_an_empty_out_and_an_unwritable_folder_are_refused(tmp_path):
+    with pytest.raises(UsageError, match="--out ''"):
+        check_out("")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UsageError, match="not a folder"):
+        with claim(tmp_path / "file"):
+            pass
+    with pytest.raises(UsageError, match="cannot write there"):
+        with claim(tmp_path / "file" / "sub"):
+            pass
+
+
+def test_a_policy_made_with_other_numerics_or_imported_code_is_refused(tmp_path, monkeypatch):
+    import jax.numpy as jnp
+
+    policy = {"w": jnp.ones(3)}
+    made = {"config": "c", "numerics": {"x64": False, "prng": "threefry2x32", "imported": {}}}
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(policy_bytes(policy, made))
+    assert read_policy(path, policy, fingerprint=made)["w"].shape == (3,)
+    other = dict(made, numerics=dict(made["numerics"], imported={"mine.py": "ab12"}))
+    with pytest.raises(MismatchError, match="imported: trained {}, now {'mine.py': 'ab12'}"):
+        read_policy(path, policy, fingerprint=other)
+
+
+def test_imported_code_or_a_replaced_builtin_keeps_no_program(monkeypatch):
+    entry = registry.env_entry("tagging")
+    assert registry.is_builtin(entry)
+    replaced = registry.EnvEntry("tagging", entry.section, lambda s, c: entry.build(s, c))
+    assert not registry.is_builtin(replaced)  # a user's registration of a built-in name
+    monkeypatch.setattr(registry, "_FOREIGN_CODE", {})
+    registry.note_foreign_code("doubled", __file__)
+    assert list(registry.foreign_code()) == ["test_run_folder.py"]
+
+
+def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
+    from cognet_jax import driver
+    from cognet_jax.registry import load_config
+
+    keys = []
+    monkeypatch.setattr(driver, "compile_kept", lambda fn, args, key, check: keys.append(key))
+    monkeypatch.setattr(driver, "program_key", lambda *a: "a key")
+    config = load_config("tagging-thesis-n3")
+    driver.compiled_program(config, "p", None, (), None, {})
+    monkeypatch.setattr(registry, "_FOREIGN_CODE", {"mine.py": "ab12"})
+    driver.compiled_program(config, "p", None, (), None, {})
+    assert keys == ["a key", None]
