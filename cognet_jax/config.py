@@ -167,8 +167,17 @@ class RunSection:
     #: evaluated in chunks to stay within it (``cognet_jax.memory``), and a program whose
     #: single array exceeds it is refused before compiling
     memory_gb: float = 0.0
+    #: keep the anytime best every S seconds of the run (0: never); after the search each kept
+    #: policy gets the honest evaluation, so results.json's ``probes`` tell when the best first
+    #: reached a value, by fresh evaluations rather than the in-loop maximum
+    probe_seconds: float = 0.0
 
     def check(self, config: Config) -> None:
+        require(
+            self.probe_seconds >= 0,
+            "run.probe_seconds",
+            f"must be >= 0, got {self.probe_seconds}",
+        )
         require(
             self.checkpoint_every >= 0,
             "run.checkpoint_every",

@@ -38,6 +38,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import math
 import signal
 import sys
 import time
@@ -190,7 +191,7 @@ def per_run(fn, sharding, num_args: int):
 
 #: ``run`` fields that only drive a run (progress, plots, checkpoints): left out of the keys of
 #: its programs, which do not depend on them
-DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
+DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds", "probe_seconds")
 
 
 def program_identity(config: Config, search: bool = False, **extra) -> dict:
@@ -522,7 +523,9 @@ class Ahead:
         self.depth = int(max(2, min(self.cap, AHEAD_S / max(mean, 1e-6))))
 
 
-def iterate(step, state, *, start, iterations, history, checkpointing, save, progress, desc):
+def iterate(
+    step, state, *, start, iterations, history, checkpointing, save, progress, desc, probe=None
+):
     """``state, metrics = step(state)`` from iteration ``start`` to ``iterations``, each
     finished iteration's metrics appended to ``history``; returns ``(state, signum)``: the state
     after the last finished iteration (``len(history)``) and the stop signal that came during
@@ -532,7 +535,8 @@ def iterate(step, state, *, start, iterations, history, checkpointing, save, pro
     least 2); the loop waits on an event (``wait_ready``), so a stop signal is seen at once.
     It then waits at most ``STOP_GRACE_S`` for the oldest iteration in flight and keeps the
     last finished state.
-    ``save(i, state, history)`` writes a checkpoint (``checkpointing``)."""
+    ``save(i, state, history)`` writes a checkpoint (``checkpointing``); ``probe(i, state)``
+    is called after every finished iteration (``Probes``)."""
     last_save = time.perf_counter()
     bar = tqdm(total=iterations, disable=not progress, desc=desc, unit="it", dynamic_ncols=True)
     done, flight = state, []  # the last finished state; (state, metrics) dispatched, oldest first
@@ -555,6 +559,8 @@ def iterate(step, state, *, start, iterations, history, checkpointing, save, pro
             i = len(history)
             if flag["signum"] is not None:
                 break
+            if probe is not None:
+                probe(i, done)
             if i < iterations and checkpointing.due(i, time.perf_counter() - last_save):
                 save(i, done, history)
                 last_save = time.perf_counter()
@@ -827,6 +833,7 @@ class _Searched:
     t_start: float
     t_loop: float
     t_searched: float
+    probes: Any = None
 
 
 def _prepare(runs: list[Run], opts: GroupOptions):
@@ -882,6 +889,7 @@ def _search(runs, opts: GroupOptions, t_start: float):
         _save(program, opts.checkpoint, i, state, history)
 
     t_loop = time.perf_counter()
+    probes = Probes(program, run.probe_seconds, t_start)
     state, signum = iterate(
         step,
         state,
@@ -892,6 +900,7 @@ def _search(runs, opts: GroupOptions, t_start: float):
         save=save,
         progress=opts.progress,
         desc=opts.desc or config.experiment.name,
+        probe=probes if run.probe_seconds > 0 else None,
     )
     t_searched = time.perf_counter()
     if opts.checkpoint is not None:
@@ -899,14 +908,43 @@ def _search(runs, opts: GroupOptions, t_start: float):
             save(len(history), state, history)
     if signum is not None:
         _stop(program, state, len(history), opts, signum)
-    return program, _Searched(state, history, start, compile_s, t_start, t_loop, t_searched)
+    searched = _Searched(state, history, start, compile_s, t_start, t_loop, t_searched, probes)
+    return program, searched
 
 
-def _finish_and_evaluate(program: Program, state, progress: bool):
-    """``(state, polish records, final values, best policies)``: the algorithm's ``finish``
-    (G-DICE's polish, with a progress line when ``progress``) and every run's honest
-    evaluation, in a worker thread (``signals.in_background``), so a stop signal is obeyed at
-    once."""
+class Probes:
+    """Snapshots of every run's anytime best, looked at each ``seconds`` of the run (from its
+    start, compile included) and kept when it changed: ``(iteration, wall seconds, best
+    policies)``. ``evaluated`` gives each
+    its honest evaluation once the search is over (the search's time is not spent on them)."""
+
+    def __init__(self, program: Program, seconds: float, t_start: float):
+        self.program, self.seconds, self.t_start = program, seconds, t_start
+        self.kept: list = []
+        self.last = -math.inf
+
+    def __call__(self, iteration: int, state) -> None:
+        now = time.perf_counter()
+        if now - self.last >= self.seconds:
+            self.last = now
+            best = jax.device_get(self.program.best_policies(state))
+            if not self.kept or not _same_tree(best, self.kept[-1][2]):  # a new best only
+                self.kept.append((iteration, now - self.t_start, best))
+
+    def evaluated(self, r: int) -> list[dict]:
+        """Run ``r``'s probes with their honest values."""
+        out = []
+        for iteration, wall, best in self.kept:
+            value = self.program.evaluate(r, best[r])
+            out.append({"iteration": iteration, "wall_s": wall, "value": value["mean"]})
+        return out
+
+
+def _finish_and_evaluate(program: Program, state, progress: bool, probes=None):
+    """``(state, polish records, final values, best policies, probe records)``: the
+    algorithm's ``finish`` (G-DICE's polish, with a progress line when ``progress``), every
+    run's honest evaluation and that of its probes (``Probes``), in a worker thread
+    (``signals.in_background``), so a stop signal is obeyed at once."""
 
     line = _FinishLine(progress)
 
@@ -923,7 +961,8 @@ def _finish_and_evaluate(program: Program, state, progress: bool):
             final = program.evaluate(r, best[r])
             final.update(exact_evaluation(run.config, best[r]) or {})
             finals.append(final)
-        return finished, polish, finals, best
+        kept = [probes.evaluated(r) if probes else None for r in range(len(program.runs))]
+        return finished, polish, finals, best, kept
 
     with rollout_mesh(program.config):
         try:
@@ -969,7 +1008,9 @@ def _run(runs, opts: GroupOptions, t_start: float):
     stacked = stack_history(done.history)  # on the host: a jnp.stack of 500 arrays compiles
     t_end = time.perf_counter()
     try:
-        _, polish, finals, best = _finish_and_evaluate(program, done.state, opts.progress)
+        _, polish, finals, best, probed = _finish_and_evaluate(
+            program, done.state, opts.progress, done.probes
+        )
     except Stopped as stop:
         _stop(program, done.state, iterations, opts, stop.signum)
     polish_s = (polish[0] or {}).get("seconds", 0.0)
@@ -981,7 +1022,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
         "resumed_from_iteration": done.start or None,
     }
     with deferred_stop() as flag:
-        records = _write_runs(program, done, stacked, opts, timing, polish, finals, best)
+        records = _write_runs(program, done, stacked, opts, timing, polish, finals, best, probed)
     if opts.announce:
         _log_run(records[0], runs[0], opts.log)
     if flag["signum"] is not None:
@@ -989,7 +1030,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
     return records, timing
 
 
-def _write_runs(program, done, stacked, opts, timing, polish, finals, best) -> list:
+def _write_runs(program, done, stacked, opts, timing, polish, finals, best, probed) -> list:
     """Every run's record (results.json) written with its folder (plots: ``opts.announce``
     and ``run.plots``)."""
     iterations = program.config.algorithm.iterations
@@ -1011,6 +1052,8 @@ def _write_runs(program, done, stacked, opts, timing, polish, finals, best) -> l
             peak_rss_bytes=peak_rss_bytes(),
             **history,
         )
+        if probed[r] is not None:
+            record["probes"] = probed[r]
         plots = opts.announce and run.config.run.plots
         write_run(run, record, best[r], program.algorithm, plots=plots)
         records.append(record)

@@ -56,6 +56,11 @@ BUILTIN_ENVS = {
     "tagging": "cognet_jax.envs.tagging",
     "heatmap": "cognet_jax.envs.heatmap",
     "dpomdp": "cognet_jax.envs.tabular",
+    "hearing-tiger": "cognet_jax.envs.hearing_tiger",
+    "beacon": "cognet_jax.envs.beacon",
+    "bearing-chase": "cognet_jax.envs.bearing_chase",
+    "plume": "cognet_jax.envs.plume",
+    "box-push": "cognet_jax.envs.box_push",
 }
 #: built-in algorithm name -> the module that registers it
 BUILTIN_ALGORITHMS = {
@@ -96,7 +101,9 @@ class AlgorithmEntry:
     ``"network.learning_rate"``) that are hyper-parameters (sweepable in one program);
     ``discrete``: the algorithm needs discrete observations (simulators that can discretise,
     e.g. tagging, then return indices); ``reads``: the optional sections it reads
-    (``"network"``)."""
+    (``"network"``); ``resolve(section, env) -> section``: the section with its ``"auto"``
+    settings replaced by numbers read from the simulator's sizes (``load_config`` calls it, so
+    a run's results.json holds the numbers it ran with)."""
 
     name: str
     section: type
@@ -105,6 +112,7 @@ class AlgorithmEntry:
     dynamic: tuple[str, ...] = ()
     discrete: bool = False
     reads: tuple[str, ...] = ()
+    resolve: Callable[[Any, Any], Any] | None = None
 
 
 _ENVS: dict[str, EnvEntry] = {}
@@ -176,6 +184,7 @@ def register_algorithm(
     discrete: bool = False,
     reads: tuple[str, ...] = (),
     overwrite: bool = True,
+    resolve: Callable[[Any, Any], Any] | None = None,
 ) -> AlgorithmEntry:
     """Register (or, with ``overwrite``, replace) the algorithm ``name``; returns its entry.
     ``dynamic``: dotted config fields (``"algorithm.alpha"``) read by ``hyper``."""
@@ -188,7 +197,9 @@ def register_algorithm(
             raise TypeError(
                 f"register algorithm {name!r}: dynamic field {field!r} must be 'section.key'"
             )
-    entry = AlgorithmEntry(name, section, build, hyper, tuple(dynamic), discrete, tuple(reads))
+    entry = AlgorithmEntry(
+        name, section, build, hyper, tuple(dynamic), discrete, tuple(reads), resolve
+    )
     _ALGORITHMS[name] = entry
     return entry
 
@@ -324,6 +335,11 @@ def config_from_dict(data: dict) -> Config:
         **optional,
     )
     validate(config)
+    resolve = algorithm_entry(experiment.algorithm).resolve
+    if resolve is not None:
+        env, _ = env_entry(env_name).build(config.env, config)
+        config = dataclasses.replace(config, algorithm=resolve(config.algorithm, env))
+        validate(config)
     return config
 
 

@@ -24,7 +24,8 @@ from cognet_jax.registry import load_config
 def small_algorithm(**kw):
     """``(algorithm, params)``: the weight search on thesis tagging with small sizes."""
     env, env_params = make_tagging("thesis")
-    settings = WeightsSettings(**{"nodes": 3, "candidates": 8, "eval_rollouts": 16, **kw})
+    sizes = {"nodes": 3, "iterations": 2, "candidates": 8, "eval_rollouts": 16, "elites": 4}
+    settings = WeightsSettings(**{**sizes, **kw})
     return CognetWeights(env, settings), SearchParams(env_params, WeightsHyper())
 
 
@@ -93,6 +94,8 @@ def best_open_loop_value(alg, params, key) -> float:
         m=jnp.zeros((n, a, q, h)),
         default=jnp.broadcast_to(jnp.asarray(nxt, jnp.int32), (n, a, q)),
         bias=jnp.full((n, a, q), 50.0),
+        node_tie=jnp.zeros((n, a), jnp.int32),
+        agent_tie=jnp.zeros((n,), jnp.int32),
     )
     blind = CognetWeights(env, WeightsSettings(nodes=q, hidden=h, eval_rollouts=2000))
     return float(jnp.max(jax.jit(blind.evaluate)(key, blind.to_policy(sample), params)))
@@ -231,5 +234,72 @@ def reactive_tagging_policy(alg):
         m=jnp.asarray(m),
         default=jnp.ones((a, q), jnp.int32),
         bias=jnp.full((a, q), 20.0),
+        node_tie=jnp.zeros((a,), jnp.int32),
+        agent_tie=jnp.zeros((), jnp.int32),
     )
     return alg.to_policy(sample)
+
+
+def test_auto_sizes_grow_with_the_budget_and_keep_given_settings():
+    from cognet_jax.algorithms.cognet_weights import CognetWeightsSection, sized
+    from cognet_jax.envs.tagging import make_tagging
+
+    env, _ = make_tagging("cogdice-paper")
+    per_rollout = env.horizon * env.num_agents
+    previous = None
+    for budget in (1e6, 1e8, 1e9, 1e10, 1e11, 3e11, 1e12):
+        s = sized(CognetWeightsSection(budget=budget), env)
+        spent = s.iterations * s.candidates * s.eval_rollouts * per_rollout
+        assert spent <= 1.05 * budget or s.iterations == 1
+        assert 2 <= s.elites <= s.candidates
+        if previous is not None:  # every size is non-decreasing in the budget
+            assert s.iterations >= previous.iterations
+            assert s.eval_rollouts >= previous.eval_rollouts
+            assert s.candidates >= previous.candidates
+        previous = s
+    assert spent >= 0.95 * 1e12  # a large budget is spent (population grown)
+    mine = sized(CognetWeightsSection(budget=1e10, iterations=50, elites=7), env)
+    assert mine.iterations == 50 and mine.elites == 7
+    assert mine.candidates * mine.eval_rollouts * 50 * per_rollout <= 1.05e10
+
+
+def test_a_loaded_config_holds_the_sizes_it_runs_with():
+    from cognet_jax.registry import load_config
+
+    config = load_config("beacon-n5", ["algorithm.budget=9e8"])
+    a = config.algorithm
+    assert all(isinstance(getattr(a, f), int) for f in ("iterations", "candidates", "elites"))
+    assert a.iterations * a.candidates * a.eval_rollouts * 30 * 3 <= 9.5e8
+
+
+def test_tied_candidates_run_node_0s_network_everywhere_and_agent_0s_controller():
+    alg, _ = small_algorithm()
+    dist = alg.init_distribution()
+    dist = dist.replace(
+        node_tie_probs=jnp.asarray([[0.0, 1.0], [1.0, 0.0]]),  # agent 0 tied, agent 1 not
+        agent_tie_probs=jnp.asarray([1.0, 0.0]),
+    )
+    s = alg.draw(jax.random.key(5), dist, 6)
+    w1 = np.asarray(s.w1)  # [6, agents, Q, F, H]
+    assert np.array_equal(s.node_tie, np.tile([1, 0], (6, 1)))
+    for q in range(1, 3):
+        np.testing.assert_array_equal(w1[:, 0, q], w1[:, 0, 0])
+        np.testing.assert_array_equal(np.asarray(s.unit_targets)[:, 0, q], s.unit_targets[:, 0, 0])
+    assert not np.array_equal(w1[:, 1, 1], w1[:, 1, 0])
+    both = alg.draw(jax.random.key(5), dist.replace(agent_tie_probs=jnp.asarray([0.0, 1.0])), 6)
+    for field in ("actions", "w1", "bias", "node_tie"):
+        x = np.asarray(getattr(both, field))
+        np.testing.assert_array_equal(x[:, 1], x[:, 0])
+
+
+def test_a_converged_distribution_restarts_and_the_best_policy_stays():
+    alg, params = small_algorithm(restart_tol=0.5)
+    state = alg.init(jax.random.key(0), params)
+    shrunk = state.distribution.replace(w1_std=state.distribution.w1_std * 0.1)
+    state = state.replace(distribution=shrunk)
+    after, metrics = jax.jit(alg.step)(jax.random.key(1), state, params)
+    assert bool(metrics.injected)
+    np.testing.assert_array_equal(after.distribution.w1_std, alg.init_distribution().w1_std)
+    kept, m2 = jax.jit(alg.step)(jax.random.key(2), after, params)  # not converged: refit
+    assert not bool(m2.injected)
+    assert not np.array_equal(kept.distribution.w1_mean, after.distribution.w1_mean)

@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -119,6 +120,8 @@ class WeightDistribution:
     default_probs: jax.Array  # [agents, Q, Q]
     bias_mean: jax.Array  # [agents, Q]
     bias_std: jax.Array  # [agents, Q]
+    node_tie_probs: jax.Array  # [agents, 2]: (own networks, node 0's network in every node)
+    agent_tie_probs: jax.Array  # [2]: (own controllers, agent 0's controller for every agent)
 
 
 @struct.dataclass
@@ -132,6 +135,8 @@ class WeightSample:
     m: jax.Array  # [agents, Q, H]
     default: jax.Array  # [agents, Q] int32
     bias: jax.Array  # [agents, Q]
+    node_tie: jax.Array  # [agents] int32, 1: every node runs node 0's network
+    agent_tie: jax.Array  # [] int32, 1: every agent runs agent 0's controller
 
 
 @dataclasses.dataclass
@@ -150,10 +155,11 @@ class CognetWeightsSection:
     width is ``network.hidden``."""
 
     nodes: int = 3
-    iterations: int = 600
-    candidates: int = 200
-    eval_rollouts: int = 500
-    elites: int = 10
+    iterations: int | Literal["auto"] = "auto"
+    candidates: int | Literal["auto"] = "auto"
+    eval_rollouts: int | Literal["auto"] = "auto"
+    elites: int | Literal["auto"] = "auto"
+    budget: float | Literal["auto"] = "auto"
     alpha: float = 0.3
     action_floor: float = 0.02
     category_floor: float = 0.02
@@ -164,25 +170,28 @@ class CognetWeightsSection:
     vote_std: float = 5.0
     standardize_inputs: bool = False
     paired_best: bool = False
+    tie_structure: bool = True
+    restart_tol: float = 0.02
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``api.check_budget``)."""
         return rollouts_per_iteration(self)
 
     def check(self, config) -> None:
-        names = ("nodes", "iterations", "candidates", "eval_rollouts", "elites", "best_rollouts")
-        require_positive(self, "algorithm", *names)
+        require_positive(self, "algorithm", "nodes", "best_rollouts")
         require(
-            self.elites <= self.candidates,
-            "algorithm.elites",
-            f"elites ({self.elites}) cannot exceed algorithm.candidates ({self.candidates})",
+            self.budget == "auto" or 1 <= self.budget <= 1e16,
+            "algorithm.budget",
+            f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
         )
-        require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
         require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
         for name in ("init_scale", "vote_mean", "vote_std"):
             v = getattr(self, name)
             require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        require(
+            0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
+        )
         defaults = NetworkSection()
         for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
             require(
@@ -198,6 +207,74 @@ class CognetWeightsSection:
             "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
             "network (use experiment.algorithm = 'cognet-dice-thesis')",
         )
+        if any(getattr(self, f) == "auto" for f in SIZE_FIELDS):
+            return  # checked again once the registry resolved them (``sized``)
+        require_positive(self, "algorithm", *SIZE_FIELDS)
+        require(
+            self.elites <= self.candidates,
+            "algorithm.elites",
+            f"elites ({self.elites}) cannot exceed algorithm.candidates ({self.candidates})",
+        )
+        require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
+
+
+# ---------------------------------------------------------------------------------------------
+# sizes from the budget: the "auto" settings as rules over the problem's sizes
+# ---------------------------------------------------------------------------------------------
+#: the settings ``sized`` fills in when they are "auto"
+SIZE_FIELDS = ("iterations", "candidates", "eval_rollouts", "elites")
+#: default budget, in rollouts of the search (``budget = "auto"``: this x horizon x agents
+#: agent-steps): the same number of episodes on every problem
+AUTO_BUDGET_ROLLOUTS = 3e7
+#: population of the cross-entropy method, and the elites' share of it
+AUTO_CANDIDATES = 200
+ELITE_FRACTION = 0.05
+#: iterations are ``budget rollouts / (candidates x EVAL_ROLLOUTS_BASE)`` within this range:
+#: the distribution needs about a hundred refits with smoothing 0.3 to settle, and beyond a
+#: few hundred, evaluations of less noise pay more than further refits (shared/FINDINGS.md)
+ITERATIONS_RANGE = (100, 400)
+EVAL_ROLLOUTS_BASE = 250
+#: rollouts per candidate, after the iterations are set: what the budget leaves, in this
+#: range; a budget beyond the largest grows the population instead
+EVAL_ROLLOUTS_RANGE = (10, 1000)
+
+
+def sized(section: CognetWeightsSection, env) -> CognetWeightsSection:
+    """``section`` with its "auto" sizes filled in from the budget ``B`` (agent-steps;
+    ``AUTO_BUDGET_ROLLOUTS x h x n`` by default) on a simulator of horizon ``h`` and ``n``
+    agents, ``R = B / (h n)`` rollouts:
+
+    * candidates ``C = AUTO_CANDIDATES``, elites ``max(2, ELITE_FRACTION x C)``;
+    * iterations ``I = R / (C x EVAL_ROLLOUTS_BASE)`` clipped to ``ITERATIONS_RANGE``;
+    * rollouts per candidate ``K = R / (C x I)`` clipped to ``EVAL_ROLLOUTS_RANGE``;
+    * when ``K`` is at its largest, ``C = R / (I x K)``: a larger budget always buys more
+      iterations, then less noise per candidate, then a larger population.
+
+    Settings given as numbers are kept, and the others sized around them."""
+    values = {f: getattr(section, f) for f in SIZE_FIELDS}
+    if all(v != "auto" for v in values.values()):
+        return section
+    per_rollout = env.horizon * env.num_agents
+    budget = AUTO_BUDGET_ROLLOUTS * per_rollout if section.budget == "auto" else section.budget
+    rollouts = max(1.0, budget / per_rollout)
+
+    def given_or(name, rule):
+        return values[name] if values[name] != "auto" else rule()
+
+    lo_i, hi_i = ITERATIONS_RANGE
+    lo_k, hi_k = EVAL_ROLLOUTS_RANGE
+    c = given_or("candidates", lambda: AUTO_CANDIDATES)
+    i = given_or(
+        "iterations",
+        lambda: max(1, round(min(hi_i, max(lo_i, rollouts / (c * EVAL_ROLLOUTS_BASE))))),
+    )
+    k = given_or("eval_rollouts", lambda: int(min(hi_k, max(lo_k, rollouts / (c * i)))))
+    if values["candidates"] == "auto" and k >= hi_k and rollouts / (i * k) > c:
+        c = int(rollouts / (i * k))
+    if values["iterations"] == "auto" and rollouts < c * lo_i * k:  # a budget below the range
+        i = max(1, int(rollouts / (c * k)))
+    e = given_or("elites", lambda: max(2, round(ELITE_FRACTION * c)))
+    return dataclasses.replace(section, iterations=i, candidates=c, eval_rollouts=k, elites=e)
 
 
 def rollouts_per_iteration(s) -> int:
@@ -245,7 +322,35 @@ class WeightsMetrics:
     winner_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
     threshold: jax.Array  # [] smallest elite value
     kept: jax.Array  # [] number of elites
-    injected: jax.Array  # [] always False (the floors act every iteration)
+    injected: jax.Array  # [] the distribution converged: restarted (``restart_tol``)
+
+
+#: the fields of a node's network (copied by node tying); agent tying copies every field
+NETWORK_FIELDS = ("w1", "b1", "unit_targets", "m", "default", "bias")
+
+
+def tie(sample: WeightSample) -> WeightSample:
+    """Apply a sample's tie flags (leaves with or without a leading candidate axis): where
+    ``node_tie`` is 1, every node of that agent gets node 0's network (a reactive controller:
+    the next node depends on the observation only); where ``agent_tie`` is 1, every agent gets
+    agent 0's whole controller (actions and networks). The Gaussians and categoricals are
+    then refit to the weights the candidates ran, so a tied elite teaches every node."""
+    lead = sample.node_tie.ndim - 1  # 1 with a candidate axis, else 0
+
+    def nodes_tied(x):  # x [..., agents, Q, ...]
+        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead + 1), x.shape)
+        flag = sample.node_tie.reshape(sample.node_tie.shape + (1,) * (x.ndim - lead - 1))
+        return jnp.where(flag == 1, first, x)
+
+    sample = sample.replace(**{f: nodes_tied(getattr(sample, f)) for f in NETWORK_FIELDS})
+
+    def agents_tied(x):  # x [..., agents, ...]
+        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead), x.shape)
+        flag = sample.agent_tie.reshape(sample.agent_tie.shape + (1,) * (x.ndim - lead))
+        return jnp.where(flag == 1, first, x)
+
+    fields = (*NETWORK_FIELDS, "actions", "node_tie")
+    return sample.replace(**{f: agents_tied(getattr(sample, f)) for f in fields})
 
 
 def _gaussian_refit(mean, std, elite_draws, alpha):
@@ -292,11 +397,11 @@ class CognetWeights(Search):
     input_stats: tuple | None = None
 
     def __post_init__(self):
-        s = self.settings
+        s = sized(self.settings, self.env)  # "auto" sizes of settings made in code
         pipeline, controller = neural_controller(self.env, s.nodes, s.hidden, self.pipeline)
         if s.standardize_inputs and self.input_stats is None:
             raise ValueError("standardize_inputs needs input_stats (input_statistics)")
-        self._set(pipeline=pipeline, controller=controller)
+        self._set(settings=s, pipeline=pipeline, controller=controller)
 
     # ---------------------------------------------------------------- distribution
     def init_distribution(self) -> WeightDistribution:
@@ -315,13 +420,26 @@ class CognetWeights(Search):
             default_probs=full((a, q, q), 1.0 / q),
             bias_mean=full((a, q), s.vote_mean),
             bias_std=full((a, q), s.vote_std),
+            node_tie_probs=full((a, 2), 0.5 if s.tie_structure else 0.0)
+            .at[:, 0]
+            .set(0.5 if s.tie_structure else 1.0),
+            agent_tie_probs=jnp.array(
+                [0.5, 0.5] if self._agents_can_tie else [1.0, 0.0], jnp.float32
+            ),
         )
+
+    @property
+    def _agents_can_tie(self) -> bool:
+        """Agent tying is searched over (``tie_structure``) when every agent has the same
+        actions and there is more than one agent."""
+        counts = self.env.action_counts
+        return self.settings.tie_structure and len(counts) > 1 and len(set(counts)) == 1
 
     def draw(self, key: jax.Array, dist: WeightDistribution, num: int) -> WeightSample:
         """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
         ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
         about 3 s slower)."""
-        ks = jax.random.split(fast_key(key), 7)
+        ks = jax.random.split(fast_key(key), 9)
 
         def normal(k, mean, std):
             return mean + std * jax.random.normal(k, (num,) + mean.shape, jnp.float32)
@@ -329,7 +447,7 @@ class CognetWeights(Search):
         def categorical(k, probs):
             return sample_categorical(jax.random.uniform(k, (num,) + probs.shape[:-1]), probs)
 
-        return WeightSample(
+        sample = WeightSample(
             actions=categorical(ks[0], dist.action_probs),
             w1=normal(ks[1], dist.w1_mean, dist.w1_std),
             b1=normal(ks[2], dist.b1_mean, dist.b1_std),
@@ -337,11 +455,14 @@ class CognetWeights(Search):
             m=normal(ks[4], dist.m_mean, dist.m_std),
             default=categorical(ks[5], dist.default_probs),
             bias=normal(ks[6], dist.bias_mean, dist.bias_std),
+            node_tie=categorical(ks[7], dist.node_tie_probs),
+            agent_tie=categorical(ks[8], dist.agent_tie_probs),
         )
+        return tie(sample) if self.settings.tie_structure else sample
 
     def mode(self, dist: WeightDistribution) -> WeightSample:
         """The most likely controller: Gaussian means and the most likely categories."""
-        return WeightSample(
+        sample = WeightSample(
             actions=jnp.argmax(dist.action_probs, -1).astype(jnp.int32),
             w1=dist.w1_mean,
             b1=dist.b1_mean,
@@ -349,7 +470,10 @@ class CognetWeights(Search):
             m=dist.m_mean,
             default=jnp.argmax(dist.default_probs, -1).astype(jnp.int32),
             bias=dist.bias_mean,
+            node_tie=jnp.argmax(dist.node_tie_probs, -1).astype(jnp.int32),
+            agent_tie=jnp.argmax(dist.agent_tie_probs, -1).astype(jnp.int32),
         )
+        return tie(sample) if self.settings.tie_structure else sample
 
     def to_policy(self, sample: WeightSample) -> NeuralPolicy:
         """The ``NeuralPolicy`` of one sample (works on a leading candidate axis too): one-hot
@@ -410,7 +534,20 @@ class CognetWeights(Search):
             default_probs=categorical(dist.default_probs, elites.default, q, hyper.category_floor),
             bias_mean=bias_mean,
             bias_std=bias_std,
+            node_tie_probs=categorical(
+                dist.node_tie_probs, elites.node_tie, 2, hyper.category_floor * self._ties
+            ),
+            agent_tie_probs=categorical(
+                dist.agent_tie_probs,
+                elites.agent_tie,
+                2,
+                hyper.category_floor * self._agents_can_tie,
+            ),
         )
+
+    @property
+    def _ties(self) -> bool:
+        return self.settings.tie_structure
 
     # ---------------------------------------------------------------- protocol
     def init(self, key: jax.Array, params: SearchParams) -> WeightsState:
@@ -482,9 +619,19 @@ class CognetWeights(Search):
             winner_value=elite_values[0],
             threshold=elite_values[-1],
             kept=jnp.int32(s.elites),
-            injected=jnp.bool_(False),
+            injected=self.converged(dist),
         )
+        if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
+            dist = select_tree(self.converged(dist), self.init_distribution(), dist)
         return WeightsState(distribution=dist, best_policy=best_policy, progress=progress), metrics
+
+    def converged(self, dist: WeightDistribution) -> jax.Array:
+        """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
+        standard deviation (mean over agents, nodes and weights): the search then draws
+        nearly one controller, and only a restart explores again."""
+        s = self.settings
+        initial = s.init_scale / math.sqrt(self.controller.in_features)
+        return jnp.mean(dist.w1_std) < s.restart_tol * initial
 
 
 # ---------------------------------------------------------------------------------------------
@@ -517,4 +664,5 @@ register_algorithm(
     dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
     reads=("network",),
     overwrite=False,
+    resolve=sized,
 )

@@ -23,6 +23,7 @@ inverse CDF (``normal_from_uniform``).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Protocol
 
 import jax
@@ -149,3 +150,37 @@ def categorical_from_columns(u: jax.Array, columns: list[jax.Array]) -> jax.Arra
     threshold = u * running[-1]
     idx = sum((c <= threshold).astype(jnp.int32) for c in running)
     return jnp.minimum(idx, len(columns) - 1).astype(jnp.int32)
+
+
+#: the five moves of the grid and plane simulators: stay, x+1, x-1, y+1, y-1 (``[5, 2]``)
+MOVES5 = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float32)
+MOVE5_NAMES = ("stay", "x+1", "x-1", "y+1", "y-1")
+
+
+class ContinuousObservations:
+    """Mixin of simulators with continuous observations and the same actions for every agent
+    (``num_agents`` and ``num_actions`` given by the class)."""
+
+    num_obs = None
+
+    @property
+    def action_counts(self) -> tuple[int, ...]:
+        return (self.num_actions,) * self.num_agents
+
+
+def build_from_fields(env_cls, params_cls, section):
+    """``(env, params)`` from an ``[env]`` section whose fields are named as the fields of the
+    static ``env_cls`` (shapes: horizon, agents) or of the ``params_cls`` pytree (every tunable
+    number); ``name`` and the fields of neither are left out."""
+    values = dataclasses.asdict(section)
+    static = {f.name for f in dataclasses.fields(env_cls)}
+    dynamic = {f.name for f in dataclasses.fields(params_cls)}
+    env = env_cls(**{k: v for k, v in values.items() if k in static})
+    params = params_cls(**{k: v for k, v in values.items() if k in dynamic})
+    return env, params
+
+
+def dynamic_fields(params_cls) -> tuple[str, ...]:
+    """The ``[env]`` fields that only change the params pytree (``register_env``'s
+    ``dynamic``): every field of ``params_cls``."""
+    return tuple(f.name for f in dataclasses.fields(params_cls))
