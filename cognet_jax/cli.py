@@ -566,8 +566,8 @@ def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main
 def _evaluate(args) -> int:
     from cognet_jax.driver import evaluate_run
 
-    if args.rollouts is not None and args.rollouts < 2:
-        raise UsageError(f"--rollouts must be >= 2, got {args.rollouts}")
+    if args.rollouts is not None and not 2 <= args.rollouts < 2**31:
+        raise UsageError(f"--rollouts must be in 2 .. 2147483647, got {args.rollouts}")
     value = evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides)
     print(
         f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
@@ -710,6 +710,8 @@ def import_plugin(name: str) -> None:
         note_foreign_code(name, origin)
     except UsageError:
         raise
+    except SystemExit as err:  # sys.exit() in the module's top level
+        raise UsageError(f"--import {name} exited with status {err.code}") from None
     except (ModuleNotFoundError, ValueError) as err:
         raise UsageError(f"--import {name}: {err}") from None
     except Exception as err:  # the module's own error: where, what

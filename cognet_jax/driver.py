@@ -735,11 +735,14 @@ def _history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     }
 
 
-def fingerprint(config: Config) -> dict:
-    """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections,
-    and the model file it reads (a simulator that reads ``[problem]``). Stored in the policy
-    file; ``load_run`` refuses a policy whose results.json or model changed since."""
-    shaping = {k: v for k, v in config.to_dict().items() if k not in ("run", "evaluation")}
+def fingerprint(config: Config, written: dict | None = None) -> dict:
+    """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections
+    (as ``written`` to results.json when given: a newer version of the library may add
+    settings with defaults, which must not make an old run's policy a stranger), the model
+    file it reads (a simulator that reads ``[problem]``) and the numeric settings. Stored in
+    the policy file; ``load_run`` refuses a policy whose results.json or model changed since."""
+    written = config.to_dict() if written is None else written
+    shaping = {k: v for k, v in written.items() if k not in ("run", "evaluation")}
     text = json.dumps(shaping, sort_keys=True, default=str).encode()
     out = {"config": hashlib.sha256(text).hexdigest(), "numerics": numeric_settings()}
     path = Path(config.problem.path).expanduser() if config.problem.path else None
@@ -961,7 +964,8 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None):
             final = program.evaluate(r, best[r])
             final.update(exact_evaluation(run.config, best[r]) or {})
             finals.append(final)
-        kept = [probes.evaluated(r) if probes else None for r in range(len(program.runs))]
+        probing = probes is not None and probes.seconds > 0
+        kept = [probes.evaluated(r) if probing else None for r in range(len(program.runs))]
         return finished, polish, finals, best, kept
 
     with rollout_mesh(program.config):
@@ -1132,7 +1136,7 @@ def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
     results = read_json(results_path, ("config",))
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
-    trained = fingerprint(config_from_dict(results["config"]))
+    trained = fingerprint(config_from_dict(results["config"]), results["config"])
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
     if ("problem", "path") in named:
@@ -1166,6 +1170,7 @@ def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, 
     if rollouts is not None:
         evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
         config = dataclasses.replace(config, evaluation=evaluation)
+        check_budget(config, run.algorithm.env)  # the time and memory they take
     stored = run.results.get("seed", 0)
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")

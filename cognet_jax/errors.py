@@ -33,6 +33,11 @@ class UsageError(InputError):
     """A command-line argument out of range (one line, exit 2)."""
 
 
+class SimulatorError(InputError):
+    """A simulator's ``reset`` or ``step`` fails, or returns arrays of other shapes or types than
+    its declared sizes (``envs.base.check_simulator``): the simulator's code, not this library."""
+
+
 class ResourceError(InputError):
     """A setting asks for more memory than the budget allows (one line, with the numbers)."""
 

@@ -101,3 +101,30 @@ def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
     monkeypatch.setattr(registry, "_FOREIGN_CODE", {"mine.py": "ab12"})
     driver.compiled_program(config, "p", None, (), None, {})
     assert keys == ["a key", None]
+
+
+def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
+    tmp_path, capsys, monkeypatch
+):
+    monkeypatch.setattr(registry, "_FOREIGN_CODE", {})  # this process's record, restored after
+    plugin = tmp_path / "badsim.py"
+    plugin.write_text(
+        "import jax.numpy as jnp\n"
+        "from cognet_jax.envs import beacon\n"
+        "from cognet_jax.registry import register_env\n"
+        "class Bad(beacon.Beacon):\n"
+        "    def step(self, u, state, actions, params):\n"
+        "        s, obs, r = super().step(u, state, actions, params)\n"
+        "        return s, obs[:, :1], r\n"
+        "def build(section, config):\n"
+        "    env, params = beacon.build_from_section(section, config)\n"
+        "    return Bad(horizon=env.horizon, num_agents=env.num_agents), params\n"
+        "register_env('bad-beacon-test', beacon.BeaconSection, build)\n"
+    )
+    args = ["--import", str(plugin), "train", "beacon-n5", "--set", "env.name=bad-beacon-test"]
+    assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY]) == 2
+    err = capsys.readouterr().err
+    assert "simulator 'bad-beacon-test' (badsim.Bad)" in err and "expected floating [3, 2]" in err
+    (tmp_path / "exits.py").write_text("import sys\nsys.exit(7)\n")
+    assert cli.main(["--import", str(tmp_path / "exits.py"), "list"]) == 2
+    assert "exited with status 7" in capsys.readouterr().err

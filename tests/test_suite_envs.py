@@ -159,9 +159,7 @@ def test_plume_bound_by_brute_force_on_a_small_grid():
     assert plume.upper_bound(env) == pytest.approx(2 * total / 81)
 
 
-@pytest.mark.parametrize(
-    "name", ["hearing-tiger", "beacon", "bearing-chase", "plume", "box-push"]
-)
+@pytest.mark.parametrize("name", ["hearing-tiger", "beacon", "bearing-chase", "plume", "box-push"])
 def test_grid_search_keeps_the_best_point_and_stays_below_the_bound(name):
     entry = env_entry(name)
     env, params = entry.build(entry.section(), None)

@@ -31,6 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
+from cognet_jax.errors import SimulatorError
+
 EnvState = Any
 EnvParams = Any
 
@@ -184,3 +186,53 @@ def dynamic_fields(params_cls) -> tuple[str, ...]:
     """The ``[env]`` fields that only change the params pytree (``register_env``'s
     ``dynamic``): every field of ``params_cls``."""
     return tuple(f.name for f in dataclasses.fields(params_cls))
+
+
+def check_simulator(env, env_params, name: str) -> None:
+    """Trace ``env.reset`` and ``env.step`` once on abstract values (``jax.eval_shape``: no
+    computation) and refuse, with a ``SimulatorError`` naming the simulator, its code and what
+    was expected against what it returned: a function that raises, an observation of another
+    shape or dtype than ``[agents, *obs_shape]`` (int32 ``[agents]`` for discrete ones), a
+    reward that is not one number, a state whose arrays change shape or dtype in a step."""
+    owner = f"simulator {name!r} ({type(env).__module__}.{type(env).__name__})"
+    u_reset = jax.ShapeDtypeStruct((env.reset_noise,), jnp.float32)
+    u_step = jax.ShapeDtypeStruct((env.step_noise,), jnp.float32)
+    actions = jax.ShapeDtypeStruct((env.num_agents,), jnp.int32)
+
+    def traced(what, fn, *args):
+        try:
+            return jax.eval_shape(fn, *args)
+        except Exception as err:  # the simulator's own error
+            raise SimulatorError(f"{owner}: {what} raised {type(err).__name__}: {err}") from err
+
+    state = traced("reset(u, params)", env.reset, u_reset, env_params)
+    out = traced("step(u, state, actions, params)", env.step, u_step, state, actions, env_params)
+    if not (isinstance(out, tuple) and len(out) == 3):
+        raise SimulatorError(f"{owner}: step must return (state, obs, reward)")
+    next_state, obs, reward = out
+    if jax.tree.structure(next_state) != jax.tree.structure(state) or any(
+        (a.shape, a.dtype) != (b.shape, b.dtype)
+        for a, b in zip(jax.tree.leaves(next_state), jax.tree.leaves(state))
+    ):
+        raise SimulatorError(
+            f"{owner}: step changed the state: reset gave {_shapes(state)}, step returned "
+            f"{_shapes(next_state)}"
+        )
+    discrete = env.num_obs is not None
+    want = (env.num_agents,) if discrete else (env.num_agents, *env.obs_shape)
+    kind = "integer" if discrete else "floating"
+    dtype_ok = jnp.issubdtype(obs.dtype, jnp.integer if discrete else jnp.floating)
+    if obs.shape != want or not dtype_ok:
+        raise SimulatorError(
+            f"{owner}: step returned an observation {obs.dtype}{list(obs.shape)}, expected "
+            f"{kind} {list(want)} (agents x obs_shape {tuple(env.obs_shape)})"
+        )
+    if reward.shape != () or not jnp.issubdtype(reward.dtype, jnp.floating):
+        raise SimulatorError(
+            f"{owner}: step returned a reward {reward.dtype}{list(reward.shape)}, expected one "
+            "float (the joint reward, a shape () array)"
+        )
+
+
+def _shapes(tree) -> str:
+    return ", ".join(f"{x.dtype}{list(x.shape)}" for x in jax.tree.leaves(tree))
