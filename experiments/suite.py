@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from _readme import machine, replace_block
+from cognet_sweeps import _agent_steps
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "suite"
@@ -90,24 +91,61 @@ def _bound(config, env, params):
     return None
 
 
+#: further sweeps: folder -> (experiment, overrides, seeds, what it tests, earlier sweep to
+#: compare with (experiments/results/sweeps/NAME) or None)
+EXTRA = {
+    "hearing-tiger-norestart": (
+        "hearing-tiger-n7",
+        ["algorithm.restart_tol=0"],
+        SEEDS,
+        "ablation: no restart of a converged distribution",
+        None,
+    ),
+    "hearing-tiger-notie": (
+        "hearing-tiger-n7",
+        ["algorithm.tie_structure=false"],
+        SEEDS,
+        "ablation: no tied nodes or agents",
+        None,
+    ),
+    "tagging-thesis-n3": ("tagging-thesis-n3", [], SEEDS, "new defaults", "tagging-thesis-n3"),
+    "tagging-thesis-n6": ("tagging-thesis-n6", [], SEEDS, "new defaults", "tagging-thesis-n6"),
+    "heatmap-2d-n4": ("heatmap-2d-n4", [], SEEDS, "new defaults", "heatmap-2d-n4"),
+    "paper-budget-1of64": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+        3,
+        "1/64 of the paper's 3e11 agent-steps",
+        None,
+    ),
+    "paper-budget-1of8": (
+        "tagging-paper-auto",
+        ["algorithm.budget=3.75e10", "run.probe_seconds=10"],
+        3,
+        "1/8 of the paper's 3e11 agent-steps",
+        None,
+    ),
+}
+
+
+def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path) -> None:
+    cmd = ["cognet-jax", "sweep", experiment, "--seeds", str(seeds), "--no-progress"]
+    for o in ["run.plots=false", *overrides]:
+        cmd += ["--set", o]
+    cmd += ["--out", str(out), "--overwrite"]
+    print(" ".join(cmd), flush=True)
+    subprocess.run(cmd, check=True)
+
+
 def run_cognet(rows: list[str]) -> None:
     for row in rows:
-        out = RESULTS / f"cognet-{row}"
-        cmd = ["cognet-jax", "sweep", ROWS[row][0], "--seeds", str(SEEDS), "--no-progress"]
-        cmd += ["--set", "run.plots=false", "--out", str(out), "--overwrite"]
-        print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, check=True)
+        _sweep(ROWS[row][0], [], SEEDS, RESULTS / f"cognet-{row}")
 
 
-def _agent_steps(config: dict) -> float:
-    from cognet_jax.api import build_env
-    from cognet_jax.registry import config_from_dict
-
-    env, _ = build_env(config_from_dict(config))
-    alg = config["algorithm"]
-    fresh = 3 if alg.get("paired_best") else 2
-    per_iteration = alg["candidates"] * alg["eval_rollouts"] + fresh * alg["best_rollouts"]
-    return alg["iterations"] * per_iteration * env.horizon * env.num_agents
+def run_extra(names: list[str]) -> None:
+    for name in names:
+        experiment, overrides, seeds, _, _ = EXTRA[name]
+        _sweep(experiment, overrides, seeds, RESULTS / name)
 
 
 def _search_cell(path: Path, hand: float | None) -> str:
@@ -127,6 +165,57 @@ def _search_cell(path: Path, hand: float | None) -> str:
         f"seed ({len(values)} seeds in one sweep); {_agent_steps(data['config']):.2g} "
         f"agent-steps ({sizes})"
     )
+
+
+def _values(path: Path) -> list[float] | None:
+    if not path.is_file():
+        return None
+    return [r["final_value"]["mean"] for r in json.loads(path.read_text())["rows"]]
+
+
+def _first_reach(rows: list[dict], target: float) -> str:
+    """Median over seeds of the wall seconds at which the anytime best's honest value (the
+    probes) first reached ``target``; "never" for a seed that did not."""
+    times = []
+    for r in rows:
+        hit = [p["wall_s"] for p in r.get("probes") or [] if p["value"] >= target]
+        times.append(min(hit) if hit else float("inf"))
+    times.sort()
+    median = times[len(times) // 2]
+    shown = ", ".join("never" if t == float("inf") else f"{t:.0f}" for t in times)
+    return f"{'never' if median == float('inf') else f'{median:.0f} s'} ({shown})"
+
+
+#: the hand-written controllers of tagging (SPEC section 8): thesis and COG-DICE paper setting
+TAGGING_REACTIVE = {"thesis": 20.76, "cogdice-paper": 108.0}
+
+
+def extra_table() -> list[str]:
+    rows = [
+        "| sweep | experiment | what it tests | seeds | honest mean (min, max) | earlier "
+        "sweep: mean (min) | agent-steps per run | sweep wall s | time to the hand-written "
+        "controller: median (per seed) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, (experiment, overrides, _, what, earlier) in EXTRA.items():
+        path = RESULTS / name / "runs.json"
+        values = _values(path)
+        if values is None:
+            continue
+        data = json.loads(path.read_text())
+        before = _values(HERE / "results" / "sweeps" / (earlier or "-") / "runs.json")
+        before_cell = f"{sum(before) / len(before):.3f} ({min(before):.3f})" if before else ""
+        setting = data["config"]["env"].get("setting")
+        target = TAGGING_REACTIVE.get(setting) if experiment.startswith("tagging") else None
+        reach = _first_reach(data["rows"], target) if target and "probe" in str(overrides) else ""
+        sets = " ".join(f"`{o}`" for o in overrides)
+        rows.append(
+            f"| {name} | {experiment} {sets} | {what} | {len(values)} | "
+            f"{sum(values) / len(values):.3f} ({min(values):.3f}, {max(values):.3f}) | "
+            f"{before_cell} | {_agent_steps(data['config']):.3g} | {data['wall_s']:.0f} | "
+            f"{reach} |"
+        )
+    return rows
 
 
 def table() -> list[str]:
@@ -166,6 +255,15 @@ The encoded variant needs a VAE trained on the simulator's patches; only the hea
 built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap)."""
 
 
+EXTRA_NOTES = """\
+"Earlier sweep" is the committed 8-seed sweep of the same experiment before tied structures and
+restarts (experiments/results/sweeps, table "COGNet-DICE (default)"). The time to the
+hand-written controller is read from `run.probe_seconds` probes: the wall time (compile
+included, from the start of the sweep's program of all its seeds) at which a seed's anytime best
+first had an honest value at or above the reactive controller's (108.0 on the paper setting);
+probes of a sweep run the seeds side by side, so a single run reaches it sooner."""
+
+
 def write_table() -> None:
     body = [
         "## Continuous-observation suite: hand-written controllers against the defaults",
@@ -174,6 +272,12 @@ def write_table() -> None:
         "",
         NOTES,
         "",
+        "### Ablations, tagging and heatmap under the new defaults, budgets",
+        "",
+        *extra_table(),
+        "",
+        EXTRA_NOTES,
+        "",
         f"Generated by `python experiments/suite.py`; machine: {machine()}.",
     ]
     replace_block("suite", "\n".join(body))
@@ -181,7 +285,7 @@ def write_table() -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("what", nargs="?", choices=["hand", "cognet"], default=None)
+    p.add_argument("what", nargs="?", choices=["hand", "cognet", "extra"], default=None)
     p.add_argument("rows", nargs="*", help=f"default: all of {', '.join(ROWS)}")
     p.add_argument("--table-only", action="store_true")
     args = p.parse_args(argv)
@@ -194,6 +298,8 @@ def main(argv=None) -> int:
             run_hand(rows)
         if args.what in (None, "cognet"):
             run_cognet(rows)
+        if args.what in (None, "extra"):
+            run_extra(list(EXTRA))
     write_table()
     return 0
 

@@ -55,3 +55,12 @@ def as_a_user(env: dict) -> dict:
     """``env`` as a user's process has it: no ``JAX_*`` variable (the suite's compilation
     cache and optimisation setting) and none of ``SUITE_XLA_FLAGS``."""
     return without_suite_xla_flags({k: v for k, v in env.items() if not k.startswith("JAX_")})
+
+
+#: ``cognet-jax train`` flags of the default experiment at a size tests afford
+TINY_TRAIN = [
+    *("--set", "algorithm.iterations=2", "--set", "algorithm.candidates=8"),
+    *("--set", "algorithm.eval_rollouts=4", "--set", "algorithm.elites=2"),
+    *("--set", "algorithm.best_rollouts=10", "--set", "evaluation.rollouts=50"),
+    *("--set", "run.plots=false", "--no-progress"),
+]

@@ -6,30 +6,16 @@ from __future__ import annotations
 
 import json
 
+from shared_files import TINY_TRAIN
+
 from cognet_jax import cli
 
-TINY = [
-    "--set",
-    "algorithm.iterations=6",
-    "--set",
-    "algorithm.candidates=8",
-    "--set",
-    "algorithm.eval_rollouts=4",
-    "--set",
-    "algorithm.elites=2",
-    "--set",
-    "algorithm.best_rollouts=10",
-    "--set",
-    "evaluation.rollouts=50",
-    "--set",
-    "run.plots=false",
-    "--no-progress",
-]
+SIX = [*TINY_TRAIN, "--set", "algorithm.iterations=6"]
 
 
 def test_probes_record_when_the_best_changed_with_honest_values(tmp_path):
     out = tmp_path / "run"
-    assert cli.main(["train", "--out", str(out), "--set", "run.probe_seconds=1e-9", *TINY]) == 0
+    assert cli.main(["train", "--out", str(out), "--set", "run.probe_seconds=1e-9", *SIX]) == 0
     record = json.loads((out / "results.json").read_text())
     probes = record["probes"]
     assert probes and [p["iteration"] for p in probes] == sorted({p["iteration"] for p in probes})
@@ -37,5 +23,5 @@ def test_probes_record_when_the_best_changed_with_honest_values(tmp_path):
     assert walls == sorted(walls) and walls[-1] <= record["wall_s"]
     assert probes[-1]["value"] == record["final_value"]["mean"]
     plain = tmp_path / "plain"
-    assert cli.main(["train", "--out", str(plain), *TINY]) == 0
+    assert cli.main(["train", "--out", str(plain), *SIX]) == 0
     assert "probes" not in json.loads((plain / "results.json").read_text())

@@ -7,41 +7,24 @@ from __future__ import annotations
 import json
 
 import pytest
+from shared_files import TINY_TRAIN
 
 from cognet_jax import cli, registry
 from cognet_jax.checkpoint import policy_bytes, read_policy
 from cognet_jax.errors import MismatchError, UsageError
 from cognet_jax.run_folder import check_out, claim
 
-TINY = [
-    "--set",
-    "algorithm.iterations=2",
-    "--set",
-    "algorithm.candidates=8",
-    "--set",
-    "algorithm.eval_rollouts=4",
-    "--set",
-    "algorithm.elites=2",
-    "--set",
-    "algorithm.best_rollouts=10",
-    "--set",
-    "evaluation.rollouts=50",
-    "--set",
-    "run.plots=false",
-    "--no-progress",
-]
-
 
 def test_an_existing_run_is_refused_unless_resumed_or_overwritten(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.main(["train", "--out", str(out), *TINY]) == 0
+    assert cli.main(["train", "--out", str(out), *TINY_TRAIN]) == 0
     first = (out / "results.json").read_bytes()
     capsys.readouterr()
-    assert cli.main(["train", "--out", str(out), "--seed", "1", *TINY]) == 2
+    assert cli.main(["train", "--out", str(out), "--seed", "1", *TINY_TRAIN]) == 2
     err = capsys.readouterr().err
     assert "already holds a run" in err and "--resume" in err and "--overwrite" in err
     assert (out / "results.json").read_bytes() == first  # untouched
-    assert cli.main(["train", "--out", str(out), "--seed", "1", "--overwrite", *TINY]) == 0
+    assert cli.main(["train", "--out", str(out), "--seed", "1", "--overwrite", *TINY_TRAIN]) == 0
     assert json.loads((out / "results.json").read_text())["seed"] == 1
 
 
@@ -122,7 +105,7 @@ def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
         "register_env('bad-beacon-test', beacon.BeaconSection, build)\n"
     )
     args = ["--import", str(plugin), "train", "beacon-n5", "--set", "env.name=bad-beacon-test"]
-    assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY]) == 2
+    assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY_TRAIN]) == 2
     err = capsys.readouterr().err
     assert "simulator 'bad-beacon-test' (badsim.Bad)" in err and "expected floating [3, 2]" in err
     (tmp_path / "exits.py").write_text("import sys\nsys.exit(7)\n")

@@ -27,6 +27,21 @@ Q nodes, F network inputs):
   Gaussian over a dense output layer averages the roles of different elites; in prototypes (not
   kept) it stalled below the reactive controller on tagging n3.
 
+**Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
+draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
+depends on the observation only, the reactive controllers practitioners write) and whether
+every agent runs agent 0's whole controller (``agent_tie``, when the agents have the same
+actions). Both are categoricals refit to the elites like the others; the Gaussians are refit to
+the weights the candidates ran, so a tied elite teaches every node. A problem that needs
+memory or asymmetric agents unties them (the Dec-Tiger counters do).
+
+**Restarts** (``restart_tol``, **[choice]**): once the hidden layer's Gaussians have shrunk
+below ``restart_tol`` of their initial spread the distribution has converged (the elites agree
+and the search draws nearly one controller); the next iteration starts from the initial
+distribution again, the anytime best kept. A larger budget then buys further independent
+searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets another
+start (metrics ``injected`` marks the iterations that restarted).
+
 **Input standardisation** (``standardize_inputs``, **[choice]**, off by default): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
 ``scale [agents, F]`` are the features' mean and standard deviation over the observations of
