@@ -15,11 +15,12 @@ import dataclasses
 import functools
 import importlib
 import itertools
+import sys
 
 import jax
 import numpy as np
 
-from cognet_jax.registry import BUILTIN_ENVS
+from cognet_jax.registry import BUILTIN_ENVS, env_entry
 from cognet_jax.rollout import rollouts
 
 #: keys of the grid search and of the fresh evaluation of its winner
@@ -39,8 +40,13 @@ class Tuned:
 
 
 def simulator_module(env_name: str):
-    """The built-in module of simulator ``env_name`` (``ValueError`` for one without)."""
-    module = importlib.import_module(BUILTIN_ENVS[env_name])
+    """The module of simulator ``env_name``: the built-in one, or the module that registered
+    it (a plug-in may ship ``hand_controller`` and ``HAND_GRID`` too); ``ValueError`` for one
+    without a hand-written controller."""
+    if env_name in BUILTIN_ENVS:
+        module = importlib.import_module(BUILTIN_ENVS[env_name])
+    else:
+        module = sys.modules[env_entry(env_name).build.__module__]
     if not hasattr(module, "hand_controller"):
         raise ValueError(f"simulator {env_name!r} has no hand-written controller")
     return module

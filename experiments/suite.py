@@ -43,12 +43,22 @@ ROWS = {
     "bearing-chase": ("bearing-chase-n5", "bearings (0.3 rad), moving target, h 50, gamma 0.9"),
     "plume": ("plume-n5", "3 x 3 image patch (std 0.05), static source, h 20"),
     "box-push": ("box-push-n3", "range sensor (std 1), joint push only, h 100, gamma 0.9"),
+    "readme-seek": (
+        str(HERE / "readme-seek-n3.toml"),
+        "the README's user simulator, loaded with --import (experiments/readme_seek.py): "
+        "signed distance (std 0.3), static goal, h 20, gamma 0.95",
+    ),
 }
+#: rows whose simulator is a module outside the package, imported as --import does
+IMPORTS = {"readme-seek": HERE / "readme_seek.py"}
 
 
 def _config(row: str):
+    from cognet_jax.cli import import_plugin
     from cognet_jax.registry import load_config
 
+    if row in IMPORTS:
+        import_plugin(str(IMPORTS[row]))
     return load_config(ROWS[row][0])
 
 
@@ -128,8 +138,8 @@ EXTRA = {
 }
 
 
-def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path) -> None:
-    cmd = ["cognet-jax", "sweep", experiment, "--seeds", str(seeds), "--no-progress"]
+def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path, imports=()) -> None:
+    cmd = ["cognet-jax", *imports, "sweep", experiment, "--seeds", str(seeds), "--no-progress"]
     for o in ["run.plots=false", *overrides]:
         cmd += ["--set", o]
     cmd += ["--out", str(out), "--overwrite"]
@@ -139,7 +149,8 @@ def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path) -> None
 
 def run_cognet(rows: list[str]) -> None:
     for row in rows:
-        _sweep(ROWS[row][0], [], SEEDS, RESULTS / f"cognet-{row}")
+        imports = ["--import", str(IMPORTS[row])] if row in IMPORTS else []
+        _sweep(ROWS[row][0], [], SEEDS, RESULTS / f"cognet-{row}", imports)
 
 
 def run_extra(names: list[str]) -> None:
@@ -219,6 +230,10 @@ def extra_table() -> list[str]:
 
 
 def table() -> list[str]:
+    from cognet_jax.cli import import_plugin
+
+    for path in IMPORTS.values():  # the configs of their sweeps name their simulators
+        import_plugin(str(path))
     rows = [
         "| problem | what it covers | hand-written controller: grid -> tuned, value | upper "
         "bound | COG-DICE defaults | COGNet-DICE defaults: 8-seed mean, min; wall; agent-steps "
@@ -238,8 +253,9 @@ def table() -> list[str]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
         cogdice = _search_cell(RESULTS / f"cogdice-{row}" / "runs.json", hand)
+        name = Path(experiment).name if row in IMPORTS else experiment
         rows.append(
-            f"| {row} (`{experiment}`) | {what} | {hand_cell} | {bound_cell} | {cogdice} | "
+            f"| {row} (`{name}`) | {what} | {hand_cell} | {bound_cell} | {cogdice} | "
             f"{cognet} | n/a |"
         )
     return rows
