@@ -39,7 +39,13 @@ from cognet_jax.envs.base import check_simulator
 from cognet_jax.errors import ResourceError
 from cognet_jax.memory import budget_bytes, gb
 from cognet_jax.prng import make_key
-from cognet_jax.registry import algorithm_entry, config_from_dict, env_entry, validate
+from cognet_jax.registry import (
+    algorithm_entry,
+    config_from_dict,
+    env_entry,
+    is_builtin,
+    validate,
+)
 from cognet_jax.rollout import mean_and_stderr
 
 
@@ -141,7 +147,9 @@ def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
     ``run.memory_gb`` is shared by ``lanes`` searches run side by side (a sweep's runs)."""
     if env is None:
         env, env_params = build_env(config)
-    check_simulator(env, env_params, config.env.name)
+    check_simulator(
+        env, env_params, config.env.name, values=not is_builtin(env_entry(config.env.name))
+    )
     check_budget(config, env)
     entry = algorithm_entry(config.experiment.algorithm)
     memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)

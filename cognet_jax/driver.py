@@ -429,6 +429,11 @@ def return_summary(returns) -> dict:
     ``InputError`` when a return is not finite (float32 overflowed: rewards too large for the
     horizon)."""
     returns = np.asarray(returns, dtype=np.float64)
+    if np.isnan(returns).any():
+        raise InputError(
+            "the returns are NaN: the simulator's rewards are NaN on some states (or an "
+            "infinite reward met its negative)"
+        )
     if not np.isfinite(returns).all():
         raise InputError(
             "the returns are not finite: the rewards overflow float32 over this horizon "

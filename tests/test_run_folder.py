@@ -108,6 +108,15 @@ def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
     assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY_TRAIN]) == 2
     err = capsys.readouterr().err
     assert "simulator 'bad-beacon-test' (badsim.Bad)" in err and "expected floating [3, 2]" in err
+    nan = tmp_path / "nansim.py"
+    nan.write_text(
+        plugin.read_text()
+        .replace("obs[:, :1]", "obs * jnp.nan")
+        .replace("bad-beacon-test", "nan-beacon-test")
+    )
+    args = ["--import", str(nan), "train", "beacon-n5", "--set", "env.name=nan-beacon-test"]
+    assert cli.main([*args, "--out", str(tmp_path / "n"), *TINY_TRAIN]) == 2
+    assert "step returned a NaN observation" in capsys.readouterr().err
     (tmp_path / "exits.py").write_text("import sys\nsys.exit(7)\n")
     assert cli.main(["--import", str(tmp_path / "exits.py"), "list"]) == 2
     assert "exited with status 7" in capsys.readouterr().err

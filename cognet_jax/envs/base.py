@@ -188,12 +188,14 @@ def dynamic_fields(params_cls) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(params_cls))
 
 
-def check_simulator(env, env_params, name: str) -> None:
+def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     """Trace ``env.reset`` and ``env.step`` once on abstract values (``jax.eval_shape``: no
     computation) and refuse, with a ``SimulatorError`` naming the simulator, its code and what
     was expected against what it returned: a function that raises, an observation of another
     shape or dtype than ``[agents, *obs_shape]`` (int32 ``[agents]`` for discrete ones), a
-    reward that is not one number, a state whose arrays change shape or dtype in a step."""
+    reward that is not one number, a state whose arrays change shape or dtype in a step; with
+    ``values``, also NaN or infinite observations and rewards of one step (computed: about a
+    second of tracing and dispatch, spent on simulators outside the package only)."""
     owner = f"simulator {name!r} ({type(env).__module__}.{type(env).__name__})"
     u_reset = jax.ShapeDtypeStruct((env.reset_noise,), jnp.float32)
     u_step = jax.ShapeDtypeStruct((env.step_noise,), jnp.float32)
@@ -232,6 +234,26 @@ def check_simulator(env, env_params, name: str) -> None:
             f"{owner}: step returned a reward {reward.dtype}{list(reward.shape)}, expected one "
             "float (the joint reward, a shape () array)"
         )
+    if values:
+        _check_values(env, env_params, owner)
+
+
+def _check_values(env, env_params, owner: str) -> None:
+    """One reset and one step of every joint action's first agent moves (all agents taking
+    action a, for each a), on fixed uniforms: a NaN or infinite observation or reward is
+    refused here rather than turned into a search over NaN."""
+    u = np.random.default_rng(0).uniform(size=env.reset_noise + env.step_noise)
+    u = jnp.asarray(u, jnp.float32)
+    state = env.reset(u[: env.reset_noise], env_params)
+    actions = jnp.arange(min(env.action_counts), dtype=jnp.int32)[:, None]
+    actions = jnp.broadcast_to(actions, (actions.shape[0], env.num_agents))
+    step = jax.vmap(lambda a: env.step(u[env.reset_noise :], state, a, env_params)[1:])
+    obs, reward = step(actions)
+    for what, x in (("observation", obs), ("reward", reward)):
+        x = np.asarray(x)
+        if jnp.issubdtype(x.dtype, jnp.floating) and not np.isfinite(x).all():
+            kind = "NaN" if np.isnan(x).any() else "infinite"
+            raise SimulatorError(f"{owner}: step returned a {kind} {what} ({x.ravel()[:4]} ...)")
 
 
 def _shapes(tree) -> str:
