@@ -43,11 +43,15 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False):
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out}: exists and is not a folder")
     found = held_run(out) if out.is_dir() else None
+    found = found if found is None or (out / found).is_file() else None
     if found and not resume and not overwrite:
         raise UsageError(
             f"{out} already holds a run ({found}); continue it with --resume {out}, "
             f"or replace it with --overwrite"
         )
+    for name in (*RUN_FILES, "policy.msgpack"):
+        if (out / name).is_dir():
+            raise UsageError(f"{out / name} is a folder; the run writes a file of that name")
     try:
         out.mkdir(parents=True, exist_ok=True)
         fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)

@@ -44,6 +44,10 @@ def test_an_empty_out_and_an_unwritable_folder_are_refused(tmp_path):
     with pytest.raises(UsageError, match="not a folder"):
         with claim(tmp_path / "file"):
             pass
+    (tmp_path / "run" / "results.json").mkdir(parents=True)
+    with pytest.raises(UsageError, match="results.json is a folder"):
+        with claim(tmp_path / "run", overwrite=True):
+            pass
     with pytest.raises(UsageError, match="cannot write there"):
         with claim(tmp_path / "file" / "sub"):
             pass
@@ -120,3 +124,18 @@ def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
     (tmp_path / "exits.py").write_text("import sys\nsys.exit(7)\n")
     assert cli.main(["--import", str(tmp_path / "exits.py"), "list"]) == 2
     assert "exited with status 7" in capsys.readouterr().err
+
+
+def test_a_failed_write_names_the_file_and_keeps_the_previous_one(tmp_path, monkeypatch):
+    from cognet_jax import checkpoint
+
+    path = tmp_path / "results.json"
+    checkpoint.atomic_write_text(path, "old")
+
+    def full(fd, data):
+        raise OSError(27, "File too large")
+
+    monkeypatch.setattr(checkpoint.os, "fsync", lambda fd: full(fd, None))
+    with pytest.raises(OSError, match=f"cannot write {path}: File too large"):
+        checkpoint.atomic_write_text(path, "new")
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["results.json"]
