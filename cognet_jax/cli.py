@@ -519,6 +519,8 @@ def _sweep(args) -> int:
         out = Path(args.out or f"runs/sweep-{Path(experiment).stem}")
     processes = args.num_processes or 1
     total = len(seeds) * math.prod(len(v) for v in grid.values())
+    if not args.resume:
+        _size_sweep(experiment, overrides, len(seeds), total)
     set_cpu_devices(args.cpu_devices, -(-total // processes))
     init_distributed(args)
     import jax
@@ -538,6 +540,35 @@ def _sweep(args) -> int:
         _STOPPED["signum"] = err.signum
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
+
+
+#: a sweep of more runs than this is announced with its estimate before it is prepared
+MANY_RUNS = 1000
+
+
+def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -> None:
+    """Refuse, before anything is built for each run, a sweep whose runs together take more
+    than ``api.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
+    announce a large one (over ``MANY_RUNS`` runs, or over ``api.LONG_SECONDS``)."""
+    from cognet_jax.api import ABSURD_SECONDS, LONG_SECONDS, build_env, check_budget
+
+    config = load_config(experiment, overrides)
+    seconds = check_budget(config, build_env(config)[0]) * total
+    settings = total // max(seeds, 1)
+    what = f"{total} runs ({settings} settings x {seeds} seeds)"
+    if seconds > ABSURD_SECONDS:
+        field = "seeds" if seeds >= settings else "grid"
+        raise ConfigError(
+            field,
+            f"the sweep's {what} simulate at least {seconds / 86400:.0f} days together, over "
+            f"the limit of {ABSURD_SECONDS / 86400:.0f} days",
+        )
+    if total > MANY_RUNS or seconds > LONG_SECONDS:
+        print(
+            f"sweep: {what}, at least {seconds / 3600:.2f} h of simulation; preparing them ...",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main_process) -> int:
