@@ -36,6 +36,8 @@ import jax.numpy as jnp
 
 from cognet_jax.config import ConfigError, require, require_positive
 from cognet_jax.controllers.neural import NeuralController
+from cognet_jax.memory import trace_checked
+from cognet_jax.rollout import rollouts
 from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae
 
 KINDS = ("raw", "encoded")
@@ -188,3 +190,26 @@ def build_pipeline(config, env) -> ObservationPipeline:
         vae=vae,
         augment_samples=net.augment_samples if net.augment else 0,
     )
+
+
+#: Rollouts of the uniformly random controller that give the input statistics.
+STATS_ROLLOUTS = 4096
+
+
+def input_statistics(env, controller, pipeline, env_params, memory=None):
+    """``(mean, scale) [agents, F]`` of the networks' input features over the observations
+    of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
+    ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
+    ``memory`` bytes (``memory.trace_checked``)."""
+    template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
+    uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+    record = jax.jit(
+        lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
+    )
+    what = f"the input statistics ({STATS_ROLLOUTS} recorded rollouts)"
+    trace_checked(record, (jax.random.key(0),), memory, what)
+    traj = record(jax.random.key(0))
+    feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
+    feats = feats.reshape(feats.shape[:3] + (-1,))
+    mean, std = feats.mean((0, 1)), feats.std((0, 1))
+    return mean, jnp.where(std > 1e-6, std, 1.0)

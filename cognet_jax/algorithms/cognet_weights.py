@@ -99,6 +99,7 @@ from cognet_jax.algorithms.cross_entropy import (
     smooth,
 )
 from cognet_jax.algorithms.engine import Search, SearchParams, streams
+from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.config import (
     NetworkSection,
     require,
@@ -108,16 +109,15 @@ from cognet_jax.config import (
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
-from cognet_jax.memory import trace_checked
 from cognet_jax.observations import (
     ObservationPipeline,
     build_pipeline,
     check_network,
+    input_statistics,
     neural_controller,
 )
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import fields_from, register_algorithm
-from cognet_jax.rollout import rollouts
 
 
 @struct.dataclass
@@ -233,65 +233,6 @@ class CognetWeightsSection:
         require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
 
 
-# ---------------------------------------------------------------------------------------------
-# sizes from the budget: the "auto" settings as rules over the problem's sizes
-# ---------------------------------------------------------------------------------------------
-#: the settings ``sized`` fills in when they are "auto"
-SIZE_FIELDS = ("iterations", "candidates", "eval_rollouts", "elites")
-#: default budget, in rollouts of the search (``budget = "auto"``: this x horizon x agents
-#: agent-steps): the same number of episodes on every problem
-AUTO_BUDGET_ROLLOUTS = 3e7
-#: population of the cross-entropy method, and the elites' share of it
-AUTO_CANDIDATES = 200
-ELITE_FRACTION = 0.05
-#: iterations are ``budget rollouts / (candidates x EVAL_ROLLOUTS_BASE)`` within this range:
-#: the distribution needs about a hundred refits with smoothing 0.3 to settle, and beyond a
-#: few hundred, evaluations of less noise pay more than further refits (shared/FINDINGS.md)
-ITERATIONS_RANGE = (100, 400)
-EVAL_ROLLOUTS_BASE = 250
-#: rollouts per candidate, after the iterations are set: what the budget leaves, in this
-#: range; a budget beyond the largest grows the population instead
-EVAL_ROLLOUTS_RANGE = (10, 1000)
-
-
-def sized(section: CognetWeightsSection, env) -> CognetWeightsSection:
-    """``section`` with its "auto" sizes filled in from the budget ``B`` (agent-steps;
-    ``AUTO_BUDGET_ROLLOUTS x h x n`` by default) on a simulator of horizon ``h`` and ``n``
-    agents, ``R = B / (h n)`` rollouts:
-
-    * candidates ``C = AUTO_CANDIDATES``, elites ``max(2, ELITE_FRACTION x C)``;
-    * iterations ``I = R / (C x EVAL_ROLLOUTS_BASE)`` clipped to ``ITERATIONS_RANGE``;
-    * rollouts per candidate ``K = R / (C x I)`` clipped to ``EVAL_ROLLOUTS_RANGE``;
-    * when ``K`` is at its largest, ``C = R / (I x K)``: a larger budget always buys more
-      iterations, then less noise per candidate, then a larger population.
-
-    Settings given as numbers are kept, and the others sized around them."""
-    values = {f: getattr(section, f) for f in SIZE_FIELDS}
-    if all(v != "auto" for v in values.values()):
-        return section
-    per_rollout = env.horizon * env.num_agents
-    budget = AUTO_BUDGET_ROLLOUTS * per_rollout if section.budget == "auto" else section.budget
-    rollouts = max(1.0, budget / per_rollout)
-
-    def given_or(name, rule):
-        return values[name] if values[name] != "auto" else rule()
-
-    lo_i, hi_i = ITERATIONS_RANGE
-    lo_k, hi_k = EVAL_ROLLOUTS_RANGE
-    c = given_or("candidates", lambda: AUTO_CANDIDATES)
-    i = given_or(
-        "iterations",
-        lambda: max(1, round(min(hi_i, max(lo_i, rollouts / (c * EVAL_ROLLOUTS_BASE))))),
-    )
-    k = given_or("eval_rollouts", lambda: int(min(hi_k, max(lo_k, rollouts / (c * i)))))
-    if values["candidates"] == "auto" and k >= hi_k and rollouts / (i * k) > c:
-        c = int(rollouts / (i * k))
-    if values["iterations"] == "auto" and rollouts < c * lo_i * k:  # a budget below the range
-        i = max(1, int(rollouts / (c * k)))
-    e = given_or("elites", lambda: max(2, round(ELITE_FRACTION * c)))
-    return dataclasses.replace(section, iterations=i, candidates=c, eval_rollouts=k, elites=e)
-
-
 def rollouts_per_iteration(s) -> int:
     """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
     evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
@@ -316,10 +257,6 @@ WeightsSettings = settings_class(
     exclude=("alpha", "action_floor", "category_floor"),
     extra=((NetworkSection, "hidden"),),
 )
-
-
-#: Rollouts of the uniformly random controller that give the input statistics.
-STATS_ROLLOUTS = 4096
 
 
 @struct.dataclass
@@ -374,25 +311,6 @@ def _gaussian_refit(mean, std, elite_draws, alpha):
         alpha * elite_draws.mean(0) + (1.0 - alpha) * mean,
         alpha * elite_draws.std(0) + (1.0 - alpha) * std,
     )
-
-
-def input_statistics(env, controller, pipeline, env_params, memory=None):
-    """``(mean, scale) [agents, F]`` of the networks' input features over the observations
-    of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
-    ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
-    ``memory`` bytes (``memory.trace_checked``)."""
-    template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
-    uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
-    record = jax.jit(
-        lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
-    )
-    what = f"the input statistics ({STATS_ROLLOUTS} recorded rollouts)"
-    trace_checked(record, (jax.random.key(0),), memory, what)
-    traj = record(jax.random.key(0))
-    feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
-    feats = feats.reshape(feats.shape[:3] + (-1,))
-    mean, std = feats.mean((0, 1)), feats.std((0, 1))
-    return mean, jnp.where(std > 1e-6, std, 1.0)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -519,7 +437,8 @@ class CognetWeights(Search):
         self, dist: WeightDistribution, elites: WeightSample, hyper: WeightsHyper
     ) -> WeightDistribution:
         """Refit to ``elites`` (leading ``[E]`` axis) with smoothing, then the uniform floors."""
-        alpha, q = hyper.alpha, self.settings.nodes
+        s = self.settings
+        alpha, q = hyper.alpha, s.nodes
 
         def categorical(old, draws, k, floor, support=None):
             counts = count_table(jnp.moveaxis(draws, 0, -1), k)
@@ -550,7 +469,7 @@ class CognetWeights(Search):
             bias_mean=bias_mean,
             bias_std=bias_std,
             node_tie_probs=categorical(
-                dist.node_tie_probs, elites.node_tie, 2, hyper.category_floor * self._ties
+                dist.node_tie_probs, elites.node_tie, 2, hyper.category_floor * s.tie_structure
             ),
             agent_tie_probs=categorical(
                 dist.agent_tie_probs,
@@ -559,10 +478,6 @@ class CognetWeights(Search):
                 hyper.category_floor * self._agents_can_tie,
             ),
         )
-
-    @property
-    def _ties(self) -> bool:
-        return self.settings.tie_structure
 
     # ---------------------------------------------------------------- protocol
     def init(self, key: jax.Array, params: SearchParams) -> WeightsState:
