@@ -147,14 +147,21 @@ def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
     ``run.memory_gb`` is shared by ``lanes`` searches run side by side (a sweep's runs)."""
     if env is None:
         env, env_params = build_env(config)
-    check_simulator(
-        env, env_params, config.env.name, values=not is_builtin(env_entry(config.env.name))
-    )
+    check_simulator(env, env_params, config.env.name, values=not _builtin_env(config))
     check_budget(config, env)
     entry = algorithm_entry(config.experiment.algorithm)
     memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
     algorithm = entry.build(config, env, env_params, memory)
     return algorithm, params_of(config, env_params)
+
+
+def _builtin_env(config: Config) -> bool:
+    """Whether ``config`` names the package's own simulator (not a user's object, as
+    ``make_algorithm`` passes, nor a registration from outside the package)."""
+    try:
+        return is_builtin(env_entry(config.env.name))
+    except ConfigError:  # an object without a registered name
+        return False
 
 
 def make_env(name: str, algorithm: str = "cognet-dice", **settings):

@@ -254,8 +254,7 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callabl
         try:
             if not _fits(exported, out_tree, args):
                 raise ValueError("its arguments or outputs differ from the program's")
-            with _native_stderr_silenced():  # MLIR prints its own lines for a torn file
-                compiled = jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile()
+            compiled = jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile()
             return _caller(compiled, out_tree)
         except Exception as err:
             _discard(path, err)
@@ -292,26 +291,6 @@ def _discard(path: Path, err: BaseException) -> None:
             f"({path.name[:12]}: {reason})",
             file=sys.stderr,
         )
-
-
-@contextlib.contextmanager
-def _native_stderr_silenced():
-    """File descriptor 2 pointed at /dev/null while the block runs (native libraries write
-    there directly, past ``sys.stderr``)."""
-    try:
-        saved = os.dup(2)
-        null = os.open(os.devnull, os.O_WRONLY)
-    except OSError:
-        yield
-        return
-    try:
-        sys.stderr.flush()
-        os.dup2(null, 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(null)
 
 
 __all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]

@@ -151,3 +151,16 @@ def pytest_sessionfinish(session):
     shutil.rmtree(_CACHE, ignore_errors=True)
     # the traced programs kept beside it (cognet_jax.traced.trace_cache_dir)
     shutil.rmtree(_CACHE.with_name(_CACHE.name + "-traced"), ignore_errors=True)
+
+
+@pytest.fixture(autouse=True)
+def _foreign_code_per_test():
+    """A test that runs ``--import`` in this process records the module as foreign code
+    (``registry.note_foreign_code``: no kept programs, policies record it); the record is
+    the test's own, so later tests of the worker keep their programs as a fresh process does."""
+    from cognet_jax import registry
+
+    saved = dict(registry._FOREIGN_CODE)
+    yield
+    registry._FOREIGN_CODE.clear()
+    registry._FOREIGN_CODE.update(saved)

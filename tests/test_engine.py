@@ -220,14 +220,17 @@ def test_weight_search_values_winner_and_mode_on_their_own_streams():
         v_winner = algorithm.fresh_value(s.best, winner, params)
         v_mode = algorithm.fresh_value(s.other, mode, params)
         reused = algorithm.fresh_value(s.evaluate, winner, params)
-        return metrics.value, v_winner, v_mode, reused, values.max()
+        # every candidate on the best stream and on the evaluate stream (a winner whose
+        # return is the same on every stream, e.g. one that never tags, shows nothing)
+        on = lambda k: jax.vmap(lambda p: algorithm.fresh_value(k, p, params))(policies)  # noqa: E731
+        return metrics.value, v_winner, v_mode, reused, values.max(), on(s.best), on(s.evaluate)
 
-    value, v_winner, v_mode, reused, in_loop = (
-        float(x) for x in iteration(jax.random.key(3), state)
+    value, v_winner, v_mode, reused, in_loop, on_best, on_evaluate = iteration(
+        jax.random.key(3), state
     )
-    assert value == pytest.approx(max(v_winner, v_mode), rel=1e-6)
-    assert reused == pytest.approx(in_loop, rel=1e-6)
-    assert v_winner != in_loop
+    assert float(value) == pytest.approx(max(float(v_winner), float(v_mode)), rel=1e-6)
+    assert float(reused) == pytest.approx(float(in_loop), rel=1e-6)
+    assert not np.allclose(np.asarray(on_best), np.asarray(on_evaluate))
 
 
 @pytest.mark.parametrize("name", ["cognet-dice-thesis", "cognet-dice-thesis-separate"])
