@@ -372,13 +372,16 @@ class CognetWeights(Search):
         """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
         ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
         about 3 s slower)."""
-        ks = jax.random.split(fast_key(key), 9)
+        ties = self.settings.tie_structure
+        ks = jax.random.split(fast_key(key), 9 if ties else 7)  # untied: the draws of before
 
         def normal(k, mean, std):
             return mean + std * jax.random.normal(k, (num,) + mean.shape, jnp.float32)
 
         def categorical(k, probs):
             return sample_categorical(jax.random.uniform(k, (num,) + probs.shape[:-1]), probs)
+
+        untied = (jnp.zeros((num, self.env.num_agents), jnp.int32), jnp.zeros(num, jnp.int32))
 
         sample = WeightSample(
             actions=categorical(ks[0], dist.action_probs),
@@ -388,10 +391,10 @@ class CognetWeights(Search):
             m=normal(ks[4], dist.m_mean, dist.m_std),
             default=categorical(ks[5], dist.default_probs),
             bias=normal(ks[6], dist.bias_mean, dist.bias_std),
-            node_tie=categorical(ks[7], dist.node_tie_probs),
-            agent_tie=categorical(ks[8], dist.agent_tie_probs),
+            node_tie=categorical(ks[7], dist.node_tie_probs) if ties else untied[0],
+            agent_tie=categorical(ks[8], dist.agent_tie_probs) if ties else untied[1],
         )
-        return tie(sample) if self.settings.tie_structure else sample
+        return tie(sample) if ties else sample
 
     def mode(self, dist: WeightDistribution) -> WeightSample:
         """The most likely controller: Gaussian means and the most likely categories."""
