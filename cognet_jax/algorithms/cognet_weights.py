@@ -382,7 +382,6 @@ class CognetWeights(Search):
             return sample_categorical(jax.random.uniform(k, (num,) + probs.shape[:-1]), probs)
 
         untied = (jnp.zeros((num, self.env.num_agents), jnp.int32), jnp.zeros(num, jnp.int32))
-
         sample = WeightSample(
             actions=categorical(ks[0], dist.action_probs),
             w1=normal(ks[1], dist.w1_mean, dist.w1_std),
