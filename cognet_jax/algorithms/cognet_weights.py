@@ -544,6 +544,7 @@ class CognetWeights(Search):
             improved = value > v_best
             progress = progress.replace(best_value=jnp.maximum(value, v_best))
         best_policy = select_tree(improved, candidate, state.best_policy)
+        converged = self.converged(dist)
         metrics = WeightsMetrics(
             value=value,
             best_value=progress.best_value,
@@ -551,16 +552,15 @@ class CognetWeights(Search):
             winner_value=elite_values[0],
             threshold=elite_values[-1],
             kept=jnp.int32(s.elites),
-            injected=self.converged(dist),
+            injected=converged,
         )
         if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
-            dist = select_tree(self.converged(dist), self.init_distribution(), dist)
+            dist = select_tree(converged, self.init_distribution(), dist)
         return WeightsState(distribution=dist, best_policy=best_policy, progress=progress), metrics
 
     def converged(self, dist: WeightDistribution) -> jax.Array:
         """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
-        standard deviation (mean over agents, nodes and weights): the search then draws
-        nearly one controller, and only a restart explores again."""
+        spread (mean over agents, nodes and weights): only a restart explores again."""
         s = self.settings
         initial = s.init_scale / math.sqrt(self.controller.in_features)
         return jnp.mean(dist.w1_std) < s.restart_tol * initial

@@ -239,9 +239,9 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
 
 
 def _check_values(env, env_params, owner: str) -> None:
-    """One reset and one step of every joint action's first agent moves (all agents taking
-    action a, for each a), on fixed uniforms: a NaN or infinite observation or reward is
-    refused here rather than turned into a search over NaN."""
+    """One reset, then one step for each action ``a`` with every agent taking ``a``, on fixed
+    uniforms: a NaN or infinite observation or reward is refused here rather than turned into
+    a search over NaN."""
     u = np.random.default_rng(0).uniform(size=env.reset_noise + env.step_noise)
     u = jnp.asarray(u, jnp.float32)
     state = env.reset(u[: env.reset_noise], env_params)
