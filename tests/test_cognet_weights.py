@@ -9,12 +9,12 @@ import pytest
 
 from cognet_jax.algorithms.cognet_weights import (
     CognetWeights,
-    WeightSample,
     WeightsHyper,
     WeightsSettings,
     input_statistics,
 )
 from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.algorithms.weight_space import WeightSample
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
 from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
@@ -149,7 +149,7 @@ def test_bad_settings_name_the_field(field, value):
 def test_thesis_algorithm_keeps_its_own_name():
     config = load_config("tagging-thesis-spec-n3")
     assert config.experiment.algorithm == "cognet-dice-thesis"
-    assert type(build_algorithm(config)[0]).__name__ == "CognetDice"
+    assert type(build_algorithm(config)[0]).__name__ == "CognetThesis"
     assert type(build_algorithm(load_config("tagging-thesis-n3"))[0]).__name__ == "CognetWeights"
 
 
@@ -198,7 +198,7 @@ def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rol
     """A step whose candidates are all much worse than the best so far keeps the best policy
     (and reports its own paired estimate as the best value, no stale maximum); a best that a
     challenger beats is replaced."""
-    alg, params = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
+    alg, params = small_algorithm(paired_best=True, best_pool=0, best_rollouts=200, elites=2)
     state = alg.init(jax.random.key(0), params)
     assert alg.rollouts_per_iteration == 8 * 16 + 3 * 200
     # a known good reactive controller as the best so far
@@ -213,6 +213,33 @@ def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rol
     new, metrics = jax.jit(alg.step)(jax.random.key(1), state.replace(best_policy=bad), params)
     assert not bool(jnp.all(new.best_policy.action_probs == bad.action_probs))
     assert float(metrics.best_value) > -120.0
+
+
+def test_the_pool_keeps_its_member_with_the_best_bound_as_the_best_policy():
+    """With ``best_pool`` the best policy is the pool's member with the largest lower
+    confidence bound, its value the member's mean over the iterations it was raced; a known
+    good controller put in the pool stays the best policy against poor challengers."""
+    alg, params = small_algorithm(best_pool=3, best_rollouts=200, elites=2)
+    assert alg.rollouts_per_iteration == 8 * 16 + (2 + 3) * 200
+    state = alg.init(jax.random.key(0), params)
+    step = jax.jit(alg.step)
+    for i in range(3):
+        state, metrics = step(jax.random.key(i + 1), state, params)
+    pool = state.pool
+    best = int(pool.best())
+    same = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), state.best_policy, pool.member(best))
+    assert all(jax.tree.leaves(same))
+    assert float(metrics.best_value) == pytest.approx(float(pool.means()[best]))
+    good = reactive_tagging_policy(alg)
+    stacked = jax.tree.map(lambda x: jnp.stack([x] * 3), good)
+    start = pool.replace(
+        policies=stacked, total=jnp.array([15.0, 0.0, 0.0]), count=jnp.array([1, 0, 0])
+    )
+    state = state.replace(pool=start.replace(squares=start.total**2))
+    for i in range(2):
+        state, metrics = step(jax.random.key(10 + i), state, params)
+    same = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), state.best_policy, good)
+    assert all(jax.tree.leaves(same)) and int(state.pool.count.max()) == 3
 
 
 def reactive_tagging_policy(alg):

@@ -2,7 +2,7 @@
 
 The policy class is the one of SPEC section 5 (``controllers.neural``): per agent and node an
 action distribution and a small MLP ``obs -> hidden (ReLU) -> logits over next nodes``. What
-differs from the thesis algorithm (``cognet-dice-thesis``, ``algorithms.cognet_dice``) is the
+differs from the thesis algorithm (``cognet-dice-thesis``, ``algorithms.cognet_thesis``) is the
 search: instead of imitating elite rollouts by gradient steps, whole joint controllers are
 *sampled* from a distribution over network weights and actions, evaluated with common random
 numbers, and the distribution is refit to the elites -- the DICE idea that COG-DICE applies to
@@ -69,16 +69,16 @@ One iteration (``step``), values are returns to **maximise**:
    (``action_floor`` for actions, ``category_floor`` for the output-layer categoricals), so no
    choice ever becomes impossible (a constant entropy injection instead of SPEC's triggered
    one);
-5. anytime best (**[choice]**): the iteration's winner and the distribution's mode (Gaussian
-   means, most likely categories) are each evaluated on ``best_rollouts`` fresh rollouts; the
-   best of the two replaces the best policy when it beats the best fresh value so far. The
-   value recorded per iteration is that fresh value, never the winner's in-loop mean.
-   With ``paired_best`` the current best policy is re-evaluated too, on the *same* fresh
-   rollouts as the two challengers (common random numbers), and a challenger replaces it only
-   when it beats that paired estimate: the comparison's noise is then the noise of a
-   difference between similar policies, and the best fresh value so far, the maximum of
-   hundreds of noisy means, no longer decides (its upward bias is the anytime best's
-   winner's curse). ``best_value`` is then the best policy's estimate of this iteration.
+5. anytime best (**[choice]**): the iteration's winner and the distribution's mode are
+   evaluated on ``best_rollouts`` fresh rollouts; the better of the two is the challenger.
+   With ``best_pool = P > 0`` (default) it races a pool of the P best policies seen, all
+   re-evaluated on the same fresh rollouts every iteration (``algorithms.best_pool``: the kept
+   policy is the member with the largest lower confidence bound, so the winner's curse of a
+   maximum over hundreds of noisy means does not decide). With ``best_pool = 0`` the
+   challenger replaces the best policy when its fresh value beats the best fresh value so far
+   (the winner on the ``best`` stream, the mode on the ``other``); ``paired_best`` then
+   re-evaluates the best policy on the challengers' rollouts and compares with that instead.
+   The value recorded per iteration is the challenger's fresh value, never an in-loop mean.
 """
 
 from __future__ import annotations
@@ -91,6 +91,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from cognet_jax.algorithms.best_pool import BestPool, race
 from cognet_jax.algorithms.cross_entropy import (
     Progress,
     count_table,
@@ -100,6 +101,12 @@ from cognet_jax.algorithms.cross_entropy import (
 )
 from cognet_jax.algorithms.engine import Search, SearchParams, streams
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
+from cognet_jax.algorithms.weight_space import (
+    WeightDistribution,
+    WeightSample,
+    gaussian_refit,
+    tie,
+)
 from cognet_jax.config import (
     NetworkSection,
     require,
@@ -118,40 +125,7 @@ from cognet_jax.observations import (
 )
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import fields_from, register_algorithm
-
-
-@struct.dataclass
-class WeightDistribution:
-    """Search distribution over joint neural controllers (see the module docstring)."""
-
-    action_probs: jax.Array  # [agents, Q, actions]
-    w1_mean: jax.Array  # [agents, Q, F, H]
-    w1_std: jax.Array  # [agents, Q, F, H]
-    b1_mean: jax.Array  # [agents, Q, H]
-    b1_std: jax.Array  # [agents, Q, H]
-    unit_target_probs: jax.Array  # [agents, Q, H, Q]
-    m_mean: jax.Array  # [agents, Q, H]
-    m_std: jax.Array  # [agents, Q, H]
-    default_probs: jax.Array  # [agents, Q, Q]
-    bias_mean: jax.Array  # [agents, Q]
-    bias_std: jax.Array  # [agents, Q]
-    node_tie_probs: jax.Array  # [agents, 2]: (own networks, node 0's network in every node)
-    agent_tie_probs: jax.Array  # [2]: (own controllers, agent 0's controller for every agent)
-
-
-@struct.dataclass
-class WeightSample:
-    """The draws of one candidate (leaves without the candidate axis)."""
-
-    actions: jax.Array  # [agents, Q] int32
-    w1: jax.Array  # [agents, Q, F, H]
-    b1: jax.Array  # [agents, Q, H]
-    unit_targets: jax.Array  # [agents, Q, H] int32
-    m: jax.Array  # [agents, Q, H]
-    default: jax.Array  # [agents, Q] int32
-    bias: jax.Array  # [agents, Q]
-    node_tie: jax.Array  # [agents] int32, 1: every node runs node 0's network
-    agent_tie: jax.Array  # [] int32, 1: every agent runs agent 0's controller
+from cognet_jax.reporting import neural_plots
 
 
 @dataclasses.dataclass
@@ -166,8 +140,9 @@ class CognetWeightsSection:
     ``vote_std``: initial Gaussian of the output votes; ``standardize_inputs``: search over a
     network that reads each input feature standardised by its mean and standard deviation under
     the random controller; ``paired_best``: the best policy so far is re-evaluated on the
-    challengers' fresh rollouts and replaced only when a challenger beats it there. The hidden
-    width is ``network.hidden``."""
+    challengers' fresh rollouts and replaced only when a challenger beats it there;
+    ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool). The
+    hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -185,6 +160,7 @@ class CognetWeightsSection:
     vote_std: float = 5.0
     standardize_inputs: bool = False
     paired_best: bool = False
+    best_pool: int = 4
     tie_structure: bool = True
     restart_tol: float = 0.02
 
@@ -204,6 +180,15 @@ class CognetWeightsSection:
             v = getattr(self, name)
             require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        require(
+            0 <= self.best_pool <= 64, "algorithm.best_pool", f"in 0 .. 64, got {self.best_pool}"
+        )
+        require(
+            not (self.paired_best and self.best_pool),
+            "algorithm.paired_best",
+            "compares with the best so far; the pool (algorithm.best_pool) races it already: "
+            "set one of them",
+        )
         require(
             0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
         )
@@ -236,8 +221,9 @@ class CognetWeightsSection:
 def rollouts_per_iteration(s) -> int:
     """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
     evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
-    far, ``paired_best``)."""
-    return s.candidates * s.eval_rollouts + (3 if s.paired_best else 2) * s.best_rollouts
+    far, ``paired_best``, or of the pool's members, ``best_pool``)."""
+    fresh = 2 + (1 if s.paired_best else 0) + s.best_pool
+    return s.candidates * s.eval_rollouts + fresh * s.best_rollouts
 
 
 @struct.dataclass
@@ -264,6 +250,7 @@ class WeightsState:
     distribution: WeightDistribution
     best_policy: NeuralPolicy
     progress: Progress
+    pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
 
 
 @struct.dataclass
@@ -275,42 +262,6 @@ class WeightsMetrics:
     threshold: jax.Array  # [] smallest elite value
     kept: jax.Array  # [] number of elites
     injected: jax.Array  # [] the distribution converged: restarted (``restart_tol``)
-
-
-#: the fields of a node's network (copied by node tying); agent tying copies every field
-NETWORK_FIELDS = ("w1", "b1", "unit_targets", "m", "default", "bias")
-
-
-def tie(sample: WeightSample) -> WeightSample:
-    """Apply a sample's tie flags (leaves with or without a leading candidate axis): where
-    ``node_tie`` is 1, every node of that agent gets node 0's network (a reactive controller:
-    the next node depends on the observation only); where ``agent_tie`` is 1, every agent gets
-    agent 0's whole controller (actions and networks). The Gaussians and categoricals are
-    then refit to the weights the candidates ran, so a tied elite teaches every node."""
-    lead = sample.node_tie.ndim - 1  # 1 with a candidate axis, else 0
-
-    def nodes_tied(x):  # x [..., agents, Q, ...]
-        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead + 1), x.shape)
-        flag = sample.node_tie.reshape(sample.node_tie.shape + (1,) * (x.ndim - lead - 1))
-        return jnp.where(flag == 1, first, x)
-
-    sample = sample.replace(**{f: nodes_tied(getattr(sample, f)) for f in NETWORK_FIELDS})
-
-    def agents_tied(x):  # x [..., agents, ...]
-        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead), x.shape)
-        flag = sample.agent_tie.reshape(sample.agent_tie.shape + (1,) * (x.ndim - lead))
-        return jnp.where(flag == 1, first, x)
-
-    fields = (*NETWORK_FIELDS, "actions", "node_tie")
-    return sample.replace(**{f: agents_tied(getattr(sample, f)) for f in fields})
-
-
-def _gaussian_refit(mean, std, elite_draws, alpha):
-    """``alpha * (elite mean, elite std) + (1 - alpha) * (mean, std)``; ``elite_draws [E, ...]``."""
-    return (
-        alpha * elite_draws.mean(0) + (1.0 - alpha) * mean,
-        alpha * elite_draws.std(0) + (1.0 - alpha) * std,
-    )
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -446,10 +397,10 @@ class CognetWeights(Search):
             counts = count_table(jnp.moveaxis(draws, 0, -1), k)
             return inject_entropy(smooth(old, counts, alpha), floor, support)
 
-        w1_mean, w1_std = _gaussian_refit(dist.w1_mean, dist.w1_std, elites.w1, alpha)
-        b1_mean, b1_std = _gaussian_refit(dist.b1_mean, dist.b1_std, elites.b1, alpha)
-        m_mean, m_std = _gaussian_refit(dist.m_mean, dist.m_std, elites.m, alpha)
-        bias_mean, bias_std = _gaussian_refit(dist.bias_mean, dist.bias_std, elites.bias, alpha)
+        w1_mean, w1_std = gaussian_refit(dist.w1_mean, dist.w1_std, elites.w1, alpha)
+        b1_mean, b1_std = gaussian_refit(dist.b1_mean, dist.b1_std, elites.b1, alpha)
+        m_mean, m_std = gaussian_refit(dist.m_mean, dist.m_std, elites.m, alpha)
+        bias_mean, bias_std = gaussian_refit(dist.bias_mean, dist.bias_std, elites.bias, alpha)
         return WeightDistribution(
             action_probs=categorical(
                 dist.action_probs,
@@ -485,9 +436,13 @@ class CognetWeights(Search):
     def init(self, key: jax.Array, params: SearchParams) -> WeightsState:
         """Initial state; its ``best_policy`` is one draw of the initial distribution."""
         dist = self.init_distribution()
-        first = jax.tree.map(lambda x: x[0], self.draw(key, dist, 1))
+        first = self.to_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
+        size = self.settings.best_pool
         return WeightsState(
-            distribution=dist, best_policy=self.to_policy(first), progress=Progress.create(1)
+            distribution=dist,
+            best_policy=first,
+            progress=Progress.create(1),
+            pool=BestPool.create(first, size) if size else None,
         )
 
     @property
@@ -514,7 +469,8 @@ class CognetWeights(Search):
         """The state after ``values [candidates]`` of ``samples``; returns ``(state,
         WeightsMetrics)``. The winner is valued on the ``best`` stream, the mode on the
         ``other`` one; ``fresh_value(key, policy) -> value`` replaces their ``best_rollouts``
-        fresh rollouts of the simulator."""
+        fresh rollouts of the simulator. With a pool (``best_pool``) every fresh value is on
+        the ``best`` stream and ``best_value`` is the kept member's mean."""
         hyper = params.hyper
         if fresh_value is None:
             fresh_value = lambda k, p: self.fresh_value(k, p, params)  # noqa: E731
@@ -527,7 +483,14 @@ class CognetWeights(Search):
         winner = self.to_policy(jax.tree.map(lambda x: x[0], elites))
         mode = self.to_policy(self.mode(dist))
         stack = lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
-        if s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
+        pool = state.pool
+        if pool is not None:  # winner, mode and the pool's members on the same fresh rollouts
+            both = jax.tree.map(
+                lambda a, b: jnp.concatenate([a, b]), stack(winner, mode), pool.policies
+            )
+            fresh = jax.vmap(fresh_value, (None, 0))(k.best, both)
+            v_winner, v_mode = fresh[0], fresh[1]
+        elif s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
             v_winner, v_mode, v_best = jax.vmap(fresh_value, (None, 0))(
                 k.best, stack(winner, mode, state.best_policy)
             )
@@ -544,6 +507,10 @@ class CognetWeights(Search):
             improved = value > v_best
             progress = progress.replace(best_value=jnp.maximum(value, v_best))
         best_policy = select_tree(improved, candidate, state.best_policy)
+        if pool is not None:
+            pool = race(pool, fresh[2:], candidate, value)
+            best_policy = pool.member(pool.best())
+            progress = progress.replace(best_value=pool.means()[pool.best()])
         converged = self.converged(dist)
         metrics = WeightsMetrics(
             value=value,
@@ -556,7 +523,8 @@ class CognetWeights(Search):
         )
         if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
             dist = select_tree(converged, self.init_distribution(), dist)
-        return WeightsState(distribution=dist, best_policy=best_policy, progress=progress), metrics
+        state = WeightsState(dist, best_policy, progress, pool)
+        return state, metrics
 
     def converged(self, dist: WeightDistribution) -> jax.Array:
         """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
@@ -564,6 +532,10 @@ class CognetWeights(Search):
         s = self.settings
         initial = s.init_scale / math.sqrt(self.controller.in_features)
         return jnp.mean(dist.w1_std) < s.restart_tol * initial
+
+    def write_plots(self, config, policy, record: dict, out_dir) -> list:
+        """The neural policy's figures (``reporting.neural_plots``)."""
+        return neural_plots(self, policy, record, out_dir)
 
 
 # ---------------------------------------------------------------------------------------------
