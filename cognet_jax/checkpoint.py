@@ -157,7 +157,7 @@ POLICY_VERSION = 1
 
 def policy_bytes(policy, fingerprint: dict | None = None) -> bytes:
     """The bytes of a policy file for ``policy`` (a policy pytree); ``fingerprint``: what the
-    policy was trained with (``driver.fingerprint``: hashes of the shaping config and of the
+    policy was trained with (``records.fingerprint``: hashes of the shaping config and of the
     model file), checked when it is read back."""
     body = serialization.to_bytes(jax.device_get(policy))
     header = {

@@ -374,7 +374,8 @@ def _refuse_with_resume(args, flags: dict) -> None:
 
 
 def _train(args) -> int:
-    from cognet_jax.driver import Interrupted, resume_target, train
+    from cognet_jax.driver import Interrupted, train
+    from cognet_jax.saved_runs import resume_target
 
     try:
         if args.resume:
@@ -595,7 +596,7 @@ def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main
 
 
 def _evaluate(args) -> int:
-    from cognet_jax.driver import evaluate_run
+    from cognet_jax.saved_runs import evaluate_run
 
     if args.rollouts is not None and not 2 <= args.rollouts < 2**31:
         raise UsageError(f"--rollouts must be in 2 .. 2147483647, got {args.rollouts}")

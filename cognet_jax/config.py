@@ -147,7 +147,8 @@ class EvaluationSection:
 
 @dataclasses.dataclass
 class RunSection:
-    """How a run is driven (``cognet_jax.driver``); none of it changes a result."""
+    """How a run is driven (``cognet_jax.driver``); only ``prng_impl`` changes a result (it
+    picks the random number generator)."""
 
     #: "threefry2x32" (default), "rbg", "unsafe_rbg", or "hash": the counter-based generator
     #: of ``cognet_jax.prng`` (rollouts about 1.3x faster on CPU than threefry; other numbers)
@@ -160,7 +161,7 @@ class RunSection:
     #: SIGKILL then loses at most S seconds
     checkpoint_seconds: float = 60.0
     #: lay every batch of rollouts (and the candidates' evaluations) over all local devices
-    #: (``driver.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
+    #: (``program.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
     #: devices it is slower than one device (benchmarks/NOTES.md)
     shard_rollouts: bool = False
     #: GB the rollouts in flight may take (0: half of this machine's memory); candidates are

@@ -549,7 +549,7 @@ def plot_controller_graphs(
     return _save(fig, path, dpi, title)
 
 
-def plot_sweep_values(result: dict, path, label) -> None:
+def plot_sweep_values(result: dict, path, label) -> str | Path:
     """A sweep's in-loop value per iteration, mean over seeds +- s.e. per setting (``label``
     names a setting's grid values)."""
     fig, ax = _subplots(figsize=(7, 4))
@@ -564,7 +564,7 @@ def plot_sweep_values(result: dict, path, label) -> None:
     ax.set_ylabel("in-loop value (mean over seeds +- s.e.)")
     ax.set_title(f"{result['experiment']}: {len(result['seeds'])} seeds per setting")
     ax.legend(fontsize=8)
-    _save(fig, path, 120)
+    return _save(fig, path, 120)
 
 
 def plot_position_map(grid, low: int, high: int, path, title: str, label: str, dpi: int = 110):

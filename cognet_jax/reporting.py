@@ -20,7 +20,6 @@ import numpy as np
 
 from cognet_jax import plots
 from cognet_jax.controllers.regions import region_graph_edges
-from cognet_jax.envs.tabular import load_problem
 from cognet_jax.registry import env_entry
 from cognet_jax.vae import HIGH, LOW, reachable_patches
 
@@ -44,22 +43,6 @@ def neural_node_probs(controller, policy, grid: np.ndarray) -> np.ndarray:
     return np.asarray(jax.nn.softmax(logits, -1)).transpose(1, 2, 0, 3)
 
 
-def _observation_names(config, env) -> list[list[str]]:
-    if config.env.name == "dpomdp":
-        return [list(n) for n in load_problem(config.problem).observation_names]
-    values = getattr(env, "observation_values", None)
-    if values is not None:  # discretised tagging: index k stands for a value
-        return [[f"{v:g}" for v in values] for _ in range(env.num_agents)]
-    return [[str(z) for z in range(env.num_obs)] for _ in range(env.num_agents)]
-
-
-def _action_names(config, env):
-    if config.env.name == "dpomdp":
-        names = load_problem(config.problem).action_names
-        return names[0] if len(set(names)) == 1 else tuple(str(a) for a in range(env.num_actions))
-    return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
-
-
 def _scalar_feature_grid(algorithm, env, points: int = 401):
     """``(grid [points], label)`` of a scalar network input, or ``(None, None)`` when the
     networks read a vector (e.g. raw heatmap patches)."""
@@ -75,53 +58,74 @@ def _scalar_feature_grid(algorithm, env, points: int = 401):
 
 
 def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]:
-    """Write the run's PNG figures to ``out_dir``; returns the paths written."""
-    out_dir = Path(out_dir)
-    env = algorithm.env
-    names = getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
-    title = f"{results['experiment']} (seed {results['seed']})"
-    written = [
+    """Write the run's PNG figures to ``out_dir``: the value curve (``values.png``) of every
+    search, then the search's own figures of its best policy (``algorithm.write_plots``);
+    returns the paths written."""
+    written = [write_value_plot(config, results, out_dir)]
+    return written + [Path(p) for p in algorithm.write_plots(config, policy, results, out_dir)]
+
+
+def _title(results: dict) -> str:
+    return f"{results['experiment']} (seed {results['seed']})"
+
+
+def write_value_plot(config, results: dict, out_dir) -> Path:
+    """``values.png``: the in-loop value per iteration and the running best, with the known
+    values of the run's simulator (``references_for``)."""
+    return Path(
         plots.plot_values(
             results["values_per_iteration"],
             results["best_per_iteration"],
-            out_dir / "values.png",
-            title=title,
+            Path(out_dir) / "values.png",
+            title=_title(results),
             reference=references_for(config),
         )
+    )
+
+
+def action_names(env) -> tuple:
+    """Names of the actions (the simulator's ``action_names``, else their indices)."""
+    return getattr(env, "action_names", tuple(str(a) for a in range(env.num_actions)))
+
+
+def region_plots(env, policy, results: dict, out_dir) -> list[Path]:
+    """``controllers.png`` of a deterministic region controller (COG-DICE): each agent's
+    graph, edges labelled with the observation intervals of its regions."""
+    edges = [
+        region_graph_edges(np.asarray(policy.points[i]), np.asarray(policy.transitions[i]))
+        for i in range(env.num_agents)
     ]
-    if hasattr(policy, "points"):  # deterministic region controller (COG-DICE)
-        edges = [
-            region_graph_edges(np.asarray(policy.points[i]), np.asarray(policy.transitions[i]))
-            for i in range(env.num_agents)
-        ]
-        written.append(
-            plots.plot_controller_graphs(
-                np.asarray(policy.actions), edges, names, out_dir / "controllers.png", title=title
-            )
-        )
-        return [Path(p) for p in written]
-    if hasattr(policy, "transitions") and policy.transitions.ndim == 3:  # deterministic tabular
-        actions = np.asarray(policy.actions)
-        action_probs = np.eye(env.num_actions)[actions]
-        obs_names = _observation_names(config, env)
-        edges = [
-            plots.tabular_graph_edges(np.asarray(policy.transitions[i]), obs_names[i])
-            for i in range(env.num_agents)
-        ]
-        written.append(
-            plots.plot_controller_graphs(
-                actions, edges, _action_names(config, env), out_dir / "controllers.png", title=title
-            )
-        )
-        return [Path(p) for p in written]
+    path = Path(out_dir) / "controllers.png"
+    actions = np.asarray(policy.actions)
+    title = _title(results)
+    return [Path(plots.plot_controller_graphs(actions, edges, action_names(env), path, title))]
+
+
+def tabular_plots(env, policy, results: dict, out_dir, names, observation_names) -> list[Path]:
+    """``controllers.png`` of a deterministic tabular controller (G-DICE): each agent's
+    graph, edges labelled with ``observation_names [agents][obs]``; ``names``: the actions'."""
+    edges = [
+        plots.tabular_graph_edges(np.asarray(policy.transitions[i]), observation_names[i])
+        for i in range(env.num_agents)
+    ]
+    path = Path(out_dir) / "controllers.png"
+    actions = np.asarray(policy.actions)
+    return [Path(plots.plot_controller_graphs(actions, edges, names, path, _title(results)))]
+
+
+def neural_plots(algorithm, policy, results: dict, out_dir) -> list[Path]:
+    """Figures of a neural (COGNet-DICE) policy: ``actions.png`` always; on a scalar network
+    input (module docstring) also ``node_responses.png`` and ``controllers.png``."""
+    env, out_dir, title = algorithm.env, Path(out_dir), _title(results)
+    names = action_names(env)
     action_probs = np.asarray(policy.action_probs)
-    written.append(
+    written = [
         plots.plot_action_distributions(
             action_probs, names, out_dir / "actions.png", title=f"{title}: action distributions"
         )
-    )
+    ]
     grid, obs_label = _scalar_feature_grid(algorithm, env)
-    if grid is not None and hasattr(policy, "net_params"):
+    if grid is not None:
         probs = neural_node_probs(algorithm.controller, policy, grid)
         written.append(
             plots.plot_node_responses(

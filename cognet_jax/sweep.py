@@ -15,7 +15,7 @@ evaluation (``api.honest_returns``) of its best policy with its own params, comp
 ``train`` compiles it (one run after another, so ``eval_s`` grows with the runs). The search
 itself runs ``vmap``-ed, its hyper-parameters as data: the same operations on the same keys as
 the single run, which batching may round differently (equal to the last bit on tagging,
-tests/test_sweep.py; the heatmap's larger networks can differ, README "Sweeps"); with
+tests/test_sweep.py; the heatmap's larger networks can differ, docs/reference.md, "Sweeps"); with
 ``standardize_inputs`` every run uses the input statistics of the group's first setting.
 
 Devices: the ``[runs]`` axis is sharded over the local devices (``NamedSharding`` over a 1-D
@@ -26,7 +26,7 @@ Hosts: with ``jax.distributed`` initialised, process p runs the runs ``p, p + P,
 process 0 gathers every row (``process_allgather``) and writes the tables.
 
 Outputs (``write_outputs``): ``runs.csv`` / ``runs.json`` (one row per run: the run's
-results.json record, ``driver.RESULTS_SCHEMA``, plus its group), ``summary.md`` (mean +- s.e.
+results.json record, ``records.RESULTS_SCHEMA``, plus its group), ``summary.md`` (mean +- s.e.
 over seeds per setting) and ``values.png`` (value per iteration per setting). With an output
 folder (the CLI always has one) every run also gets its own training folder
 ``OUT/runs/setting{k}-seed{s}/`` (``policy.msgpack``, ``results.json``), written when its group
@@ -48,9 +48,10 @@ from jax.experimental import multihost_utils
 
 from cognet_jax.checkpoint import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
-from cognet_jax.driver import GroupOptions, Run, run_group
+from cognet_jax.driver import GroupOptions, run_group
 from cognet_jax.errors import MismatchError, read_json
 from cognet_jax.plots import plot_sweep_values
+from cognet_jax.program import Run
 from cognet_jax.registry import dynamic_fields, load_config
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
@@ -314,7 +315,7 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result["grid"])
-    # tabular problems: the exact values of each best policy (driver.exact_evaluation)
+    # tabular problems: the exact values of each best policy (records.exact_evaluation)
     exact_keys = [k for k in ("exact", "exact_infinite") if k in result["rows"][0]["final_value"]]
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)

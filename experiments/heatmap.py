@@ -120,7 +120,7 @@ def _pure_action_share(name: str) -> float | None:
     """Median over (agent, node) of the largest action probability of a saved best policy."""
     import numpy as np
 
-    from cognet_jax.driver import load_run
+    from cognet_jax.saved_runs import load_run
 
     if _load(name, 0) is None:
         return None
@@ -404,7 +404,8 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
     "stderrs", "replaced": {name: [mean, stderr]}}, "stds": [...], ...}``."""
     import jax
 
-    from cognet_jax.driver import load_run, return_summary
+    from cognet_jax.program import return_summary
+    from cognet_jax.saved_runs import load_run
 
     out = {"stds": list(NOISE_STDS), "rollouts": rollouts, "eval_seed": eval_seed, "seed": seed}
     for label, name in NOISE_VARIANTS.items():

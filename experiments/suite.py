@@ -101,56 +101,84 @@ def _bound(config, env, params):
     return None
 
 
-#: the library's defaults where an experiment pins the search its earlier rows were made with
-NEW = ["algorithm.tie_structure=true", "algorithm.restart_tol=0.02"]
+#: the library's defaults before the pool of best policies, where an experiment pins the
+#: search its earlier rows were made with (those experiments also pin ``best_pool = 0``)
+BEFORE_POOL = ["algorithm.tie_structure=true", "algorithm.restart_tol=0.02"]
+#: the library's defaults
+NEW = [*BEFORE_POOL, "algorithm.best_pool=4"]
+#: the defaults without the pool (the search of the rows measured before it)
+NO_POOL = ["algorithm.best_pool=0"]
 #: further sweeps: folder -> (experiment, overrides, seeds, what it tests, earlier sweep to
 #: compare with (experiments/results/sweeps/NAME) or None)
 EXTRA = {
+    **{
+        f"cognet-{row}-nopool": (
+            experiment,
+            NO_POOL,
+            SEEDS,
+            "ablation: the defaults without the pool of best policies (the defaults before it)",
+            None,
+        )
+        for row, (experiment, _) in ROWS.items()
+    },
     "hearing-tiger-norestart": (
         "hearing-tiger-n7",
-        ["algorithm.restart_tol=0"],
+        ["algorithm.restart_tol=0", *NO_POOL],
         SEEDS,
-        "ablation: no restart of a converged distribution",
+        "ablation of the defaults before the pool: no restart of a converged distribution",
         None,
     ),
-    "hearing-tiger-notie": (
-        "hearing-tiger-n7",
-        ["algorithm.tie_structure=false"],
+    "tagging-thesis-n3-defaults": (
+        "tagging-thesis-n3",
+        NEW,
         SEEDS,
-        "ablation: no tied nodes or agents",
-        None,
+        "the library's defaults",
+        "tagging-thesis-n3",
     ),
-    "tagging-thesis-n3": ("tagging-thesis-n3", NEW, SEEDS, "new defaults", "tagging-thesis-n3"),
+    "tagging-thesis-n3": (
+        "tagging-thesis-n3",
+        BEFORE_POOL,
+        SEEDS,
+        "the defaults before the pool",
+        "tagging-thesis-n3",
+    ),
     "tagging-thesis-n3-notie": (
         "tagging-thesis-n3",
         ["algorithm.tie_structure=false", "algorithm.restart_tol=0.02"],
         SEEDS,
-        "new defaults without tied structures",
+        "the defaults before the pool, without tied structures",
         "tagging-thesis-n3",
     ),
     "tagging-thesis-n3-norestart": (
         "tagging-thesis-n3",
         ["algorithm.tie_structure=true", "algorithm.restart_tol=0"],
         SEEDS,
-        "new defaults without restarts",
+        "the defaults before the pool, without restarts",
         "tagging-thesis-n3",
     ),
-    "tagging-thesis-n6": ("tagging-thesis-n6", NEW, SEEDS, "new defaults", "tagging-thesis-n6"),
-    "heatmap-2d-n4": ("heatmap-2d-n4", NEW, SEEDS, "new defaults", "heatmap-2d-n4"),
-    "paper-budget-1of64": (
-        "tagging-paper-auto",
-        ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
-        3,
-        "1/64 of the paper's 3e11 agent-steps",
-        None,
-    ),
-    "paper-budget-1of8": (
-        "tagging-paper-auto",
-        ["algorithm.budget=3.75e10", "run.probe_seconds=10"],
-        3,
-        "1/8 of the paper's 3e11 agent-steps",
-        None,
-    ),
+    **{
+        f"{experiment}{suffix}": (experiment, overrides, SEEDS, what, experiment)
+        for experiment in ("tagging-thesis-n6", "heatmap-2d-n4")
+        for suffix, overrides, what in (
+            ("-defaults", NEW, "the library's defaults"),
+            ("", BEFORE_POOL, "the defaults before the pool"),
+        )
+    },
+    **{
+        f"paper-budget-{name}{suffix}": (
+            "tagging-paper-auto",
+            [f"algorithm.budget={budget}", "run.probe_seconds=10", *extra],
+            3,
+            f"{label} of the paper's 3e11 agent-steps{what}",
+            None,
+        )
+        for name, budget, label in (
+            ("1of64", "4.6875e9", "1/64"),
+            ("1of8", "3.75e10", "1/8"),
+            ("full", "3e11", "all"),
+        )
+        for suffix, extra, what in (("", [], ""), ("-nopool", NO_POOL, ", without the pool"))
+    },
 }
 
 
@@ -288,6 +316,11 @@ built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heat
 
 
 EXTRA_NOTES = """\
+The defaults race a pool of the 4 best policies on fresh rollouts (`algorithm.best_pool`,
+cognet_jax/algorithms/best_pool.py). Rows "-nopool" and "before the pool" ran the earlier
+defaults, which kept the policy with the best single fresh value: the maximum of hundreds of
+noisy means, whose in-loop estimate was up to 4 above its honest value on tagging and Dec-Tiger
+(the sweeps' summary.md files give both).
 "Earlier sweep" is the committed 8-seed sweep of the same experiment before tied structures and
 restarts (experiments/results/sweeps, table "COGNet-DICE (default)"). The time to the
 hand-written controller is read from `run.probe_seconds` probes: the wall time (compile

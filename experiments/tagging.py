@@ -215,7 +215,7 @@ def _start_actions(name: str, seed: int = 0):
     probabilities ``[agents, actions]`` of its start node (``None`` three times if unsaved)."""
     import numpy as np
 
-    from cognet_jax.driver import load_run
+    from cognet_jax.saved_runs import load_run
 
     if _result(name, seed) is None:
         return None, None, None

@@ -89,7 +89,7 @@ LONGEST_FIRST = {
             "test_engine.py",  # 34 (47-50 before its by-hand iteration was compared as jaxprs)
             "test_gdice_defaults.py",  # 37-43
             "test_one_truth.py",  # 33-34
-            "test_cognet_dice.py",  # 27
+            "test_cognet_thesis.py",  # 27
             "test_polish.py",  # 25-27
             "test_models.py",  # 25
             "test_heatmap_cognet.py",  # 21-24

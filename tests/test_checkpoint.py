@@ -16,9 +16,9 @@ from shared_files import compile_cache_env
 from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
 from cognet_jax.cli import main
 from cognet_jax.config import ConfigError
-from cognet_jax.driver import resume_target
 from cognet_jax.driver import train as run_training
 from cognet_jax.registry import load_config
+from cognet_jax.saved_runs import resume_target
 
 ROOT = Path(__file__).resolve().parents[1]
 ITERATIONS = 400

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cognet_jax.algorithms.cognet_dice import (
+from cognet_jax.algorithms.cognet_thesis import (
     candidate_action_probs,
     rollout_action_counts,
     training_pairs,

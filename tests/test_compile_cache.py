@@ -1,6 +1,6 @@
 """The command line keeps compiled programs in JAX's persistent compilation cache: the folder
 it picks, a repeated run in a fresh process that loads instead of compiling, and the switch
-that turns it off (README, "Compiled programs are kept")."""
+that turns it off (docs/reference.md, "Compiled programs are kept")."""
 
 import json
 import os

@@ -14,7 +14,7 @@ import pytest
 
 from cognet_jax.algorithms.cross_entropy import EntropyConfig
 from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper, streams
-from cognet_jax.algorithms.gdice import GDice, GDiceSettings
+from cognet_jax.algorithms.gdice_search import GDice, GDiceSettings
 from cognet_jax.controllers.tabular import DeterministicTabularPolicy
 from cognet_jax.envs.tabular import TabularEnv, TabularParams
 

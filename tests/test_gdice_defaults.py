@@ -12,7 +12,8 @@ import pytest
 from shared_files import dpomdp_file as _file
 
 from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper, streams
-from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
+from cognet_jax.algorithms.gdice_portfolio import GDicePortfolio
+from cognet_jax.algorithms.gdice_search import GDice, GDiceSettings
 from cognet_jax.controllers.tabular import TabularController
 from cognet_jax.envs.tabular import make_tabular, sparse_rows
 from cognet_jax.exact import exact_value as exact_numpy
@@ -320,13 +321,12 @@ def test_repeats_follow_the_exact_limit(name, horizon, sets, expected):
         exact_iteration_cost,
     )
     from cognet_jax.api import build_algorithm, build_env
-    from cognet_jax.driver import _settings_dict
 
     config = _dpomdp_config(name, horizon, *sets)
     algo, _ = build_algorithm(config)
     assert algo.settings.repeats == expected
     assert algo.restarts == (expected,) * 3
-    assert [s["restarts"] for s in _settings_dict(algo)["searches"]] == [expected] * 3
+    assert [s["restarts"] for s in algo.settings_record()["searches"]] == [expected] * 3
     if config.algorithm.repeats == "auto" and algo.settings.evaluator == "exact":
         env, env_params = build_env(config)
         once = exact_iteration_cost(env, config.algorithm, env_params)  # 3 searches

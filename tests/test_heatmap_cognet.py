@@ -273,7 +273,7 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     import json
 
     from cognet_jax.cli import main
-    from cognet_jax.driver import load_run
+    from cognet_jax.saved_runs import load_run
 
     out = tmp_path / "run"
     small = [

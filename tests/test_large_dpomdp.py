@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper
-from cognet_jax.algorithms.gdice import GDice, GDiceSettings
+from cognet_jax.algorithms.gdice_search import GDice, GDiceSettings
 from cognet_jax.envs.tabular import make_tabular
 from cognet_jax.exact import exact_value
 from cognet_jax.io.dpomdp import parse_dpomdp

@@ -11,7 +11,7 @@ import pytest
 from shared_files import dpomdp_file
 
 from cognet_jax import memory
-from cognet_jax.algorithms.cognet_dice import NeuralPolicy
+from cognet_jax.algorithms.cognet_thesis import NeuralPolicy
 from cognet_jax.api import build_algorithm
 from cognet_jax.cli import main
 from cognet_jax.registry import load_config

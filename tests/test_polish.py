@@ -11,7 +11,8 @@ import pytest
 from shared_files import dpomdp_file as _file
 
 from cognet_jax.algorithms.engine import SearchParams, ThresholdHyper
-from cognet_jax.algorithms.gdice import GDice, GDicePortfolio, GDiceSettings
+from cognet_jax.algorithms.gdice_portfolio import GDicePortfolio
+from cognet_jax.algorithms.gdice_search import GDice, GDiceSettings
 from cognet_jax.algorithms.polish import apply_move, neighbour_moves
 from cognet_jax.controllers.tabular import TabularController
 from cognet_jax.envs.tabular import make_tabular
@@ -163,7 +164,7 @@ def test_polish_budget_bounds_the_exact_evaluations():
 def test_finish_as_steps_equals_finish_in_one_loop():
     """The driver's ``finish`` (steps from the host, a progress report after each) gives what
     the algorithm's ``finish`` (one ``while_loop``, ``make_train``) gives."""
-    from cognet_jax.driver import Program, Run
+    from cognet_jax.program import Program, Run
     from cognet_jax.registry import load_config
 
     config = load_config("gdice-dpomdp", _polished())  # the test above's search

@@ -77,16 +77,16 @@ def test_imported_code_or_a_replaced_builtin_keeps_no_program(monkeypatch):
 
 
 def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
-    from cognet_jax import driver
+    from cognet_jax import program
     from cognet_jax.registry import load_config
 
     keys = []
-    monkeypatch.setattr(driver, "compile_kept", lambda fn, args, key, check: keys.append(key))
-    monkeypatch.setattr(driver, "program_key", lambda *a: "a key")
+    monkeypatch.setattr(program, "compile_kept", lambda fn, args, key, check: keys.append(key))
+    monkeypatch.setattr(program, "program_key", lambda *a: "a key")
     config = load_config("tagging-thesis-n3")
-    driver.compiled_program(config, "p", None, (), None, {})
+    program.compiled_program(config, "p", None, (), None, {})
     monkeypatch.setattr(registry, "_FOREIGN_CODE", {"mine.py": "ab12"})
-    driver.compiled_program(config, "p", None, (), None, {})
+    program.compiled_program(config, "p", None, (), None, {})
     assert keys == ["a key", None]
 
 

@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 
 from cognet_jax.checkpoint import CHECKPOINT_NAME
-from cognet_jax.driver import resume_target, train
+from cognet_jax.driver import train
 from cognet_jax.registry import load_config
+from cognet_jax.saved_runs import resume_target
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [

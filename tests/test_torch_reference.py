@@ -155,8 +155,8 @@ def test_noise_free_rollouts_draw_no_simulator_uniforms():
 
 
 def test_accepts_cognet_jax_settings():
-    from cognet_jax.algorithms.cognet_dice import CognetHyper
-    from cognet_jax.algorithms.cognet_dice import CognetSettings as JaxSettings
+    from cognet_jax.algorithms.cognet_thesis import CognetHyper
+    from cognet_jax.algorithms.cognet_thesis import CognetSettings as JaxSettings
 
     algo = reference.TorchCognetVectorized(
         JaxSettings(nodes=2, rollouts=40, top=8, keep=2, eval_rollouts=5, train_steps=2),
@@ -234,14 +234,14 @@ def test_network_training_matches_jax_and_loop():
     """Same weights, same pairs: cognet_jax's masked optax Adam, the vectorised reference's
     stacked per-member Adam and the loop reference's torch.optim.Adam per module agree, also when
     some members get no data in the first round (their weights and step counts stay put)."""
-    from cognet_jax.algorithms.cognet_dice import CognetDice, training_pairs
-    from cognet_jax.algorithms.cognet_dice import CognetHyper as JaxHyper
-    from cognet_jax.algorithms.cognet_dice import CognetSettings as JaxSettings
+    from cognet_jax.algorithms.cognet_thesis import CognetHyper as JaxHyper
+    from cognet_jax.algorithms.cognet_thesis import CognetSettings as JaxSettings
+    from cognet_jax.algorithms.cognet_thesis import CognetThesis, training_pairs
     from cognet_jax.rollout import Trajectory
 
     nodes, hidden, steps, lr, kept = 4, 5, 3, 0.05, 3
     env, _ = jax_make_tagging("thesis")
-    jalgo = CognetDice(env, JaxSettings(nodes=nodes, hidden=hidden, train_steps=steps))
+    jalgo = CognetThesis(env, JaxSettings(nodes=nodes, hidden=hidden, train_steps=steps))
     settings = reference.CognetSettings(nodes=nodes, hidden=hidden, train_steps=steps)
     vec, loop = (
         reference.TorchCognetVectorized(settings, seed=3),

@@ -1,7 +1,7 @@
 """PyTorch references of COGNet-DICE on the tagging simulator, for speed comparisons.
 
 Two implementations of the same algorithm and simulator as ``cognet_jax`` (SPEC sections 1, 2,
-5 and 7.1; ``cognet_jax.algorithms.cognet_dice.CognetDice.step``):
+5 and 7.1; ``cognet_jax.algorithms.cognet_thesis.CognetThesis.step``):
 
 * ``TorchCognetLoop`` (``loop.py``): as the thesis code was written -- one ``nn.Module`` and one
   ``torch.optim`` optimiser per (agent, node), Python loops over rollouts and time steps, batch-1

@@ -1,10 +1,10 @@
 """Settings, hyper-parameters and search bookkeeping shared by both PyTorch references.
 
-Field names follow ``cognet_jax.algorithms.cognet_dice.CognetSettings`` / ``CognetHyper`` and
+Field names follow ``cognet_jax.algorithms.cognet_thesis.CognetSettings`` / ``CognetHyper`` and
 ``cognet_jax.algorithms.cross_entropy.EntropyConfig`` / ``Progress``, so a cognet_jax settings
 object can be passed as is (``as_settings`` / ``as_hyper`` copy the fields by name); the
 settings are read from cognet_jax's config declarations (the algorithm's section in
-``cognet_jax.algorithms.cognet_dice``; importing it loads JAX's Python modules, but no torch
+``cognet_jax.algorithms.cognet_thesis``; importing it loads JAX's Python modules, but no torch
 code calls JAX).
 """
 
@@ -14,7 +14,7 @@ import dataclasses
 import math
 import statistics
 
-from cognet_jax.algorithms.cognet_dice import CognetThesisSection
+from cognet_jax.algorithms.cognet_thesis import CognetThesisSection
 from cognet_jax.algorithms.cross_entropy import ENTROPY_SECTION_FIELDS
 from cognet_jax.config import NetworkSection, settings_class
 
@@ -39,7 +39,7 @@ class CognetHyper:
 
 
 #: Structural settings: the fields and defaults of cognet_jax's ``CognetSettings`` (declared in
-#: ``cognet_dice.CognetThesisSection`` and ``NetworkSection``) that this reference implements;
+#: ``cognet_thesis.CognetThesisSection`` and ``NetworkSection``) that this reference implements;
 #: it has no ``train_on="top"`` and no fresh re-evaluation (``best_rollouts``).
 CognetSettings = settings_class(
     "CognetSettings",

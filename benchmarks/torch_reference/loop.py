@@ -7,7 +7,7 @@
   (``tagging.step_scalar``) with noise uniforms from ``random.Random``;
 * candidates evaluated in a loop over candidates and, inside, over rollouts.
 
-The algorithm is that of ``cognet_jax.algorithms.cognet_dice.CognetDice.step`` (see the package
+The algorithm is that of ``cognet_jax.algorithms.cognet_thesis.CognetThesis.step`` (see the package
 docstring of ``benchmarks.torch_reference``).
 """
 

@@ -99,6 +99,7 @@ from cognet_jax.config import ConfigError, require, settings_class
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
 from cognet_jax.registry import fields_from, register_algorithm
+from cognet_jax.reporting import region_plots
 
 
 # --------------------------------------------------------------------------------------------
@@ -377,6 +378,10 @@ class CogDice(ThresholdSearch):
         """Simulated rollouts in one ``step``."""
         s = self.settings
         return s.samples * s.eval_rollouts + s.best_rollouts
+
+    def write_plots(self, config, policy, record: dict, out_dir) -> list:
+        """``controllers.png``: each agent's region controller as a graph."""
+        return region_plots(self.env, policy, record, out_dir)
 
 
 # ---------------------------------------------------------------------------------------------

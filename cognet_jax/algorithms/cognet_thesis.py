@@ -1,7 +1,7 @@
 """COGNet-DICE (SPEC section 5): cross-entropy search over FSCs whose node transitions are small
 neural networks on continuous observations.
 
-One iteration (``CognetDice.step``, compiled once) -- values are returns to **maximise**:
+One iteration (``CognetThesis.step``, compiled once) -- values are returns to **maximise**:
 
 1. roll out the current stochastic joint policy ``rollouts`` times, recording trajectories;
 2. pre-select the ``top`` rollouts with the highest return;
@@ -68,6 +68,7 @@ from cognet_jax.observations import (
     neural_controller,
 )
 from cognet_jax.registry import fields_from, register_algorithm
+from cognet_jax.reporting import neural_plots
 from cognet_jax.rollout import rollouts
 
 
@@ -172,7 +173,7 @@ class CognetMetrics:
 
 @struct.dataclass
 class CognetAsked:
-    """What ``CognetDice.ask`` drew for ``tell``: the current policy's recorded rollouts
+    """What ``CognetThesis.ask`` drew for ``tell``: the current policy's recorded rollouts
     (``Trajectory``, leading ``[rollouts]`` axis), the indices ``[top]`` of the pre-selected
     ones and their action counts ``[top, agents, nodes, actions]`` (``None`` in separate
     training)."""
@@ -243,7 +244,7 @@ def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class CognetDice(Search):
+class CognetThesis(Search):
     """COGNet-DICE on one environment; ``init`` / ``ask`` / ``evaluate`` / ``tell`` / ``step``
     are pure and jit-able (the protocol of ``algorithms.engine``).
 
@@ -441,14 +442,18 @@ class CognetDice(Search):
         )
         return new_state, metrics
 
+    def write_plots(self, config, policy, record: dict, out_dir) -> list:
+        """The neural policy's figures (``reporting.neural_plots``)."""
+        return neural_plots(self, policy, record, out_dir)
+
 
 # ---------------------------------------------------------------------------------------------
 # the registry entry: config -> algorithm, hyper-parameters
 # ---------------------------------------------------------------------------------------------
-def build(config, env, env_params, memory: int | None = None) -> CognetDice:
+def build(config, env, env_params, memory: int | None = None) -> CognetThesis:
     """The search of ``config`` (``experiment.algorithm = "cognet-dice-thesis"``)."""
     settings = fields_from(CognetSettings, config.algorithm, config.network)
-    return CognetDice(env, settings, memory, build_pipeline(config, env))
+    return CognetThesis(env, settings, memory, build_pipeline(config, env))
 
 
 def hyper(config) -> CognetHyper:

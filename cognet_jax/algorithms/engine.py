@@ -52,6 +52,7 @@ value, or with ``fresh_rollouts > 0`` a fresh mean, or ``fresh_value(key, policy
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
 from typing import Any, ClassVar, NamedTuple
 
@@ -245,6 +246,37 @@ class Search:
     @staticmethod
     def best_policy(state):
         return state.best_policy
+
+    # -- what a finished run reports: the driver asks the search, never its kind -------------
+    def settings_record(self) -> dict:
+        """The settings as built, JSON-ready (results.json ``resolved``: e.g. sizes "auto"
+        chose)."""
+        if not dataclasses.is_dataclass(self.settings):
+            return {}
+        return json.loads(json.dumps(dataclasses.asdict(self.settings), default=str))
+
+    def finish_record(self, info, seconds: float) -> dict | None:
+        """One run's record of ``finish`` for results.json (``info``: what ``finish_end``
+        returned for that run; ``seconds``: its wall time); ``None``: nothing to record."""
+        return None
+
+    def finish_status(self, work) -> dict:
+        """Fields of the progress line after a step of ``finish`` (``work`` of every run)."""
+        return {}
+
+    def finish_line(self, record: dict) -> str | None:
+        """A line for the person who ran ``train``, from ``finish_record``'s record."""
+        return None
+
+    def exact_record(self, config, policy) -> dict | None:
+        """Exact values of a finished run's best policy, added to its ``final_value``
+        (``None``: the search computes none)."""
+        return None
+
+    def write_plots(self, config, policy, record: dict, out_dir) -> list:
+        """Figures of a finished run's best policy in ``out_dir`` (the driver draws the value
+        curve, ``values.png``, for every search); returns the paths written."""
+        return []
 
 
 class ThresholdSearch(Search):

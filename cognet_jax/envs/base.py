@@ -72,16 +72,9 @@ class Environment(Protocol):
 def normal_from_uniform(u: jax.Array) -> jax.Array:
     """Standard normal draws from uniform(0, 1) numbers (inverse CDF, clipped away from 0/1).
 
-    Jitted: the inverse CDF is a few hundred operations to trace, and a rollout draws it at
-    several places of a step (both scales of the tagging step, in the scan's body and in its
-    last step) with the same shapes; as a ``jit`` it is traced and lowered once per shape and
-    its trace is reused (also by the next program of the process), where before it was traced
-    at every call. XLA inlines it, so the compiled program computes the same numbers (two
-    iterations of nine shipped experiments compared bit for bit at XLA's default level;
-    rollouts in tests/test_neural.py). With ``controllers.neural._written_out_mlp`` (the
-    same change) tracing the default tagging iteration in a fresh process took 0.50-0.71 s
-    instead of 0.76-0.98 s (XLA level 0, 2-core CPU, two runs each; thesis 0.60-0.67 s /
-    0.93-1.01 s, heatmap 0.32-0.37 s / 0.55-0.60 s)."""
+    Jitted so the inverse CDF, a few hundred operations, is traced once per shape and its trace
+    reused by every step and program of the process; XLA inlines it, so the numbers are those
+    of the plain call (tracing times in benchmarks/NOTES.md)."""
     eps = 1e-7
     return ndtri(jnp.clip(u, eps, 1.0 - eps))
 

@@ -1,0 +1,394 @@
+"""The compiled program of a group of runs (``Program``): the search's initial state, one
+iteration of every run, the algorithm's ``finish`` and each run's honest evaluation, compiled
+once and kept (``traced.compile_kept``) under a key of what they depend on
+(``program_identity``).
+
+A *group* is a list of runs (``Run``: config, seed, folder) that share one compiled program:
+``cognet-jax train`` is a group of one run, a sweep (``cognet_jax.sweep``) runs one group per
+set of settings that differ only in dynamic fields. A group of one runs the search as it is,
+its params constants of the programs (as in ``api.make_train(config)`` called without
+params); a larger group ``vmap``s it over a leading ``[runs]`` axis, sharded over the local
+devices (``shard_map``, no collectives), the hyper-parameters data (stacked over ``[runs]``)
+and the env params too when the runs differ in them. Run r of a group uses exactly the keys of
+``train --seed s`` (``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``).
+
+Every run ends with the one honest evaluation (``honest_evaluation``: ``api.honest_returns``,
+``evaluation.rollouts`` fresh rollouts of its best policy from the seed's evaluation key),
+compiled with the run's params as constants -- the function ``cognet-jax evaluate DIR`` runs to
+reproduce it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import hashlib
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.api import (
+    build_algorithm,
+    honest_returns,
+    iteration_step,
+    params_of,
+    seed_key,
+    split_seed_key,
+)
+from cognet_jax.config import Config
+from cognet_jax.errors import InputError
+from cognet_jax.memory import budget_bytes, trace_checked
+from cognet_jax.registry import (
+    algorithm_entry,
+    env_entry,
+    foreign_code,
+    is_builtin,
+)
+from cognet_jax.traced import compile_kept, program_key
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One search of a group: its config, seed and training folder (``None``: no files);
+    ``setting`` and ``grid`` say which setting of a sweep it is."""
+
+    config: Config
+    seed: int
+    folder: Path | None = None
+    setting: int = 0
+    grid: dict = dataclasses.field(default_factory=dict)
+
+
+def same_tree(a, b) -> bool:
+    """Whether two pytrees of arrays have the same structure and values."""
+    leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b)
+    )
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def take(tree, r: int):
+    """Run ``r`` of a pytree with a leading ``[runs]`` axis."""
+    return jax.tree.map(lambda x: x[r], tree)
+
+
+#: arrays of a single run's params larger than this are arguments of its compiled programs,
+#: not constants: each program holds its own copy of a constant (a 2025-state model's 262 MB
+#: transition table, once in the step, once in the polish, once in the evaluation)
+CONSTANT_BYTES = 16 * 2**20
+
+
+def hoist_large(params):
+    """``(held, rebuild)``: the array leaves of ``params`` larger than ``CONSTANT_BYTES`` and
+    ``rebuild(held) -> params`` with them put back (traced arguments inside a program); the
+    other leaves stay constants."""
+    leaves, treedef = jax.tree.flatten(params)
+    where = [i for i, x in enumerate(leaves) if _held(x)]
+
+    def rebuild(held):
+        out = list(leaves)
+        for i, x in zip(where, held, strict=True):
+            out[i] = x
+        return jax.tree.unflatten(treedef, out)
+
+    return tuple(leaves[i] for i in where), rebuild
+
+
+def _held(x) -> bool:
+    return getattr(x, "nbytes", 0) > CONSTANT_BYTES
+
+
+def baked_constants(params) -> list:
+    """The array leaves of ``params`` that ``hoist_large`` leaves as constants."""
+    return [x for x in jax.tree.leaves(params) if not _held(x)]
+
+
+def per_run(fn, sharding, num_args: int):
+    """``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output, each device
+    running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk to each
+    other, so the program holds no collective. (Not jitted: ``Program.compiled`` is.)"""
+    spec = sharding.spec
+    return jax.shard_map(
+        jax.vmap(fn),
+        mesh=sharding.mesh,
+        in_specs=(spec,) * num_args,
+        out_specs=spec,
+        check_vma=False,  # carries start as constants; runs are independent anyway
+    )
+
+
+def rollout_mesh(config: Config):
+    """The context a run's iterations are compiled in: with ``run.shard_rollouts`` a 1-D mesh
+    ``("rollouts",)`` over the local devices is set (``jax.set_mesh``), and the rollout
+    engine lays every batch of rollouts (and so the candidates' evaluations) over it
+    (``rollout.shard_rollouts``); otherwise nothing changes."""
+    if not config.run.shard_rollouts:
+        return contextlib.nullcontext()
+    return jax.set_mesh(Mesh(np.array(jax.local_devices()), ("rollouts",)))
+
+
+#: ``run`` fields that only drive a run (progress, plots, checkpoints): left out of the keys of
+#: its programs, which do not depend on them
+DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds", "probe_seconds")
+
+
+def program_identity(config: Config, search: bool = False, **extra) -> dict:
+    """What a program of ``config`` depends on besides its constants and argument shapes: the
+    config without its ``DRIVING_FIELDS`` (and without its ``evaluation`` section for the
+    ``search``'s own programs, which never read it), the bytes of the files it reads (the
+    model, the VAE of ``network.vae_path``: their weights may be baked in), its memory budget
+    in bytes, and ``extra``."""
+    sections = config.to_dict()
+    sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
+    if search:
+        del sections["evaluation"]
+    files = [config.problem.path, config.network.vae_path]
+    digests = [file_digest(Path(f).expanduser()) for f in files if f]
+    memory = budget_bytes(config.run.memory_gb)
+    return {"config": sections, "files": digests, "memory": memory, **extra}
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (computed once per size and modification time); "" for a
+    missing file."""
+    try:
+        path = path.resolve()
+        stat = path.stat()
+    except OSError:
+        return ""
+    return _digest_of(path, stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _digest_of(path: Path, size: int, mtime_ns: int) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def compiled_program(
+    config: Config, what: str, fn, args: tuple, constants, identity: dict, before_compile=None
+):
+    """``fn(*args)`` compiled once (``traced.compile_kept``: kept in this process and, traced,
+    between processes, while the compilation cache is on), ``what`` naming it in the memory
+    check's refusal (``before_compile()`` is called once the check passed, when it is
+    compiled afresh); ``constants`` are the arrays of ``config``'s params baked into it. A
+    simulator or algorithm registered from outside the package is compiled afresh each time
+    (its source is not in the key)."""
+    before_compile = before_compile or (lambda: None)
+    builtin = (
+        not foreign_code()
+        and is_builtin(env_entry(config.env.name))
+        and is_builtin(algorithm_entry(config.experiment.algorithm))
+    )
+    key = program_key(what, identity, constants, args) if builtin else None
+    memory = budget_bytes(config.run.memory_gb)
+
+    def check(jitted, leaves):
+        trace_checked(jitted, leaves, memory, what)
+        before_compile()
+
+    return compile_kept(fn, args, key, check)
+
+
+class Program:
+    """The compiled functions of a group: ``init``, ``step`` (one iteration of every run),
+    ``finish`` and each run's honest evaluation. One run: the search itself, params as
+    constants. Several: ``vmap`` over ``[runs]`` (padded to a multiple of the local devices by
+    repeating the last run), hyper-parameters as data, env params as data only when the runs
+    differ in them (a zero noise level can then not skip its draws, ``envs.base.scaled_normal``)."""
+
+    def __init__(self, runs: list[Run]):
+        self.runs = runs
+        config = runs[0].config
+        self.config = config
+        self.batched = len(runs) > 1
+        mesh = Mesh(np.array(jax.local_devices()), ("runs",)) if self.batched else None
+        self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
+        padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
+        self.lanes = len(padded)
+        self.algorithm, self.params = build_algorithm(config, lanes=self.lanes)
+        # one run: its params are constants of its programs, except the largest arrays
+        self.held, self._rebuild = hoist_large(self.params)
+        self.run_params = [params_of(r.config) for r in runs]
+        self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
+        # the first run's init and run keys (what a single-run program uses)
+        self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
+        self._step = iteration_step(self.algorithm)
+        self._evaluations: list = []  # (env params, compiled honest evaluation)
+        if self.batched:
+            padded_params = self.run_params + [self.run_params[-1]] * (len(padded) - len(runs))
+            self.shared_env = all(same_tree(p.env, self.params.env) for p in self.run_params)
+            keys = jnp.stack([seed_key(r.config, r.seed) for r in padded])
+            hyper = _stack([p.hyper for p in padded_params])
+            env = _stack([p.env for p in padded_params])
+            self.data = jax.device_put((keys, hyper, env), self.sharding)
+
+    # -- per-run pieces, written once for both layouts --------------------------------------
+    def _params(self, hyper, env_params) -> SearchParams:
+        env = self.params.env if self.shared_env else env_params
+        return SearchParams(env=env, hyper=hyper)
+
+    def _init_one(self, key, hyper, env_params):
+        k_init, _, _ = split_seed_key(key)
+        return self.algorithm.init(k_init, self._params(hyper, env_params))
+
+    def _step_one(self, key, state, hyper, env_params):
+        _, k_run, _ = split_seed_key(key)
+        return self._step(k_run, state, self._params(hyper, env_params))
+
+    def _finish_start_one(self, state, hyper, env_params):
+        return self.algorithm.finish_start(state, self._params(hyper, env_params))
+
+    def _finish_advance_one(self, work, hyper, env_params):
+        return self.algorithm.finish_advance(work, self._params(hyper, env_params))
+
+    # -- the programs --------------------------------------------------------------------
+    def compiled(self, what: str, fn, args: tuple, before_compile=None):
+        """``fn(*args)`` compiled once (``compiled_program``). One run: the params are
+        constants of the program, except the held arrays (``hoist_large``), which a ``fn``
+        that needs them takes as its last argument (``_one``). Several runs: ``fn`` is mapped
+        over them (``per_run``), the first run's env params constants when all runs share
+        them."""
+        if not self.batched:
+            constants = baked_constants(self.params)
+            identity = program_identity(self.config, search=True)
+        else:
+            constants = self.params.env if self.shared_env else []
+            fn = per_run(fn, self.sharding, len(args))
+            devices = [d.id for d in self.sharding.mesh.devices.flat]
+            identity = program_identity(
+                self.config, search=True, devices=devices, shared=self.shared_env
+            )
+        return compiled_program(self.config, what, fn, args, constants, identity, before_compile)
+
+    def _one(self, method):
+        """``method(*args, params)`` as a function of a single run's arguments and the held
+        arrays (last)."""
+        return lambda *args: method(*args[:-1], self._rebuild(args[-1]))
+
+    def init(self):
+        """The initial state (every run's, stacked when batched)."""
+        if not self.batched:
+            init = self._one(self.algorithm.init)
+            return self.compiled("the initial state", init, (self.k_init, self.held))(
+                self.k_init, self.held
+            )
+        return self.compiled("the initial states", self._init_one, self.data)(*self.data)
+
+    def compile_step(self, state, before_compile=lambda: None):
+        """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
+        checked against the memory budget (``before_compile()`` is called once that passed)
+        and compiled ahead of time; ``step.metrics_shapes``: one iteration's metrics, as
+        shapes (to restore a checkpoint's history)."""
+        t0 = time.perf_counter()
+        if not self.batched:
+            args = (self.k_run, state, self.held)
+            fn = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
+            compiled = self.compiled("one iteration", fn, args, before_compile)
+            step = lambda s: compiled(args[0], s, self.held)  # noqa: E731
+        else:
+            keys, hyper, env = self.data
+            what = f"one iteration of {len(keys)} runs"
+            args = (keys, state, hyper, env)
+            compiled = self.compiled(what, self._step_one, args, before_compile)
+            step = lambda s: compiled(keys, s, hyper, env)  # noqa: E731
+        step.metrics_shapes = compiled.out_shapes[1]
+        return step, time.perf_counter() - t0
+
+    def finish(self, state, report=lambda work: None):
+        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run
+        as its steps (``finish_start``, ``finish_advance`` until ``finish_done``,
+        ``finish_end``; the same steps ``make_train`` runs in one ``while_loop``), with
+        ``report(work)`` after each step. Runs that are done stay as they are while the
+        others advance."""
+        alg = self.algorithm
+        if not self.batched:
+            args = (self.held,)
+            start_fn, advance_fn = self._one(alg.finish_start), self._one(alg.finish_advance)
+        else:
+            _, hyper, env = self.data
+            args = (hyper, env)
+            start_fn, advance_fn = self._finish_start_one, self._finish_advance_one
+        start = self.compiled("the finish", start_fn, (state, *args))
+        if start.out_shapes is None:  # nothing to do
+            return state, None
+        work = start(state, *args)
+        advance = self.compiled("a finish step", advance_fn, (work, *args))
+        done = self.compiled("the finish's end", alg.finish_done, (work,))
+        while not np.all(np.asarray(done(work))):
+            work = advance(work, *args)
+            report(work)
+        return self.compiled("the finished state", alg.finish_end, (state, work))(state, work)
+
+    def best_policies(self, state) -> list:
+        """Every run's best policy, on the host."""
+        if not self.batched:
+            return [jax.device_get(self.algorithm.best_policy(state))]
+        best = jax.device_get(jax.vmap(self.algorithm.best_policy)(state))
+        return [take(best, r) for r in range(len(self.runs))]
+
+    def evaluate(self, r: int, policy) -> dict:
+        """Run ``r``'s honest value (``honest_evaluation``), compiled once per env params."""
+        params = self.run_params[r]
+        found = [fn for env, fn in self._evaluations if same_tree(env, params.env)]
+        if not found:
+            config = self.runs[r].config
+            found = [honest_evaluation(self.algorithm, config, params, self.lanes)]
+            self._evaluations.append((params.env, found[0]))
+        return found[0](self.seed_keys[r], policy)
+
+
+def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: int = 1):
+    """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
+    evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
+    the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first
+    traced, kept by ``traced.compile_kept``), the mean and standard error summed in float64 on
+    the host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
+    held, rebuild = hoist_large(params)
+    run = honest_returns(algorithm, config.evaluation)
+    returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
+    constants = baked_constants(params)
+    identity = program_identity(config, lanes=lanes)
+    compiled: dict = {}  # by the policy's shapes and types
+
+    def evaluate(key, policy):
+        args = (key, jax.tree.map(jnp.asarray, policy), held)
+        shapes = str(jax.tree.map(lambda x: (x.shape, x.dtype), args[1]))
+        if shapes not in compiled:
+            compiled[shapes] = compiled_program(
+                config, "the honest evaluation", returns, args, constants, identity
+            )
+        return return_summary(compiled[shapes](*args))
+
+    return evaluate
+
+
+def return_summary(returns) -> dict:
+    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64); an
+    ``InputError`` when a return is not finite (float32 overflowed: rewards too large for the
+    horizon)."""
+    returns = np.asarray(returns, dtype=np.float64)
+    if np.isnan(returns).any():
+        raise InputError(
+            "the returns are NaN: the simulator's rewards are NaN on some states (or an "
+            "infinite reward met its negative)"
+        )
+    if not np.isfinite(returns).all():
+        raise InputError(
+            "the returns are not finite: the rewards overflow float32 over this horizon "
+            "(lower the rewards or the horizon)"
+        )
+    return {
+        "mean": float(returns.mean()),
+        "stderr": float(returns.std(ddof=1) / np.sqrt(returns.size)),
+        "rollouts": int(returns.size),
+    }

@@ -1,0 +1,202 @@
+"""What a group leaves on disk: its checkpoint (``save_group`` / ``restore_group``: the
+search state, run keys and per-iteration metrics, ``checkpoint.save_checkpoint``) and each
+run's folder (``write_run``): ``results.json`` (``RESULTS_SCHEMA``: experiment, algorithm,
+seed, setting and grid of a sweep, full config, ``final_value`` {mean, stderr, rollouts, exact
+values of tabular controllers}, ``in_loop_best`` (the search's own estimate), per-iteration
+values, polish record, timings), ``policy.msgpack`` (the best policy with its
+``fingerprint``), ``vae.msgpack`` when the observation pipeline has a VAE, and PNG plots."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cognet_jax.api import (
+    split_seed_key,
+)
+from cognet_jax.checkpoint import (
+    atomic_write_bytes,
+    atomic_write_text,
+    policy_bytes,
+    read_checkpoint,
+    restore_history,
+    restore_key,
+    restore_state,
+    save_checkpoint,
+    stack_history,
+)
+from cognet_jax.config import Config
+from cognet_jax.errors import CorruptFileError, MismatchError
+from cognet_jax.observations import VAE_FILE
+from cognet_jax.program import Program, Run, file_digest
+from cognet_jax.registry import (
+    env_entry,
+    foreign_code,
+)
+from cognet_jax.reporting import write_plots
+from cognet_jax.vae import save_vae
+
+#: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
+RESULTS_SCHEMA = 2
+
+
+def _meta(runs: list[Run]) -> dict:
+    """What a checkpoint was written by (compared on resume, ``run`` sections aside)."""
+    return {
+        "kind": "runs",
+        "runs": [[r.setting, r.seed] for r in runs],
+        "configs": [r.config.to_dict() for r in runs],
+    }
+
+
+def _without_run_section(meta: dict) -> dict:
+    meta = json.loads(json.dumps(meta))
+    for config in meta.get("configs", []):
+        config.pop("run", None)
+    return meta
+
+
+def _run_keys(program: Program):
+    keys = [split_seed_key(k)[1] for k in program.seed_keys]
+    return keys[0] if not program.batched else jnp.stack(keys)
+
+
+def save_group(program: Program, path: Path, iteration: int, state, history) -> None:
+    save_checkpoint(
+        path,
+        state=state,
+        keys={"run": _run_keys(program)},
+        iteration=iteration,
+        history=stack_history(history),
+        meta=_meta(program.runs),
+    )
+
+
+def current_meta(meta: dict, path) -> dict:
+    """``meta`` of a checkpoint in today's form: a ``train`` checkpoint of the earlier runner is
+    the group of its one run; an earlier sweep's cannot be read (it kept no run keys)."""
+    kind = meta.get("kind")
+    if kind == "train" and "config" in meta and "seed" in meta:
+        return {"kind": "runs", "runs": [[0, meta["seed"]]], "configs": [meta["config"]]}
+    if kind != "runs":
+        raise MismatchError(
+            f"{path} holds a {kind!r} checkpoint of an earlier cognet-jax; resume it with that "
+            "version, or start again"
+        )
+    return meta
+
+
+def restore_group(program: Program, state, path: Path):
+    """``(state, raw, iteration)`` from the checkpoint at ``path`` (``raw``: what
+    ``read_checkpoint`` read, whose history ``restore_history`` restores); ``MismatchError``
+    when another group (configs, seeds or generator) wrote it."""
+    raw = read_checkpoint(path)
+    raw["meta"] = current_meta(raw["meta"], path)
+    if _without_run_section(raw["meta"]) != _without_run_section(_meta(program.runs)):
+        raise MismatchError(f"{path} was written by another config or seed")
+    stored = restore_key(raw, "run", program.config.run.prng_impl)
+    expected = jax.random.key_data(_run_keys(program))
+    if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
+        raise MismatchError(f"{path}: stored run keys do not match the seeds")
+    restored = restore_state(jax.device_get(state), raw)
+    # laid out as the initial state (its programs are compiled for that layout)
+    state = jax.tree.map(lambda x, like: jax.device_put(x, like.sharding), restored, state)
+    return state, raw, int(raw["iteration"])
+
+
+def restored_history(step, raw: dict, path: Path) -> list:
+    """The checkpoint's per-iteration metrics, shaped as ``step``'s (after it is compiled: its
+    output shapes are the template); ``CorruptFileError`` when they do not fit."""
+    try:
+        return restore_history(step.metrics_shapes, raw)
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError) as err:
+        raise CorruptFileError(path, f"history does not fit: {err}") from None
+
+
+def run_record(run: Run, program: Program, **fields) -> dict:
+    """The results.json of ``run`` (``RESULTS_SCHEMA``), from ``fields``: ``status``,
+    ``iteration``, ``final_value`` and, for a finished run, its history and timings."""
+    config = run.config
+    record = {
+        "schema": RESULTS_SCHEMA,
+        "experiment": config.experiment.name,
+        "algorithm": config.experiment.algorithm,
+        "seed": run.seed,
+        "setting": run.setting,
+        "grid": run.grid,
+        "config": config.to_dict(),
+        "resolved": program.algorithm.settings_record(),
+        "iterations": config.algorithm.iterations,
+        "runs_in_program": len(program.runs),
+        "jax_version": jax.__version__,
+        "backend": jax.default_backend(),
+    }
+    record.update(fields)
+    return record
+
+
+def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
+    """The per-iteration fields of run ``r`` (``None``: an unbatched history)."""
+    h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
+    env = algorithm.env
+    return {
+        "in_loop_best": float(h.best_value[-1]),
+        # the search's budget: agent-steps simulated by all its iterations
+        "simulated_agent_steps": iterations
+        * algorithm.rollouts_per_iteration
+        * env.horizon
+        * env.num_agents,
+        "values_per_iteration": np.asarray(h.value).tolist(),
+        "best_per_iteration": np.asarray(h.best_value).tolist(),
+        "threshold_per_iteration": np.asarray(h.threshold).tolist(),
+        "kept_per_iteration": np.asarray(h.kept).tolist(),
+        "entropy_injections": int(np.sum(h.injected)),
+    }
+
+
+def fingerprint(config: Config, written: dict | None = None) -> dict:
+    """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections
+    (as ``written`` to results.json when given: a newer version of the library may add
+    settings with defaults, which must not make an old run's policy a stranger), the model
+    file it reads (a simulator that reads ``[problem]``) and the numeric settings. Stored in
+    the policy file; ``load_run`` refuses a policy whose results.json or model changed since."""
+    written = config.to_dict() if written is None else written
+    shaping = {k: v for k, v in written.items() if k not in ("run", "evaluation")}
+    text = json.dumps(shaping, sort_keys=True, default=str).encode()
+    out = {"config": hashlib.sha256(text).hexdigest(), "numerics": numeric_settings()}
+    path = Path(config.problem.path).expanduser() if config.problem.path else None
+    if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
+        out["model"] = file_digest(path)
+    return out
+
+
+def numeric_settings() -> dict:
+    """What besides the config changes a policy's numbers: JAX's 64-bit mode and default PRNG,
+    and the modules imported from outside the package (``--import``) with their digests."""
+    return {
+        "x64": bool(jax.config.jax_enable_x64),
+        "prng": str(jax.config.jax_default_prng_impl),
+        "imported": foreign_code(),
+    }
+
+
+def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
+    """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
+    ``results.json``, the pipeline's VAE and, with ``plots``, the figures
+    (``reporting.write_plots``)."""
+    if run.folder is None:
+        return
+    run.folder.mkdir(parents=True, exist_ok=True)
+    policy_file = policy_bytes(policy, fingerprint(run.config))
+    atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
+    vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
+    if vae is not None:
+        save_vae(run.folder / VAE_FILE, vae)
+    atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
+    if plots and record.get("status") == "complete":
+        write_plots(run.config, algorithm, policy, record, run.folder)

@@ -1,0 +1,117 @@
+"""Run folders read back: the config and seed of a checkpoint to resume (``resume_target``),
+a finished run's config, search and best policy (``load_run``) and its honest value again
+(``evaluate_run``, what ``cognet-jax evaluate DIR`` prints)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.api import (
+    build_algorithm,
+    check_budget,
+    seed_key,
+)
+from cognet_jax.checkpoint import (
+    CHECKPOINT_NAME,
+    read_checkpoint,
+    read_policy,
+)
+from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
+from cognet_jax.errors import CorruptFileError, MismatchError, read_json
+from cognet_jax.observations import VAE_FILE
+from cognet_jax.program import honest_evaluation
+from cognet_jax.records import current_meta, fingerprint
+from cognet_jax.registry import (
+    config_from_dict,
+)
+
+
+def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, int]:
+    """``(config, seed)`` stored in the checkpoint of the run folder ``run_dir``.
+    ``overrides`` may only touch the ``run`` section (progress, plots, checkpoints)."""
+    for text in overrides or []:
+        (section, _), _ = parse_override(text)
+        if section != "run":
+            raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
+    path = Path(run_dir) / CHECKPOINT_NAME
+    meta = current_meta(read_checkpoint(path)["meta"], path)
+    if len(meta.get("runs", [])) != 1:
+        raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")
+    config = config_from_dict(apply_overrides(meta["configs"][0], overrides or []))
+    return config, int(meta["runs"][0][1])
+
+
+@dataclasses.dataclass
+class LoadedRun:
+    """A finished (or stopped) run folder: its config (with overrides), the search and params
+    built from it, its best policy and its results.json."""
+
+    config: Config
+    algorithm: Any
+    params: SearchParams
+    policy: Any
+    results: dict
+
+
+def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
+    """The run in ``run_dir``. ``overrides`` (``--set``) may change the evaluation setting,
+    e.g. ``env.obs_noise=0.1``; shapes must match. The run's own ``vae.msgpack`` (if any) is
+    used unless ``network.vae_path`` is overridden."""
+    run_dir = Path(run_dir)
+    results_path = run_dir / "results.json"
+    if not results_path.is_file():
+        raise FileNotFoundError(f"{results_path} not found: is {run_dir} a training output folder?")
+    results = read_json(results_path, ("config",))
+    if not isinstance(results["config"], dict):
+        raise CorruptFileError(results_path, "its config is not a table of sections")
+    trained = fingerprint(config_from_dict(results["config"]), results["config"])
+    overrides = list(overrides or [])
+    named = {tuple(parse_override(o)[0]) for o in overrides}
+    if ("problem", "path") in named:
+        raise MismatchError(
+            f"--set problem.path: the policy in {run_dir} was trained on "
+            f"{results['config'].get('problem', {}).get('path')!r}; a policy is evaluated on "
+            "its own model (other fields, e.g. problem.horizon or env noise, may change)"
+        )
+    if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
+        overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
+    config = config_from_dict(apply_overrides(results["config"], overrides))
+    algorithm, params = build_algorithm(config)
+    # the policy's structure and shapes, traced (running ``init`` op by op took seconds)
+    template = jax.eval_shape(
+        lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
+    )
+    saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
+    policy = jax.tree.map(jnp.asarray, saved)
+    return LoadedRun(config, algorithm, params, policy, results)
+
+
+def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, overrides=()):
+    """The honest value of the best policy in ``run_dir``: by default the run's own
+    evaluation (its seed's evaluation key, ``evaluation.rollouts``), which reproduces its
+    results.json ``final_value``; ``seed`` draws from that seed's evaluation key instead,
+    ``rollouts`` changes the number, ``overrides`` the setting. Returns the summary with
+    ``seed``, ``overrides`` and ``wall_s``."""
+    t0 = time.perf_counter()
+    run = load_run(run_dir, list(overrides))
+    config = run.config
+    if rollouts is not None:
+        evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
+        config = dataclasses.replace(config, evaluation=evaluation)
+        check_budget(config, run.algorithm.env)  # the time and memory they take
+    stored = run.results.get("seed", 0)
+    if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
+        raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")
+    seed = stored if seed is None else seed
+    evaluate = honest_evaluation(run.algorithm, config, run.params)
+    value = evaluate(seed_key(config, seed), run.policy)
+    value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
+    return value

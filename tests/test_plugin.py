@@ -1,0 +1,149 @@
+"""A plug-in is one module: an algorithm with its own policy type, controller and figure,
+registered from a user's file with nothing in cognet_jax edited, runs through every command."""
+
+import json
+
+import numpy as np
+
+from cognet_jax.cli import main
+
+THRESHOLD_SEARCH = '''
+"""A user's search, one module: every agent plays ``low`` below its threshold on the
+observation and ``high`` above it (a two-node Moore controller of its own policy type); the
+search keeps the best of random draws. Its own figure: thresholds.png."""
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import cognet_jax
+from cognet_jax.algorithms.cross_entropy import Progress, select_tree
+from cognet_jax.algorithms.engine import Search, SearchMetrics, streams
+from cognet_jax.config import require_positive
+
+
+@struct.dataclass
+class ThresholdPolicy:
+    thresholds: jax.Array  # [agents] float32
+    actions: jax.Array  # [agents, 2] int32: the action below and above
+
+
+@dataclasses.dataclass(frozen=True)
+class ThresholdController:
+    num_agents: int
+    num_nodes: int = 2
+
+    def act(self, u, policy, nodes):
+        return policy.actions[jnp.arange(self.num_agents), nodes]
+
+    def next_node(self, u, policy, nodes, obs):
+        return (obs > policy.thresholds).astype(jnp.int32)
+
+
+@dataclasses.dataclass
+class ThresholdSection:
+    iterations: int = 4
+    samples: int = 32
+    eval_rollouts: int = 16
+    best_rollouts: int = 0
+    common_random_numbers: bool = True
+
+    def check(self, config):
+        require_positive(self, "algorithm", "iterations", "samples", "eval_rollouts")
+
+
+@struct.dataclass
+class ThresholdState:
+    best_policy: ThresholdPolicy
+    progress: Progress
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ThresholdSearch(Search):
+    def __post_init__(self):
+        self._set(controller=ThresholdController(self.env.num_agents))
+
+    def _draw(self, key, num):
+        k_t, k_a = jax.random.split(key)
+        low, high = self.env.obs_range
+        agents = self.env.num_agents
+        return ThresholdPolicy(
+            thresholds=jax.random.uniform(k_t, (num, agents), minval=low, maxval=high),
+            actions=jax.random.randint(k_a, (num, agents, 2), 0, self.env.num_actions),
+        )
+
+    def init(self, key, params):
+        return ThresholdState(jax.tree.map(lambda x: x[0], self._draw(key, 1)), Progress.create())
+
+    @property
+    def rollouts_per_iteration(self):
+        return self.settings.samples * self.settings.eval_rollouts
+
+    def ask(self, key, state, params):
+        policies = self._draw(streams(key).sample, self.settings.samples)
+        return policies, policies
+
+    def tell(self, key, state, samples, values, params, *, fresh_value=None):
+        i = jnp.argmax(values)
+        progress, improved = state.progress.record(values[i])
+        best = select_tree(improved, jax.tree.map(lambda x: x[i], samples), state.best_policy)
+        metrics = SearchMetrics(
+            value=values[i],
+            best_value=progress.best_value,
+            mean_value=values.mean(),
+            threshold=values[i],
+            kept=jnp.int32(1),
+            injected=jnp.bool_(False),
+        )
+        return ThresholdState(best, progress), metrics
+
+    def write_plots(self, config, policy, record, out_dir):
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(3, 2))
+        fig.subplots().bar(range(self.env.num_agents), policy.thresholds)
+        path = Path(out_dir) / "thresholds.png"
+        fig.savefig(path)
+        return [path]
+
+
+def build(config, env, env_params, memory):
+    return ThresholdSearch(env, config.algorithm, memory)
+
+
+cognet_jax.register_algorithm("thresholds", ThresholdSection, build)
+'''
+
+
+def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(tmp_path):
+    module = tmp_path / "threshold_search.py"
+    module.write_text(THRESHOLD_SEARCH)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds"\n[evaluation]\nrollouts = 200\n')
+    out = tmp_path / "run"
+    imports = ["--import", str(module)]
+    train = [*imports, "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main([*train, "--checkpoint-every", "2"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["algorithm"] == "thresholds" and results["status"] == "complete"
+    assert (out / "thresholds.png").stat().st_size > 0  # its own figure
+    assert (out / "values.png").stat().st_size > 0  # the driver's, for every search
+    assert (out / "checkpoint.msgpack").is_file()
+    value = results["final_value"]["mean"]
+
+    assert main([*imports, "evaluate", str(out)]) == 0
+    logged = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
+    assert logged["mean"] == value
+
+    assert main([*imports, "train", "--resume", str(out), "--no-progress"]) == 0
+    again = json.loads((out / "results.json").read_text())
+    assert again["final_value"]["mean"] == value  # the checkpoint held the policy type
+
+    sweep = tmp_path / "sweep"
+    args = [*imports, "sweep", str(toml), "--seeds", "2", "--out", str(sweep), "--no-progress"]
+    assert main(args) == 0
+    rows = json.loads((sweep / "runs.json").read_text())["rows"]
+    assert len(rows) == 2 and rows[0]["final_value"]["mean"] == value  # seed 0 is train's
+    assert np.isfinite(rows[1]["final_value"]["mean"])
