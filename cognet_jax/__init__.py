@@ -21,6 +21,8 @@ _PUBLIC = {
     "list_algorithms": "cognet_jax.registry",
     "register_algorithm": "cognet_jax.registry",
     "SearchParams": "cognet_jax.api",
+    "build": "cognet_jax.api",
+    "Built": "cognet_jax.api",
     "build_algorithm": "cognet_jax.api",
     "build_env": "cognet_jax.api",
     "make_step": "cognet_jax.api",
@@ -32,7 +34,7 @@ _PUBLIC = {
     "portable_policy": "cognet_jax.controllers.encoded",
     "EncodedPolicy": "cognet_jax.controllers.encoded",
     "train": "cognet_jax.driver",
-    "evaluate_run": "cognet_jax.driver",
+    "evaluate_run": "cognet_jax.saved_runs",
 }
 __all__ = sorted(_PUBLIC)
 __version__ = "0.1.0"

@@ -22,6 +22,7 @@ functions.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 
@@ -41,18 +42,13 @@ from cognet_jax.memory import budget_bytes, gb
 from cognet_jax.prng import make_key
 from cognet_jax.registry import (
     algorithm_entry,
+    build_env,
     config_from_dict,
     env_entry,
     is_builtin,
     validate,
 )
 from cognet_jax.rollout import mean_and_stderr
-
-
-def build_env(config: Config):
-    """``(env, env_params)`` described by ``config.env`` (and, for a model file,
-    ``config.problem``), built by the simulator's registry entry."""
-    return env_entry(config.env.name).build(config.env, config)
 
 
 def params_of(config: Config, env_params=None) -> SearchParams:
@@ -84,6 +80,12 @@ def simulated_agent_steps(config: Config, env) -> tuple[int, int]:
     return search, config.evaluation.rollouts * per_rollout
 
 
+def estimated_seconds(config: Config, env) -> float:
+    """Seconds a run of ``config`` takes at least: its agent-steps (search and honest
+    evaluation, ``simulated_agent_steps``) at ``FASTEST_RATE``. An estimate, no check."""
+    return sum(simulated_agent_steps(config, env)) / FASTEST_RATE
+
+
 def check_budget(config: Config, env) -> float:
     """Seconds the run takes at least (its agent-steps at ``FASTEST_RATE``), checked before
     anything is built or compiled: ``ConfigError`` naming the field when that is absurd (over
@@ -97,7 +99,7 @@ def check_budget(config: Config, env) -> float:
             f"the memory budget of {gb(budget_bytes(config.run.memory_gb))}; lower "
             "evaluation.rollouts or raise run.memory_gb"
         )
-    seconds = (search + evaluation) / FASTEST_RATE
+    seconds = estimated_seconds(config, env)
     if seconds > ABSURD_SECONDS:
         field = "evaluation.rollouts" if evaluation > search else _largest_size(config)
         raise ConfigError(
@@ -141,18 +143,41 @@ def _int_fields(config: Config):
     ]
 
 
-def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
-    """``(algorithm, params)`` for ``config``: the immutable search (built by its registry
-    entry, after ``check_budget``) and its ``SearchParams``. The memory budget
-    ``run.memory_gb`` is shared by ``lanes`` searches run side by side (a sweep's runs)."""
+@dataclasses.dataclass(frozen=True)
+class Built:
+    """Everything a run of ``config`` is made of, built once (``build``): the simulator and its
+    params, the search and its ``SearchParams``, and ``seconds``, the run's time at least
+    (its agent-steps at ``FASTEST_RATE``, ``check_budget``)."""
+
+    config: Config
+    env: Any
+    env_params: Any
+    algorithm: Any
+    params: SearchParams
+    seconds: float
+
+
+def build(config: Config, env=None, env_params=None, lanes: int = 1) -> Built:
+    """Build a run of ``config`` and make every admission check once: the simulator
+    (``build_env``, or the ``env`` object given) traced once (``check_simulator``), the
+    run's time and memory (``check_budget``), the search built by its registry entry. The
+    memory budget ``run.memory_gb`` is shared by ``lanes`` searches run side by side (a
+    sweep's runs). ``train``, ``sweep``, ``check``, ``evaluate`` and ``make_train`` all start
+    here."""
     if env is None:
         env, env_params = build_env(config)
     check_simulator(env, env_params, config.env.name, values=not _builtin_env(config))
-    check_budget(config, env)
+    seconds = check_budget(config, env)
     entry = algorithm_entry(config.experiment.algorithm)
     memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
     algorithm = entry.build(config, env, env_params, memory)
-    return algorithm, params_of(config, env_params)
+    return Built(config, env, env_params, algorithm, params_of(config, env_params), seconds)
+
+
+def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):
+    """``(algorithm, params)`` of ``build`` (the search and its ``SearchParams``)."""
+    built = build(config, env, env_params, lanes)
+    return built.algorithm, built.params
 
 
 def _builtin_env(config: Config) -> bool:
@@ -306,7 +331,9 @@ def make_evaluate(config: Config):
 
 
 __all__ = [
+    "Built",
     "SearchParams",
+    "build",
     "build_algorithm",
     "build_env",
     "honest_returns",

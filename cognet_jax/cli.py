@@ -37,7 +37,9 @@ import json
 import math
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -551,10 +553,10 @@ def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -
     """Refuse, before anything is built for each run, a sweep whose runs together take more
     than ``api.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
     announce a large one (over ``MANY_RUNS`` runs, or over ``api.LONG_SECONDS``)."""
-    from cognet_jax.api import ABSURD_SECONDS, LONG_SECONDS, build_env, check_budget
+    from cognet_jax.api import ABSURD_SECONDS, LONG_SECONDS, build_env, estimated_seconds
 
     config = load_config(experiment, overrides)
-    seconds = check_budget(config, build_env(config)[0]) * total
+    seconds = estimated_seconds(config, build_env(config)[0]) * total
     settings = total // max(seeds, 1)
     what = f"{total} runs ({settings} settings x {seeds} seeds)"
     if seconds > ABSURD_SECONDS:
@@ -665,14 +667,16 @@ def _vae(args) -> int:
 
 def _check(args) -> int:
     """Everything ``train`` checks before it compiles: the config, the model file, the sizes
-    (memory and time), the seed and the search it builds; nothing runs."""
-    from cognet_jax.api import build_algorithm, build_env, check_budget, seed_key
+    (memory and time), the seed, the search it builds and the memory of its programs (traced,
+    not compiled); nothing runs."""
+    from cognet_jax.api import build, seed_key
+    from cognet_jax.program import Program, Run
 
     config = load_config(args.experiment or DEFAULT_EXPERIMENT, args.overrides)
     seed_key(config, args.seed)
-    env, env_params = build_env(config)
-    seconds = check_budget(config, env)
-    build_algorithm(config, env, env_params)
+    built = build(config)
+    Program([Run(config, args.seed)], built).check_memory()
+    seconds = built.seconds
     print(f"{config.experiment.name}: valid; at least {seconds:.3g} s of simulation")
     return 0
 
@@ -718,30 +722,59 @@ def _where(err: BaseException, path: str | None) -> str:
     return f"{frame.filename}:{frame.lineno}" if frame else "?"
 
 
+#: seconds an ``--import`` module may take to import (``COGNET_JAX_IMPORT_TIMEOUT`` sets
+#: another); a module still importing then is reported as hanging
+IMPORT_TIMEOUT_S = 120.0
+
+
+class _ImportEnded(Exception):
+    """Raised inside an ``--import`` module's import: it called ``os._exit`` or ran out of
+    time (``IMPORT_TIMEOUT_S``)."""
+
+
+@contextlib.contextmanager
+def _guarded_import(name: str):
+    """While a module imports: ``os._exit(n)`` raises instead of ending the process, and an
+    alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
+    timeout = float(os.environ.get("COGNET_JAX_IMPORT_TIMEOUT", IMPORT_TIMEOUT_S))
+    real_exit = os._exit
+
+    def exit_instead(code=0):
+        raise _ImportEnded(f"--import {name} exited with status {code}")
+
+    def out_of_time(signum, frame):
+        raise _ImportEnded(f"--import {name}: still importing after {timeout:g} s (a hang?)")
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGALRM, out_of_time) if main else None
+    os._exit = exit_instead
+    try:
+        if main:
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+        yield
+    finally:
+        if main:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+        os._exit = real_exit
+
+
 def import_plugin(name: str) -> None:
     """Import a module by name, or a ``.py`` file by path (``--import``); an error of the
-    module itself is a ``UsageError`` naming its file and line."""
+    module itself is a ``UsageError`` naming its file and line, and so is a module that exits
+    (``sys.exit``, ``os._exit``) or hangs at import (``_guarded_import``)."""
     if not name or name.startswith("."):
         raise UsageError(f"--import {name!r}: give a module name or a .py file")
     path = Path(name)
     origin = str(path) if name.endswith(".py") else None
     try:
-        if origin is not None:
-            if not path.is_file():
-                raise UsageError(f"--import {name}: no such file")
-            spec = importlib.util.spec_from_file_location(path.stem, path)
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[path.stem] = module
-            spec.loader.exec_module(module)
-        else:
-            spec = importlib.util.find_spec(name)
-            if spec is None:
-                raise UsageError(f"--import {name}: no module of that name")
-            origin = spec.origin
-            importlib.import_module(name)
-        note_foreign_code(name, origin)
+        with _guarded_import(name):
+            _import(name, path, origin)
+        note_foreign_code(name, origin if origin else importlib.util.find_spec(name).origin)
     except UsageError:
         raise
+    except _ImportEnded as err:
+        raise UsageError(str(err)) from None
     except SystemExit as err:  # sys.exit() in the module's top level
         raise UsageError(f"--import {name} exited with status {err.code}") from None
     except (ModuleNotFoundError, ValueError) as err:
@@ -750,6 +783,21 @@ def import_plugin(name: str) -> None:
         raise UsageError(
             f"--import {name}: {_where(err, origin)}: {type(err).__name__}: {_one_line(err)}"
         ) from None
+
+
+def _import(name: str, path: Path, origin: str | None) -> None:
+    """Import the module ``name`` (a ``.py`` file when ``origin`` is its path)."""
+    if origin is not None:
+        if not path.is_file():
+            raise UsageError(f"--import {name}: no such file")
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[path.stem] = module
+        spec.loader.exec_module(module)
+    else:
+        if importlib.util.find_spec(name) is None:
+            raise UsageError(f"--import {name}: no module of that name")
+        importlib.import_module(name)
 
 
 #: set when a command ended on a stop signal: ``run`` then exits without waiting for work a
@@ -792,12 +840,21 @@ def set_up_process() -> None:
 
 def run() -> None:
     """The ``cognet-jax`` executable: ``main`` with the process's arguments, in a process set
-    up by ``set_up_process``. After a stop signal the process ends with ``os._exit`` (the
-    output flushed first): the interpreter's shutdown would otherwise wait for, or tear down
-    under, a computation still running in XLA (a segmentation fault)."""
+    up by ``set_up_process``. After a stop signal, or with a non-daemon thread still running
+    (one an ``--import`` module started), the process ends with ``os._exit`` (the output
+    flushed first): the interpreter's shutdown would otherwise wait for that thread, or tear
+    down under a computation still running in XLA (a segmentation fault)."""
     set_up_process()
     code = main()
-    if _STOPPED["signum"] is not None:
+    lingering = [
+        t
+        for t in threading.enumerate()
+        if t is not threading.main_thread() and not t.daemon and t.is_alive()
+    ]
+    if lingering:  # e.g. started by an --import module: the command is done, do not wait
+        names = ", ".join(sorted({t.name for t in lingering}))
+        print(f"warning: not waiting for thread(s) still running: {names}", file=sys.stderr)
+    if _STOPPED["signum"] is not None or lingering:
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)

@@ -28,8 +28,6 @@ from tqdm.auto import tqdm
 from cognet_jax.api import (
     FASTEST_RATE,
     LONG_SECONDS,
-    build_env,
-    check_budget,
 )
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
@@ -131,15 +129,6 @@ def _prepare(runs: list[Run], opts: GroupOptions):
     worker thread (``signals.in_background``): a stop signal ends the command at once, leaving
     the folder as it was (no iteration has finished)."""
     config = runs[0].config
-    seconds = sum(check_budget(r.config, build_env(r.config)[0]) for r in runs)
-    if seconds > LONG_SECONDS:
-        print(
-            f"warning: {config.experiment.name}: {len(runs)} run(s) of at least "
-            f"{seconds / 3600:.1f} h of simulation (agent-steps at {FASTEST_RATE:.0e}/s, the "
-            "fastest rate measured; the progress bar shows this machine's)",
-            file=sys.stderr,
-        )
-
     what = f"{config.experiment.name}" + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
 
     def announce():  # once the iteration passed the memory check: a refusal is the only line
@@ -147,7 +136,8 @@ def _prepare(runs: list[Run], opts: GroupOptions):
 
     def prepare():
         with rollout_mesh(config):
-            program = Program(runs)
+            program = Program(runs)  # built and checked once (``api.build``)
+            _warn_if_long(program, len(runs))
             t0 = time.perf_counter()
             state, raw, start = program.init(), None, 0
             init_s = time.perf_counter() - t0  # its compilation (the run is dispatched)
@@ -162,6 +152,19 @@ def _prepare(runs: list[Run], opts: GroupOptions):
         return program, state, history, start, step, compile_s
 
     return in_background(prepare)
+
+
+def _warn_if_long(program: Program, runs: int) -> None:
+    """One line before compiling when the group's runs take over ``LONG_SECONDS`` even at the
+    fastest rate measured (``api.check_budget``'s estimate, made when it was built)."""
+    seconds = program.built.seconds * runs
+    if seconds > LONG_SECONDS:
+        print(
+            f"warning: {program.config.experiment.name}: {runs} run(s) of at least "
+            f"{seconds / 3600:.1f} h of simulation (agent-steps at {FASTEST_RATE:.0e}/s, the "
+            "fastest rate measured; the progress bar shows this machine's)",
+            file=sys.stderr,
+        )
 
 
 def _search(runs, opts: GroupOptions, t_start: float):
@@ -223,7 +226,7 @@ class Probes:
         """Run ``r``'s probes with their honest values."""
         out = []
         for iteration, wall, best in self.kept:
-            value = self.program.evaluate(r, best[r])
+            value = self.program.honest_value(r, best[r])
             out.append({"iteration": iteration, "wall_s": wall, "value": value["mean"]})
         return out
 
@@ -263,7 +266,7 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
         best = program.best_policies(finished)
         finals = []
         for r, run in enumerate(program.runs):
-            final = program.evaluate(r, best[r])
+            final = program.honest_value(r, best[r])
             final.update(algorithm.exact_record(run.config, best[r]) or {})
             finals.append(final)
         probing = probes is not None and probes.seconds > 0

@@ -12,7 +12,7 @@ devices (``shard_map``, no collectives), the hyper-parameters data (stacked over
 and the env params too when the runs differ in them. Run r of a group uses exactly the keys of
 ``train --seed s`` (``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``).
 
-Every run ends with the one honest evaluation (``honest_evaluation``: ``api.honest_returns``,
+Every run ends with the one honest evaluation (``honest_value``: ``api.honest_returns``,
 ``evaluation.rollouts`` fresh rollouts of its best policy from the seed's evaluation key),
 compiled with the run's params as constants -- the function ``cognet-jax evaluate DIR`` runs to
 reproduce it.
@@ -34,7 +34,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
-    build_algorithm,
+    Built,
+    build,
     honest_returns,
     iteration_step,
     params_of,
@@ -206,7 +207,7 @@ class Program:
     repeating the last run), hyper-parameters as data, env params as data only when the runs
     differ in them (a zero noise level can then not skip its draws, ``envs.base.scaled_normal``)."""
 
-    def __init__(self, runs: list[Run]):
+    def __init__(self, runs: list[Run], built: Built | None = None):
         self.runs = runs
         config = runs[0].config
         self.config = config
@@ -215,10 +216,11 @@ class Program:
         self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
         padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
         self.lanes = len(padded)
-        self.algorithm, self.params = build_algorithm(config, lanes=self.lanes)
+        self.built = built or build(config, lanes=self.lanes)
+        self.algorithm, self.params = self.built.algorithm, self.built.params
         # one run: its params are constants of its programs, except the largest arrays
         self.held, self._rebuild = hoist_large(self.params)
-        self.run_params = [params_of(r.config) for r in runs]
+        self.run_params = [params_of(r.config) for r in runs]  # envs: ``build_env``'s
         self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
         # the first run's init and run keys (what a single-run program uses)
         self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
@@ -284,6 +286,18 @@ class Program:
             )
         return self.compiled("the initial states", self._init_one, self.data)(*self.data)
 
+    def check_memory(self) -> None:
+        """What ``init`` and ``compile_step`` check before they compile, and nothing more
+        (``cognet-jax check``): the initial state's and one iteration's programs traced and
+        held to ``run.memory_gb`` (``memory.trace_checked``). One run only."""
+        memory = budget_bytes(self.config.run.memory_gb)
+        init = self._one(self.algorithm.init)
+        args = (self.k_init, self.held)
+        trace_checked(jax.jit(init), args, memory, "the initial state")
+        state = jax.eval_shape(init, *args)
+        step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
+        trace_checked(jax.jit(step), (self.k_run, state, self.held), memory, "one iteration")
+
     def compile_step(self, state, before_compile=lambda: None):
         """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
         checked against the memory budget (``before_compile()`` is called once that passed)
@@ -336,18 +350,18 @@ class Program:
         best = jax.device_get(jax.vmap(self.algorithm.best_policy)(state))
         return [take(best, r) for r in range(len(self.runs))]
 
-    def evaluate(self, r: int, policy) -> dict:
-        """Run ``r``'s honest value (``honest_evaluation``), compiled once per env params."""
+    def honest_value(self, r: int, policy) -> dict:
+        """Run ``r``'s honest value (``honest_value``), compiled once per env params."""
         params = self.run_params[r]
         found = [fn for env, fn in self._evaluations if same_tree(env, params.env)]
         if not found:
             config = self.runs[r].config
-            found = [honest_evaluation(self.algorithm, config, params, self.lanes)]
+            found = [honest_value(self.algorithm, config, params, self.lanes)]
             self._evaluations.append((params.env, found[0]))
         return found[0](self.seed_keys[r], policy)
 
 
-def honest_evaluation(algorithm, config: Config, params: SearchParams, lanes: int = 1):
+def honest_value(algorithm, config: Config, params: SearchParams, lanes: int = 1):
     """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
     evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
     the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first

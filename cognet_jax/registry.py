@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import importlib
+import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -337,10 +338,44 @@ def config_from_dict(data: dict) -> Config:
     validate(config)
     resolve = algorithm_entry(experiment.algorithm).resolve
     if resolve is not None:
-        env, _ = env_entry(env_name).build(config.env, config)
+        env, _ = build_env(config)
         config = dataclasses.replace(config, algorithm=resolve(config.algorithm, env))
         validate(config)
     return config
+
+
+def build_env(config: Config):
+    """``(env, env_params)`` described by ``config.env`` (and, for a model file,
+    ``config.problem``), built by the simulator's registry entry once per description: a
+    later call with the same sections, the same registered builder and the same model file
+    returns the same objects (immutable: a frozen env, a params pytree of arrays)."""
+    entry = env_entry(config.env.name)
+    key = _env_key(config, entry)
+    if key not in _BUILT_ENVS:
+        if len(_BUILT_ENVS) >= _BUILT_ENVS_MAX:
+            _BUILT_ENVS.pop(next(iter(_BUILT_ENVS)))
+        _BUILT_ENVS[key] = entry.build(config.env, config)
+    return _BUILT_ENVS[key]
+
+
+#: simulators built by ``build_env``, by ``_env_key`` (the most recent ``_BUILT_ENVS_MAX``)
+_BUILT_ENVS: dict = {}
+_BUILT_ENVS_MAX = 4
+
+
+def _env_key(config: Config, entry) -> tuple:
+    """What a simulator is built from: its registered builder, its ``[env]`` section and,
+    when it reads one, the ``[problem]`` section with the model file's size and mtime."""
+    sections = [dataclasses.asdict(config.env)]
+    if "problem" in entry.reads:
+        sections.append(dataclasses.asdict(config.problem))
+        path = Path(config.problem.path).expanduser() if config.problem.path else None
+        try:
+            stat = path.stat() if path is not None else None
+            sections.append([str(path.resolve()), stat.st_size, stat.st_mtime_ns] if stat else "")
+        except OSError:
+            sections.append("missing")
+    return (entry.build, json.dumps(sections, sort_keys=True, default=repr))
 
 
 def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config:

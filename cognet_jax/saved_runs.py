@@ -15,8 +15,7 @@ import jax.numpy as jnp
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
-    build_algorithm,
-    check_budget,
+    build,
     seed_key,
 )
 from cognet_jax.checkpoint import (
@@ -27,7 +26,7 @@ from cognet_jax.checkpoint import (
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
 from cognet_jax.observations import VAE_FILE
-from cognet_jax.program import honest_evaluation
+from cognet_jax.program import honest_value
 from cognet_jax.records import current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,
@@ -61,10 +60,12 @@ class LoadedRun:
     results: dict
 
 
-def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
+def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None = None) -> LoadedRun:
     """The run in ``run_dir``. ``overrides`` (``--set``) may change the evaluation setting,
-    e.g. ``env.obs_noise=0.1``; shapes must match. The run's own ``vae.msgpack`` (if any) is
-    used unless ``network.vae_path`` is overridden."""
+    e.g. ``env.obs_noise=0.1``; shapes must match; ``rollouts`` replaces
+    ``evaluation.rollouts`` before the run is built (and its size checked, ``api.build``).
+    The run's own ``vae.msgpack`` (if any) is used unless ``network.vae_path`` is
+    overridden."""
     run_dir = Path(run_dir)
     results_path = run_dir / "results.json"
     if not results_path.is_file():
@@ -84,7 +85,11 @@ def load_run(run_dir, overrides: list[str] | None = None) -> LoadedRun:
     if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
         overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
     config = config_from_dict(apply_overrides(results["config"], overrides))
-    algorithm, params = build_algorithm(config)
+    if rollouts is not None:
+        evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
+        config = dataclasses.replace(config, evaluation=evaluation)
+    built = build(config)
+    algorithm, params = built.algorithm, built.params
     # the policy's structure and shapes, traced (running ``init`` op by op took seconds)
     template = jax.eval_shape(
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
@@ -101,17 +106,13 @@ def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, 
     ``rollouts`` changes the number, ``overrides`` the setting. Returns the summary with
     ``seed``, ``overrides`` and ``wall_s``."""
     t0 = time.perf_counter()
-    run = load_run(run_dir, list(overrides))
+    run = load_run(run_dir, list(overrides), rollouts)
     config = run.config
-    if rollouts is not None:
-        evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
-        config = dataclasses.replace(config, evaluation=evaluation)
-        check_budget(config, run.algorithm.env)  # the time and memory they take
     stored = run.results.get("seed", 0)
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")
     seed = stored if seed is None else seed
-    evaluate = honest_evaluation(run.algorithm, config, run.params)
+    evaluate = honest_value(run.algorithm, config, run.params)
     value = evaluate(seed_key(config, seed), run.policy)
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
     return value

@@ -106,6 +106,9 @@ def _bound(config, env, params):
 BEFORE_POOL = ["algorithm.tie_structure=true", "algorithm.restart_tol=0.02"]
 #: the library's defaults
 NEW = [*BEFORE_POOL, "algorithm.best_pool=4"]
+#: the heatmap experiments compare the best policy on paired fresh rollouts, which replaces the
+#: pool: the defaults there turn that off
+UNPAIRED = ["algorithm.paired_best=false"]
 #: the defaults without the pool (the search of the rows measured before it)
 NO_POOL = ["algorithm.best_pool=0"]
 #: further sweeps: folder -> (experiment, overrides, seeds, what it tests, earlier sweep to
@@ -158,9 +161,9 @@ EXTRA = {
     ),
     **{
         f"{experiment}{suffix}": (experiment, overrides, SEEDS, what, experiment)
-        for experiment in ("tagging-thesis-n6", "heatmap-2d-n4")
+        for experiment, paired in (("tagging-thesis-n6", []), ("heatmap-2d-n4", UNPAIRED))
         for suffix, overrides, what in (
-            ("-defaults", NEW, "the library's defaults"),
+            ("-defaults", [*NEW, *paired], "the library's defaults"),
             ("", BEFORE_POOL, "the defaults before the pool"),
         )
     },
@@ -179,6 +182,27 @@ EXTRA = {
         )
         for suffix, extra, what in (("", [], ""), ("-nopool", NO_POOL, ", without the pool"))
     },
+    "paper-budget-1of64-c800": (
+        "tagging-paper-auto",
+        [
+            "algorithm.budget=4.6875e9",
+            "run.probe_seconds=10",
+            "algorithm.candidates=800",
+            "algorithm.eval_rollouts=50",
+            "algorithm.iterations=390",
+        ],
+        3,
+        "1/64 of the paper's budget split as the built-in tagging-paper-cognet splits it: "
+        "more candidates, fewer rollouts each",
+        None,
+    ),
+    "box-push-c1000": (
+        "box-push-n3",
+        ["algorithm.candidates=1000", "algorithm.eval_rollouts=75", "algorithm.iterations=400"],
+        SEEDS,
+        "the default budget as 5x the candidates with fewer rollouts each",
+        None,
+    ),
 }
 
 

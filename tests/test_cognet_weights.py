@@ -330,3 +330,19 @@ def test_a_converged_distribution_restarts_and_the_best_policy_stays():
     kept, m2 = jax.jit(alg.step)(jax.random.key(2), after, params)  # not converged: refit
     assert not bool(m2.injected)
     assert not np.array_equal(kept.distribution.w1_mean, after.distribution.w1_mean)
+
+
+def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it():
+    """results.json configs of paired-best runs have no ``best_pool``: the default pool must
+    not make them invalid or change their search (``paired_best`` replaces the pool)."""
+    from cognet_jax.algorithms.cognet_weights import pool_size, rollouts_per_iteration
+
+    alg, params = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
+    assert pool_size(alg.settings) == 0 and alg.init(jax.random.key(0), params).pool is None
+    assert rollouts_per_iteration(alg.settings) == 8 * 16 + 3 * 200
+    data = load_config("tagging-thesis-n3").to_dict()
+    data["algorithm"].pop("best_pool")
+    data["algorithm"]["paired_best"] = True
+    from cognet_jax.registry import config_from_dict
+
+    assert config_from_dict(data).algorithm.paired_best

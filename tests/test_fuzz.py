@@ -16,9 +16,10 @@ import pytest
 from shared_files import DPOMDP_DIR, dpomdp_file
 
 from cognet_jax.cli import main
+from cognet_jax.registry import load_config
 
 #: inputs each kind must try (the four add up to more than 1000)
-COUNTS = {"models": 400, "values": 520, "flags": 260, "folders": 48}
+COUNTS = {"models": 400, "values": 520, "flags": 260, "folders": 48, "check-train": 100}
 
 
 def _outcome(capsys, argv: list[str]) -> tuple[int, list[str]]:
@@ -140,6 +141,41 @@ def test_config_values(capsys):
         _clean(code, err, argv)
         refused += code == 2
     assert refused > COUNTS["values"] // 2, refused
+
+
+class _Admitted(Exception):
+    """Raised where ``train`` would compile its first program: it admitted the run."""
+
+
+def test_check_and_train_refuse_the_same_values(capsys, tmp_path, monkeypatch):
+    """Values of the value family through ``check`` and through ``train`` (stopped where it
+    would compile, after every check it makes): the two refuse the same ones, with the same
+    line."""
+    from cognet_jax import program, traced
+
+    def admit(fn, args, key, check):  # the memory check, then stop before compiling
+        jitted, leaves, _ = traced._flat(fn, args)
+        check(jitted, leaves)
+        raise _Admitted
+
+    monkeypatch.setattr(program, "compile_kept", admit)
+    rnd = random.Random(5)
+    base = [x for s in TINY for x in ("--set", s)]
+    config = load_config("tagging-thesis-n3")
+    fields = [f"{sec}.{key}" for sec, values in config.to_dict().items() for key in values]
+    refused = 0
+    for k in range(COUNTS["check-train"]):
+        value = rnd.choice(BAD_VALUES)
+        case = ["tagging-thesis-n3", *base, "--set", f"{rnd.choice(fields)}={value}"]
+        checked, check_err = _outcome(capsys, ["check", *case])
+        out = ["--out", str(tmp_path / f"r{k}")]
+        trained, train_err = _outcome(capsys, ["train", *case, *out])
+        if checked == 0:  # admitted by check: train gets to its first compile
+            assert trained == 1 and "_Admitted" in train_err[-1], (case, train_err)
+        else:
+            assert (trained, train_err) == (checked, check_err), (case[-1], train_err, check_err)
+            refused += 1
+    assert 0 < refused < COUNTS["check-train"]
 
 
 # ------------------------------------------------------------------------------- flags

@@ -126,6 +126,39 @@ def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
     assert "exited with status 7" in capsys.readouterr().err
 
 
+def test_a_module_that_ends_the_process_or_hangs_at_import_is_named(tmp_path, capsys, monkeypatch):
+    (tmp_path / "quits.py").write_text("import os\nos._exit(3)\n")
+    assert cli.main(["--import", str(tmp_path / "quits.py"), "list"]) == 2
+    assert "--import" in (err := capsys.readouterr().err) and "exited with status 3" in err
+    (tmp_path / "hangs.py").write_text("import time\nwhile True:\n    time.sleep(0.05)\n")
+    monkeypatch.setenv("COGNET_JAX_IMPORT_TIMEOUT", "0.5")
+    assert cli.main(["--import", str(tmp_path / "hangs.py"), "list"]) == 2
+    assert "still importing after 0.5 s" in capsys.readouterr().err
+    import os
+
+    assert os._exit.__module__ == "posix"  # given back after the import
+
+
+def test_a_thread_left_running_by_a_module_does_not_keep_the_command_alive(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    module = tmp_path / "spins.py"
+    module.write_text(
+        "import threading, time\nthreading.Thread(target=time.sleep, args=(60,)).start()\n"
+    )
+    t0 = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-m", "cognet_jax", "--import", str(module), "list"],
+        capture_output=True,
+        text=True,
+        timeout=50,
+    )
+    assert done.returncode == 0 and time.monotonic() - t0 < 40
+    assert "not waiting for thread" in done.stderr and "tagging-thesis-n3" in done.stdout
+
+
 def test_a_failed_write_names_the_file_and_keeps_the_previous_one(tmp_path, monkeypatch):
     from cognet_jax import checkpoint
 

@@ -74,7 +74,9 @@ One iteration (``step``), values are returns to **maximise**:
    With ``best_pool = P > 0`` (default) it races a pool of the P best policies seen, all
    re-evaluated on the same fresh rollouts every iteration (``algorithms.best_pool``: the kept
    policy is the member with the largest lower confidence bound, so the winner's curse of a
-   maximum over hundreds of noisy means does not decide). With ``best_pool = 0`` the
+   maximum over hundreds of noisy means does not decide). With ``best_pool = 0`` (or with
+   ``paired_best``, which replaces the pool: configs written before the pool still run as
+   they did) the
    challenger replaces the best policy when its fresh value beats the best fresh value so far
    (the winner on the ``best`` stream, the mode on the ``other``); ``paired_best`` then
    re-evaluates the best policy on the challengers' rollouts and compares with that instead.
@@ -184,12 +186,6 @@ class CognetWeightsSection:
             0 <= self.best_pool <= 64, "algorithm.best_pool", f"in 0 .. 64, got {self.best_pool}"
         )
         require(
-            not (self.paired_best and self.best_pool),
-            "algorithm.paired_best",
-            "compares with the best so far; the pool (algorithm.best_pool) races it already: "
-            "set one of them",
-        )
-        require(
             0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
         )
         defaults = NetworkSection()
@@ -218,11 +214,16 @@ class CognetWeightsSection:
         require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
 
 
+def pool_size(s) -> int:
+    """Members of the race of best policies: ``best_pool``, none with ``paired_best``."""
+    return 0 if s.paired_best else s.best_pool
+
+
 def rollouts_per_iteration(s) -> int:
     """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
     evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
     far, ``paired_best``, or of the pool's members, ``best_pool``)."""
-    fresh = 2 + (1 if s.paired_best else 0) + s.best_pool
+    fresh = 2 + (1 if s.paired_best else 0) + pool_size(s)
     return s.candidates * s.eval_rollouts + fresh * s.best_rollouts
 
 
@@ -258,7 +259,7 @@ class WeightsMetrics:
     value: jax.Array  # [] fresh value of the better of (winner, mode) this iteration
     best_value: jax.Array  # [] best fresh value so far
     mean_value: jax.Array  # [] mean candidate value (in-loop)
-    winner_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
+    top_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
     threshold: jax.Array  # [] smallest elite value
     kept: jax.Array  # [] number of elites
     injected: jax.Array  # [] the distribution converged: restarted (``restart_tol``)
@@ -437,7 +438,7 @@ class CognetWeights(Search):
         """Initial state; its ``best_policy`` is one draw of the initial distribution."""
         dist = self.init_distribution()
         first = self.to_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
-        size = self.settings.best_pool
+        size = pool_size(self.settings)
         return WeightsState(
             distribution=dist,
             best_policy=first,
@@ -516,7 +517,7 @@ class CognetWeights(Search):
             value=value,
             best_value=progress.best_value,
             mean_value=values.mean(),
-            winner_value=elite_values[0],
+            top_value=elite_values[0],
             threshold=elite_values[-1],
             kept=jnp.int32(s.elites),
             injected=converged,

@@ -43,7 +43,7 @@ above the rising threshold V_w (``cross_entropy.elite_selection``), refits the d
 (the subclass's ``update_distribution``: count MLE + smoothing, Beta refits), injects entropy
 when a trigger fires (``Progress.should_inject`` and the subclass's ``inject``), and tracks the
 anytime best: the iteration's winner replaces the best policy when its value -- its in-loop
-value, or with ``fresh_rollouts > 0`` a fresh mean, or ``fresh_value(key, policy)`` when given
+value, or with ``best_rollouts > 0`` a fresh mean, or ``fresh_value(key, policy)`` when given
 -- beats the best so far. A subclass provides ``sample_policies(key, dist)``,
 ``update_distribution(dist, elites, kept, hyper)``, ``inject(dist, injected, hyper)``, and
 ``policies_of(samples)`` when a sample carries more than its policy (COG-DICE's unit points).
@@ -288,7 +288,7 @@ class ThresholdSearch(Search):
         return samples
 
     @property
-    def fresh_rollouts(self) -> int:
+    def best_rollouts(self) -> int:
         """Fresh rollouts that value the iteration's winner (0: its in-loop value)."""
         return self.settings.best_rollouts
 
@@ -301,13 +301,13 @@ class ThresholdSearch(Search):
         samples = self.sample_policies(streams(key).sample, state.distribution)
         return samples, self.policies_of(samples)
 
-    def winner_value(self, key, winner, in_loop, params, fresh_value=None) -> jax.Array:
+    def anytime_value(self, key, winner, in_loop, params, fresh_value=None) -> jax.Array:
         """The value the anytime best compares for the iteration's ``winner``: ``fresh_value``
-        (yours), else the mean of ``fresh_rollouts`` fresh rollouts, else its ``in_loop``
+        (yours), else the mean of ``best_rollouts`` fresh rollouts, else its ``in_loop``
         value; ``key`` is the iteration's ``best`` stream."""
         if fresh_value is not None:
             return fresh_value(key, winner)
-        if self.fresh_rollouts > 0:
+        if self.best_rollouts > 0:
             return self.fresh_value(key, winner, params)
         return in_loop
 
@@ -333,7 +333,7 @@ class ThresholdSearch(Search):
         progress = progress.replace(threshold=threshold).after_injection(injected)
         best_idx = jnp.argmax(values)
         winner = jax.tree.map(lambda x: x[best_idx], self.policies_of(samples))
-        value = self.winner_value(streams(key).best, winner, values[best_idx], params, fresh_value)
+        value = self.anytime_value(streams(key).best, winner, values[best_idx], params, fresh_value)
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, winner, state.best_policy)
         metrics = SearchMetrics(

@@ -365,7 +365,7 @@ class GDice(TabularReports, ThresholdSearch):
         s = self.settings
         if s.evaluator == "exact":  # exact values need neither rollouts nor a fresh best
             return 0
-        return s.samples * s.eval_rollouts + self.fresh_rollouts
+        return s.samples * s.eval_rollouts + self.best_rollouts
 
     def inject(self, dist: TabularDistribution, injected, hyper):
         """Entropy injection into actions and transitions where ``injected``."""
@@ -384,7 +384,7 @@ class GDice(TabularReports, ThresholdSearch):
         )
 
     @property
-    def fresh_rollouts(self) -> int:
+    def best_rollouts(self) -> int:
         """``best_rollouts`` with the rollout evaluator; exact values need no fresh best."""
         s = self.settings
         return s.best_rollouts if s.evaluator == "rollouts" else 0
