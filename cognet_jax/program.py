@@ -85,7 +85,7 @@ def take(tree, r: int):
 
 #: arrays of a single run's params larger than this are arguments of its compiled programs,
 #: not constants: each program holds its own copy of a constant (a 2025-state model's 262 MB
-#: transition table, once in the step, once in the polish, once in the evaluation)
+#: transition table, once in the step, once in the finish, once in the evaluation)
 CONSTANT_BYTES = 16 * 2**20
 
 

@@ -1,13 +1,14 @@
-"""Figures of a finished run, written next to ``results.json``.
+"""Figures of a finished run, written next to ``results.json``: the value curve of every
+search (``write_value_plot``: in-loop value per iteration, running best, known reference
+values), and the drawings a search asks for in its ``write_plots`` hook (``engine.Search``):
 
-For a neural (COGNet-DICE) policy on scalar observations: ``actions.png`` (each node's action
-distribution), ``node_responses.png`` (next-node probabilities over the observation range),
-``controllers.png`` (each agent's controller as a graph: node -> most likely action, edges
-labelled with the observation intervals where that next node is the most likely) and
-``values.png`` (in-loop value per iteration and running best, with the SPEC's reference values).
-For vector observations (heatmap patches) the two observation plots are skipped, except for the
-encoded pipeline with a 1-D latent, where they are drawn over the VAE mean ``mu`` (range: the mu
-of the clean patches at every reachable position, widened by 10 %).
+* ``neural_plots``: ``actions.png`` (each node's action distribution) and, on a scalar network
+  input, ``node_responses.png`` (next-node probabilities over the observation range) and
+  ``controllers.png`` (each agent's controller as a graph: node -> most likely action, edges
+  labelled with the observation intervals where that next node is the most likely). For the
+  encoded pipeline with a 1-D latent they are drawn over the VAE mean ``mu`` (range: the mu of
+  the clean patches at every reachable position, widened by 10 %);
+* ``region_plots`` / ``tabular_plots``: ``controllers.png`` of region and tabular controllers.
 """
 
 from __future__ import annotations
@@ -89,7 +90,7 @@ def action_names(env) -> tuple:
 
 
 def region_plots(env, policy, results: dict, out_dir) -> list[Path]:
-    """``controllers.png`` of a deterministic region controller (COG-DICE): each agent's
+    """``controllers.png`` of a deterministic region controller: each agent's
     graph, edges labelled with the observation intervals of its regions."""
     edges = [
         region_graph_edges(np.asarray(policy.points[i]), np.asarray(policy.transitions[i]))
@@ -102,7 +103,7 @@ def region_plots(env, policy, results: dict, out_dir) -> list[Path]:
 
 
 def tabular_plots(env, policy, results: dict, out_dir, names, observation_names) -> list[Path]:
-    """``controllers.png`` of a deterministic tabular controller (G-DICE): each agent's
+    """``controllers.png`` of a deterministic tabular controller: each agent's
     graph, edges labelled with ``observation_names [agents][obs]``; ``names``: the actions'."""
     edges = [
         plots.tabular_graph_edges(np.asarray(policy.transitions[i]), observation_names[i])

@@ -1,6 +1,7 @@
 """Programs kept traced between processes, so a repeated run neither traces nor lowers again.
 
-JAX's persistent compilation cache (turned on by the command line, ``cli.use_compile_cache``)
+JAX's persistent compilation cache (turned on by the command line,
+``compile_cache.use_compile_cache``)
 skips XLA's compilation of a program it has seen, but not the Python tracing and the lowering
 that come first and give the cache its key: for the default experiment they take 1.0 of the
 1.3 s a warm ``cognet-jax train`` spends before its loop. This module keeps the traced program

@@ -54,7 +54,7 @@ IMPORTS = {"readme-seek": HERE / "readme_seek.py"}
 
 
 def _config(row: str):
-    from cognet_jax.cli import import_plugin
+    from cognet_jax.plugins import import_plugin
     from cognet_jax.registry import load_config
 
     if row in IMPORTS:
@@ -298,7 +298,7 @@ def extra_table() -> list[str]:
 
 
 def table() -> list[str]:
-    from cognet_jax.cli import import_plugin
+    from cognet_jax.plugins import import_plugin
 
     for path in IMPORTS.values():  # the configs of their sweeps name their simulators
         import_plugin(str(path))

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from cognet_jax.cli import compile_cache_dir
+from cognet_jax.compile_cache import compile_cache_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [

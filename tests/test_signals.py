@@ -132,3 +132,23 @@ def test_a_signal_sent_twice_at_once_is_one_stop(tmp_path):
     rest = _stopped(proc, lines, signal.SIGTERM)
     assert "interrupted at iteration" in rest[-1] and "--resume" in rest[-1], rest
     assert (out / "policy.msgpack").exists() and (out / CHECKPOINT_NAME).exists()
+
+
+def test_sigterm_during_a_long_evaluate_ends_it_within_ten_seconds(tmp_path):
+    """``cognet-jax evaluate`` of many rollouts says so first and obeys SIGTERM at once (the
+    evaluation runs in a worker thread the command does not wait for)."""
+    out = tmp_path / "run"
+    small = ["algorithm.iterations=2", "evaluation.rollouts=100"]
+    train(load_config("tagging-thesis-spec-n3", [*TINY, *small]), 0, out, progress=False)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    args = [sys.executable, "-m", "cognet_jax", "evaluate", str(out), "--rollouts", "100000000"]
+    args += ["--set", "env.horizon=60"]  # about 1e10 agent-steps: minutes of work
+    proc = subprocess.Popen(
+        args, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stderr], daemon=True).start()
+    _wait_line(lines, "100000000 rollouts")
+    time.sleep(3.0)  # into the compiled evaluation
+    rest = _stopped(proc, lines, signal.SIGTERM)
+    assert rest and rest[-1].startswith("error: stopped by"), rest

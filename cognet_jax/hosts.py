@@ -1,0 +1,104 @@
+"""Several processes, devices and hosts for a sweep: ``jax.distributed`` started from
+``--coordinator`` / ``--cluster`` (the coordinator checked first), and the CPU split into JAX
+devices."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+from cognet_jax.config import ConfigError
+from cognet_jax.errors import UsageError
+
+
+def init_distributed(args) -> None:
+    """``jax.distributed.initialize`` from ``--coordinator/--num-processes/--process-id`` or,
+    with ``--cluster``, from the cluster scheduler's environment variables."""
+    import jax
+
+    explicit = (args.coordinator, args.num_processes, args.process_id)
+    if args.cluster:
+        try:
+            jax.distributed.initialize()
+        except (RuntimeError, ValueError) as err:
+            raise UsageError(f"--cluster: cannot start jax.distributed: {err}") from None
+    elif any(v is not None for v in explicit):
+        for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
+            if v is None:
+                raise UsageError(f"{name} is needed for a multi-process sweep")
+        if not 0 <= args.process_id < args.num_processes:
+            raise UsageError(f"--process-id must be in 0 .. {args.num_processes - 1}")
+        check_coordinator(args.coordinator, args.process_id)
+        try:
+            jax.distributed.initialize(
+                args.coordinator,
+                args.num_processes,
+                args.process_id,
+                initialization_timeout=COORDINATOR_TIMEOUT_S,
+            )
+        except (RuntimeError, ValueError) as err:
+            raise UsageError(f"--coordinator {args.coordinator}: cannot start: {err}") from None
+
+
+#: how long the processes of a multi-process sweep wait for each other
+COORDINATOR_TIMEOUT_S = 120
+
+
+def check_coordinator(address: str, process_id: int) -> None:
+    """Refuse, in one line, what would make ``jax.distributed`` abort the process natively: an
+    address that is not ``HOST:PORT``, a host that does not resolve, a port process 0 cannot
+    listen on, and (other processes) a coordinator that does not answer within
+    ``COORDINATOR_TIMEOUT_S``. (A peer process that never starts still ends JAX's own wait
+    with an abort, after that timeout.)"""
+    import socket
+
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UsageError(f"--coordinator {address!r}: expected HOST:PORT (a port 1-65535)")
+    try:
+        socket.getaddrinfo(host.strip("[]"), int(port), type=socket.SOCK_STREAM)
+    except OSError as err:
+        raise UsageError(f"--coordinator {address}: unknown host {host!r} ({err})") from None
+    if process_id == 0:  # the coordination service runs here and listens on PORT
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                probe.bind(("", int(port)))
+        except OSError as err:
+            raise UsageError(
+                f"--coordinator {address}: process 0 cannot listen on port {port} ({err.strerror})"
+            ) from None
+        return
+    deadline, told = time.monotonic() + COORDINATOR_TIMEOUT_S, False
+    while True:
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=2).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise UsageError(
+                    f"--coordinator {address}: no answer in {COORDINATOR_TIMEOUT_S} s (start "
+                    "process 0 first, on that host)"
+                ) from None
+            if not told:
+                print(f"waiting for the coordinator at {address} ...", file=sys.stderr)
+                told = True
+            time.sleep(0.5)
+
+
+def set_cpu_devices(requested: int | None, runs: int) -> None:
+    """Split the host CPU into ``requested`` JAX devices (default ``min(cores, runs)``) so the
+    sharded ``[runs]`` axis keeps every core busy. Must run before JAX starts its backends;
+    does nothing when ``XLA_FLAGS`` already sets the host device count."""
+    import jax
+
+    if requested is not None and requested < 1:
+        raise ConfigError("cpu-devices", f"must be >= 1, got {requested}")
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return
+    n = requested if requested is not None else max(1, min(os.cpu_count() or 1, runs))
+    try:
+        jax.config.update("jax_num_cpu_devices", n)
+    except RuntimeError:  # backends already started (e.g. called from a running program)
+        pass

@@ -1,0 +1,117 @@
+"""``--import``: a user's module (a simulator or algorithm registered from outside the package)
+imported with its failures named -- an error with its file and line, an exit, a hang -- and
+recorded as foreign code (``registry.note_foreign_code``). Also the one-line form of an error."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import importlib.util
+import os
+import signal
+import sys
+import threading
+import traceback
+from pathlib import Path
+
+from cognet_jax.errors import UsageError
+from cognet_jax.registry import note_foreign_code
+
+
+def one_line(err: BaseException) -> str:
+    """The message of a user-facing error on one line."""
+    if isinstance(err, OSError) and err.strerror:
+        where = err.filename if err.filename is not None else ""
+        text = f"{where}: {err.strerror}" if where else err.strerror
+    else:
+        text = str(err) or type(err).__name__
+    return " ".join(text.split())
+
+
+def where_raised(err: BaseException, path: str | None) -> str:
+    """``file:line`` of the user module's line that raised ``err`` (the last frame in
+    ``path``, or the last frame at all)."""
+    if isinstance(err, SyntaxError):
+        return f"{err.filename}:{err.lineno}"
+    frames = traceback.extract_tb(err.__traceback__)
+    own = [f for f in frames if path and Path(f.filename).resolve() == Path(path).resolve()]
+    frame = (own or frames or [None])[-1]
+    return f"{frame.filename}:{frame.lineno}" if frame else "?"
+
+
+#: seconds an ``--import`` module may take to import (``COGNET_JAX_IMPORT_TIMEOUT`` sets
+#: another); a module still importing then is reported as hanging
+IMPORT_TIMEOUT_S = 120.0
+
+
+class _ImportEnded(Exception):
+    """Raised inside an ``--import`` module's import: it called ``os._exit`` or ran out of
+    time (``IMPORT_TIMEOUT_S``)."""
+
+
+@contextlib.contextmanager
+def _guarded_import(name: str):
+    """While a module imports: ``os._exit(n)`` raises instead of ending the process, and an
+    alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
+    timeout = float(os.environ.get("COGNET_JAX_IMPORT_TIMEOUT", IMPORT_TIMEOUT_S))
+    real_exit = os._exit
+
+    def exit_instead(code=0):
+        raise _ImportEnded(f"--import {name} exited with status {code}")
+
+    def out_of_time(signum, frame):
+        raise _ImportEnded(f"--import {name}: still importing after {timeout:g} s (a hang?)")
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGALRM, out_of_time) if main else None
+    os._exit = exit_instead
+    try:
+        if main:
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+        yield
+    finally:
+        if main:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+        os._exit = real_exit
+
+
+def import_plugin(name: str) -> None:
+    """Import a module by name, or a ``.py`` file by path (``--import``); an error of the
+    module itself is a ``UsageError`` naming its file and line, and so is a module that exits
+    (``sys.exit``, ``os._exit``) or hangs at import (``_guarded_import``)."""
+    if not name or name.startswith("."):
+        raise UsageError(f"--import {name!r}: give a module name or a .py file")
+    path = Path(name)
+    origin = str(path) if name.endswith(".py") else None
+    try:
+        with _guarded_import(name):
+            _import(name, path, origin)
+        note_foreign_code(name, origin if origin else importlib.util.find_spec(name).origin)
+    except UsageError:
+        raise
+    except _ImportEnded as err:
+        raise UsageError(str(err)) from None
+    except SystemExit as err:  # sys.exit() in the module's top level
+        raise UsageError(f"--import {name} exited with status {err.code}") from None
+    except (ModuleNotFoundError, ValueError) as err:
+        raise UsageError(f"--import {name}: {err}") from None
+    except Exception as err:  # the module's own error: where, what
+        raise UsageError(
+            f"--import {name}: {where_raised(err, origin)}: {type(err).__name__}: {one_line(err)}"
+        ) from None
+
+
+def _import(name: str, path: Path, origin: str | None) -> None:
+    """Import the module ``name`` (a ``.py`` file when ``origin`` is its path)."""
+    if origin is not None:
+        if not path.is_file():
+            raise UsageError(f"--import {name}: no such file")
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[path.stem] = module
+        spec.loader.exec_module(module)
+    else:
+        if importlib.util.find_spec(name) is None:
+            raise UsageError(f"--import {name}: no module of that name")
+        importlib.import_module(name)
