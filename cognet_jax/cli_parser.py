@@ -195,9 +195,7 @@ def parser() -> argparse.ArgumentParser:
     """The command line's parser, built once (building it looks up argparse's translated
     messages: about 5 ms, as long as parsing a small model for ``inspect``)."""
     common = _common()
-    p = _ArgumentParser(
-        prog="cognet-jax", description=DESCRIPTION, parents=[_common("_top")]
-    )
+    p = _ArgumentParser(prog="cognet-jax", description=DESCRIPTION, parents=[_common("_top")])
     sub = p.add_subparsers(dest="command", required=True)
     add_parser = sub.add_parser
     sub.add_parser = lambda *a, **kw: add_parser(*a, parents=[common], **kw)  # noqa: E731
