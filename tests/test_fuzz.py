@@ -18,8 +18,17 @@ from shared_files import DPOMDP_DIR, dpomdp_file
 from cognet_jax.cli import main
 from cognet_jax.registry import load_config
 
-#: inputs each kind must try (the four add up to more than 1000)
-COUNTS = {"models": 400, "values": 520, "flags": 260, "folders": 48, "check-train": 100}
+#: inputs each kind must try (they add up to more than 1000)
+COUNTS = {
+    "models": 400,
+    "values": 520,
+    "flags": 260,
+    "folders": 48,
+    "check-train": 100,
+    "modules": 60,
+    "cache": 30,
+    "writers": 8,
+}
 
 
 def _outcome(capsys, argv: list[str]) -> tuple[int, list[str]]:
@@ -289,6 +298,173 @@ def test_corrupted_run_folders(capsys, tmp_path, trained):
             refused += 1
         shutil.rmtree(folder, ignore_errors=True)
     assert refused >= COUNTS["folders"] // 5
+
+
+# ------------------------------------------------------------------------------- user modules
+#: what a user's ``--import`` module may do at import: each must end in one line naming the
+#: module (exit 2) or be harmless (exit 0)
+MODULE_FAULTS = [
+    "raise RuntimeError('broken')",
+    "raise SystemExit(7)",
+    "import sys\nsys.exit('no')",
+    "import os\nos._exit(4)",
+    "def f(:\n    pass",
+    "import no_such_module_here",
+    "1 / 0",
+    "import cognet_jax\ncognet_jax.register_env('x')",
+    "import cognet_jax\ncognet_jax.register_env(3, None, None)",
+    "import cognet_jax\ncognet_jax.register_algorithm('y', None, None)",
+    "import cognet_jax\ncognet_jax.register_env('tagging', object, lambda s, c: None)",
+    "import time\nwhile True:\n    time.sleep(0.01)",
+    "x = 1",
+    "print('a module that talks')",
+    "raise KeyboardInterrupt",
+]
+
+
+def test_failing_user_modules(capsys, tmp_path, monkeypatch):
+    """``--import`` of modules that raise, exit, hang, break the registry or do nothing, with
+    commands that read no simulator and one that does: one line naming the module, or exit 0."""
+    monkeypatch.setenv("COGNET_JAX_IMPORT_TIMEOUT", "0.3")
+    rnd = random.Random(3)
+    commands = [["list"], ["inspect", str(dpomdp_file("dectiger"))], ["check", "tagging-thesis-n3"]]
+    refused = 0
+    for k in range(COUNTS["modules"]):
+        fault = MODULE_FAULTS[k % len(MODULE_FAULTS)]
+        module = tmp_path / f"user_{k}.py"
+        module.write_text(fault + "\n")
+        argv = ["--import", str(module), *rnd.choice(commands)]
+        code, err = _outcome(capsys, argv)
+        if code == 130:  # KeyboardInterrupt at import: the one-line interrupt
+            assert err == ["error: interrupted"], err
+            continue
+        _clean(code, err, argv)
+        if code == 2:
+            assert module.name in err[0], (err, fault)
+            refused += 1
+    assert refused >= COUNTS["modules"] // 2, refused
+
+
+# ------------------------------------------------------------------------------- kept programs
+def _damage(rnd: random.Random, path: Path, other: Path) -> str:
+    """One random damage to the kept program file ``path`` (``other``: another one)."""
+    data = bytearray(path.read_bytes())
+    kind = rnd.choice(["flip", "cut", "empty", "swap", "append", "zeros", "other-head", "gone"])
+    if kind == "flip":
+        for _ in range(rnd.randint(1, 16)):
+            data[rnd.randrange(len(data))] ^= 1 << rnd.randrange(8)
+        path.write_bytes(bytes(data))
+    elif kind == "cut":
+        path.write_bytes(bytes(data[: rnd.randrange(len(data))]))
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "swap":
+        path.write_bytes(other.read_bytes())
+    elif kind == "append":
+        path.write_bytes(bytes(data) + rnd.randbytes(rnd.randint(1, 64)))
+    elif kind == "zeros":
+        path.write_bytes(bytes(len(data)))
+    elif kind == "other-head":
+        head = other.read_bytes()[:64]
+        path.write_bytes(head + bytes(data[len(head) :]))
+    else:
+        path.unlink()
+    return kind
+
+
+def test_damaged_kept_programs(capsys, tmp_path, monkeypatch):
+    """Kept program files damaged at random (bytes flipped, cut, emptied, swapped between
+    keys, extended, zeroed, deleted): the program is traced afresh and gives the numbers of a
+    fresh trace, with at most one line said."""
+    from collections import OrderedDict
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from cognet_jax import traced
+
+    folder = tmp_path / "xla-traced"
+    monkeypatch.setattr(traced, "trace_cache_dir", lambda: folder)
+    monkeypatch.setattr(traced, "_COMPILED", OrderedDict())
+    monkeypatch.setattr(traced, "_TOLD", [])
+
+    def program(scale):
+        return lambda key, x: jnp.cumsum(x * scale + jax.random.normal(key, x.shape))
+
+    def no_check(jitted, args):
+        return None
+
+    rnd = random.Random(17)
+    kinds = set()
+    for k in range(COUNTS["cache"]):
+        args = (jax.random.key(k), jnp.linspace(0.0, 1.0, 8 + k % 3))
+        other_args = (jax.random.key(k), jnp.ones(5))
+        key = traced.program_key("fuzz", {"k": k}, jnp.float32(2.0), args)
+        other = traced.program_key("fuzz", {"k": -k - 1}, jnp.float32(3.0), other_args)
+        traced.compile_kept(program(2.0), args, key, no_check)
+        traced.compile_kept(program(3.0), other_args, other, no_check)
+        kinds.add(_damage(rnd, folder / f"{key}.bin", folder / f"{other}.bin"))
+        traced._COMPILED.clear()
+        traced._TOLD.clear()
+        capsys.readouterr()
+        out = traced.compile_kept(program(2.0), args, key, no_check)(*args)
+        np.testing.assert_array_equal(np.asarray(out), np.asarray(jax.jit(program(2.0))(*args)))
+        err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert len(err) <= 1 and "Traceback" not in "".join(err), err
+    assert len(kinds) >= 6, kinds
+
+
+# ------------------------------------------------------------------------------- writers
+def test_concurrent_writers(capsys, tmp_path, trained):
+    """A folder another process is writing (its lock held by a live process): every command
+    that would write it -- train, train --resume, --overwrite, sweep -- fails at once with one
+    line naming the holder (or, without --resume / --overwrite, the run it holds), and the
+    folder is left as it was."""
+    import subprocess
+    import sys
+    import time
+
+    rnd = random.Random(23)
+    tiny = [x for s in TINY for x in ("--set", s)]
+    for k in range(COUNTS["writers"]):
+        out = tmp_path / f"w{k}"
+        shutil.copytree(trained, out)
+        holder = subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                "import fcntl, os, sys, time\n"
+                "fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)\n"
+                "fcntl.flock(fd, fcntl.LOCK_EX)\nos.ftruncate(fd, 0)\n"
+                "os.write(fd, f'{os.getpid()}\\n'.encode())\n"  # as run_folder.claim does
+                "print('held', flush=True)\ntime.sleep(60)",
+                str(out / ".lock"),
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert holder.stdout.readline().strip() == "held"
+            before = (out / "results.json").read_bytes()
+            argv = rnd.choice(
+                [
+                    ["train", "--out", str(out), *tiny],
+                    ["train", "--resume", str(out)],
+                    ["train", "--out", str(out), "--overwrite", *tiny],
+                    ["sweep", "--seeds", "2", "--out", str(out), "--overwrite", *tiny],
+                ]
+            )
+            t0 = time.monotonic()
+            code, err = _outcome(capsys, argv)
+            assert time.monotonic() - t0 < 30, argv  # at once, not after a search
+            _clean(code, err, argv)
+            named = str(holder.pid) in err[0] or "already holds a run" in err[0]
+            assert code == 2 and named, (argv, err)
+            assert (out / "results.json").read_bytes() == before
+        finally:
+            holder.kill()
+            holder.wait()
 
 
 def test_the_suite_tries_over_a_thousand_inputs():
