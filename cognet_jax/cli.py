@@ -33,6 +33,7 @@ import gc
 import json
 import math
 import os
+import select
 import shutil
 import signal
 import sys
@@ -174,13 +175,21 @@ def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -
     """Refuse, before anything is built for each run, a sweep whose runs together take more
     than ``api.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
     announce a large one (over ``MANY_RUNS`` runs, or over ``api.LONG_SECONDS``)."""
-    from cognet_jax.api import ABSURD_SECONDS, LONG_SECONDS, build_env, estimated_seconds
+    from cognet_jax.api import (
+        ABSURD_SECONDS,
+        LONG_SECONDS,
+        build_env,
+        check_budget,
+        estimated_seconds,
+    )
 
     config = load_config(experiment, overrides)
-    seconds = estimated_seconds(config, build_env(config)[0]) * total
+    env = build_env(config)[0]
+    seconds = estimated_seconds(config, env) * total
     settings = total // max(seeds, 1)
     what = f"{total} runs ({settings} settings x {seeds} seeds)"
     if seconds > ABSURD_SECONDS:
+        check_budget(config, env)  # one run alone too long: refused naming its own field
         field = "seeds" if seeds >= settings else "grid"
         raise ConfigError(
             field,
@@ -388,10 +397,29 @@ def run() -> None:
         names = ", ".join(sorted({t.name for t in lingering}))
         print(f"warning: not waiting for thread(s) still running: {names}", file=sys.stderr)
     if _STOPPED["signum"] is not None or lingering:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe: nothing more to say
+                pass
         os._exit(code)
     sys.exit(code)
+
+
+def _stdout_gone() -> bool:
+    """Whether the standard output is a pipe whose reader went away (``poll`` reports an
+    error on its write end); if so, further output goes nowhere instead of raising again at
+    exit."""
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        gone = any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poller.poll(0))
+        if gone:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+        return gone
+    except (OSError, ValueError, AttributeError):  # no descriptor (a captured stdout)
+        return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -413,9 +441,11 @@ def main(argv: list[str] | None = None) -> int:
             "list": _list,
             "inspect": _inspect,
         }[args.command](args)
-    except BrokenPipeError:  # the reader of the output went away (``cognet-jax list | head``)
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 128 + signal.SIGPIPE
+    except BrokenPipeError as err:
+        if args.debug or not _stdout_gone():
+            print(f"error: {one_line(err)}", file=sys.stderr)
+            return 2
+        return 128 + signal.SIGPIPE  # the reader went away (``cognet-jax list | head``)
     except (InputError, OSError) as err:  # config, parse, corrupt-file and usage errors
         if args.debug:
             raise

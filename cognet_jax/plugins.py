@@ -44,9 +44,10 @@ def where_raised(err: BaseException, path: str | None) -> str:
 IMPORT_TIMEOUT_S = 120.0
 
 
-class _ImportEnded(Exception):
+class _ImportEnded(BaseException):
     """Raised inside an ``--import`` module's import: it called ``os._exit`` or ran out of
-    time (``IMPORT_TIMEOUT_S``)."""
+    time (``IMPORT_TIMEOUT_S``). A ``BaseException``, so the module's own ``except
+    Exception`` does not swallow it."""
 
 
 @contextlib.contextmanager
@@ -54,26 +55,31 @@ def _guarded_import(name: str):
     """While a module imports: ``os._exit(n)`` raises instead of ending the process, and an
     alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
     timeout = float(os.environ.get("COGNET_JAX_IMPORT_TIMEOUT", IMPORT_TIMEOUT_S))
-    real_exit = os._exit
+    real_exit, pid, importer = os._exit, os.getpid(), threading.current_thread()
 
     def exit_instead(code=0):
+        if os.getpid() != pid or threading.current_thread() is not importer:
+            real_exit(code)  # a process the module forked, or a thread of its own
         raise _ImportEnded(f"--import {name} exited with status {code}")
 
     def out_of_time(signum, frame):
         raise _ImportEnded(f"--import {name}: still importing after {timeout:g} s (a hang?)")
 
-    main = threading.current_thread() is threading.main_thread()
+    main = importer is threading.main_thread()
     previous = signal.signal(signal.SIGALRM, out_of_time) if main else None
     os._exit = exit_instead
     try:
-        if main:
-            signal.setitimer(signal.ITIMER_REAL, timeout)
+        if main:  # repeats, so a module that catches the first alarm meets the next one
+            signal.setitimer(signal.ITIMER_REAL, timeout, 1.0)
         yield
     finally:
-        if main:
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            signal.signal(signal.SIGALRM, previous)
         os._exit = real_exit
+        if main:
+            try:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+            finally:
+                if previous is not None:
+                    signal.signal(signal.SIGALRM, previous)
 
 
 def import_plugin(name: str) -> None:
@@ -85,9 +91,15 @@ def import_plugin(name: str) -> None:
     path = Path(name)
     origin = str(path) if name.endswith(".py") else None
     try:
+        if origin is None:  # a module name: its file, where its errors are looked for
+            spec = importlib.util.find_spec(name)
+            if spec is None:
+                raise UsageError(f"--import {name}: no module of that name")
+            origin = spec.origin
+            path = Path(origin or name)
         with _guarded_import(name):
-            _import(name, path, origin)
-        note_foreign_code(name, origin if origin else importlib.util.find_spec(name).origin)
+            _import(name, path, origin if name.endswith(".py") else None)
+        note_foreign_code(name, origin)
     except UsageError:
         raise
     except _ImportEnded as err:
@@ -112,6 +124,4 @@ def _import(name: str, path: Path, origin: str | None) -> None:
         sys.modules[path.stem] = module
         spec.loader.exec_module(module)
     else:
-        if importlib.util.find_spec(name) is None:
-            raise UsageError(f"--import {name}: no module of that name")
         importlib.import_module(name)

@@ -347,8 +347,11 @@ def config_from_dict(data: dict) -> Config:
 def build_env(config: Config):
     """``(env, env_params)`` described by ``config.env`` (and, for a model file,
     ``config.problem``), built by the simulator's registry entry once per description: a
-    later call with the same sections, the same registered builder and the same model file
-    returns the same objects (immutable: a frozen env, a params pytree of arrays)."""
+    later call with the same config (its ``[algorithm]``, ``[evaluation]`` and ``[run]``
+    sections aside, which a simulator is not built from; the search's kind in
+    ``[experiment]`` counts: tagging's observations depend on it), the same registered builder
+    and the same model file returns the same objects (immutable: a frozen env, a params pytree
+    of arrays)."""
     entry = env_entry(config.env.name)
     key = _env_key(config, entry)
     if key not in _BUILT_ENVS:
@@ -364,9 +367,13 @@ _BUILT_ENVS_MAX = 4
 
 
 def _env_key(config: Config, entry) -> tuple:
-    """What a simulator is built from: its registered builder, its ``[env]`` section and,
-    when it reads one, the ``[problem]`` section with the model file's size and mtime."""
-    sections = [dataclasses.asdict(config.env)]
+    """What a simulator is built from: its registered builder, the config without its
+    ``[algorithm]``, ``[evaluation]`` and ``[run]`` sections (sizes resolved from the simulator
+    must not make a second build) and, when it reads ``[problem]``, the model file's size and
+    mtime."""
+    skipped = ("algorithm", "evaluation", "run")
+    shown = {k: v for k, v in config.to_dict().items() if k not in skipped}
+    sections = [shown, dataclasses.asdict(config.env)]
     if "problem" in entry.reads:
         sections.append(dataclasses.asdict(config.problem))
         path = Path(config.problem.path).expanduser() if config.problem.path else None

@@ -315,7 +315,7 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result["grid"])
-    # tabular problems: the exact values of each best policy (records.exact_evaluation)
+    # tabular problems: the exact values of each best policy (the search's ``exact_record``)
     exact_keys = [k for k in ("exact", "exact_infinite") if k in result["rows"][0]["final_value"]]
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)

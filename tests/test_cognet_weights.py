@@ -233,9 +233,12 @@ def test_the_pool_keeps_its_member_with_the_best_bound_as_the_best_policy():
     good = reactive_tagging_policy(alg)
     stacked = jax.tree.map(lambda x: jnp.stack([x] * 3), good)
     start = pool.replace(
-        policies=stacked, total=jnp.array([15.0, 0.0, 0.0]), count=jnp.array([1, 0, 0])
+        policies=stacked,
+        mean=jnp.array([15.0, -jnp.inf, -jnp.inf]),
+        m2=jnp.zeros(3),
+        count=jnp.array([1, 0, 0]),
     )
-    state = state.replace(pool=start.replace(squares=start.total**2))
+    state = state.replace(pool=start)
     for i in range(2):
         state, metrics = step(jax.random.key(10 + i), state, params)
     same = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), state.best_policy, good)

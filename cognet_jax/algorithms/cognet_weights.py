@@ -183,7 +183,9 @@ class CognetWeightsSection:
             require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
         require(
-            0 <= self.best_pool <= 64, "algorithm.best_pool", f"in 0 .. 64, got {self.best_pool}"
+            self.best_pool == 0 or 2 <= self.best_pool <= 64,
+            "algorithm.best_pool",
+            f"0 (no pool) or 2 .. 64, got {self.best_pool}",
         )
         require(
             0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
@@ -257,7 +259,8 @@ class WeightsState:
 @struct.dataclass
 class WeightsMetrics:
     value: jax.Array  # [] fresh value of the better of (winner, mode) this iteration
-    best_value: jax.Array  # [] best fresh value so far
+    best_value: jax.Array  # [] the kept policy's estimate: best fresh value so far, or with a
+    # pool the kept member's mean over its evaluations (not monotone)
     mean_value: jax.Array  # [] mean candidate value (in-loop)
     top_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
     threshold: jax.Array  # [] smallest elite value

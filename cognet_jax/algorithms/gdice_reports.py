@@ -6,16 +6,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from cognet_jax.envs.tabular import load_problem
+from cognet_jax.envs.tabular import TabularEnv, load_problem
 from cognet_jax.exact import exact_value
 from cognet_jax.registry import env_entry
 from cognet_jax.reporting import action_names, tabular_plots
 
 
-def _model(config):
-    """The parsed model of a simulator that reads ``[problem]`` (a ``.dpomdp`` file), else
-    ``None``."""
-    if not config.problem.path or "problem" not in env_entry(config.env.name).reads:
+def _model(config, env):
+    """The parsed ``.dpomdp`` model of a tabular simulator built from ``problem.path``, else
+    ``None`` (a user's simulator may read ``[problem]`` in a format of its own)."""
+    reads = "problem" in env_entry(config.env.name).reads
+    if not isinstance(env, TabularEnv) or not config.problem.path or not reads:
         return None
     return load_problem(config.problem)
 
@@ -57,7 +58,7 @@ class TabularReports:
     def exact_record(self, config, policy) -> dict | None:
         """``{"exact": value at problem.horizon (backward DP)}`` plus ``"exact_infinite"``
         (Bellman iteration to 1e-10) when the discount is below 1, on a ``.dpomdp`` model."""
-        model = _model(config)
+        model = _model(config, self.env)
         if model is None:
             return None
         actions, transitions = np.asarray(policy.actions), np.asarray(policy.transitions)
@@ -69,7 +70,7 @@ class TabularReports:
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:
         """``controllers.png``: each agent's controller graph, with the model's names."""
-        env, model = self.env, _model(config)
+        env, model = self.env, _model(config, self.env)
         if model is not None:
             names = model.action_names
             same = len(set(names)) == 1
