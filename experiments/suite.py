@@ -196,6 +196,13 @@ EXTRA = {
         "more candidates, fewer rollouts each",
         None,
     ),
+    "beacon-i600": (
+        "beacon-n5",
+        ["algorithm.iterations=600", "algorithm.eval_rollouts=250"],
+        SEEDS,
+        "the default budget as 1.5x the iterations (more restarts) with fewer rollouts each",
+        None,
+    ),
     "box-push-c1000": (
         "box-push-n3",
         ["algorithm.candidates=1000", "algorithm.eval_rollouts=75", "algorithm.iterations=400"],
@@ -336,12 +343,18 @@ The hand-written controllers are the rules of each simulator's module (`hand_con
 counting clear hearings (Dec-Tiger), stepping along the larger offset (beacon), stepping toward
 the bearing (chase), climbing the patch (plume), pushing when the range is small (box pushing).
 The encoded variant needs a VAE trained on the simulator's patches; only the heatmap's is
-built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap)."""
+built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The
+COGNet-DICE cells ran the pool of best policies as first committed (the notes below the next
+table); "not run" marks a simulator not yet swept under the defaults with the pool (its
+earlier sweep is the "-nopool" row below)."""
 
 
 EXTRA_NOTES = """\
 The defaults race a pool of the 4 best policies on fresh rollouts (`algorithm.best_pool`,
-cognet_jax/algorithms/best_pool.py). Rows "-nopool" and "before the pool" ran the earlier
+cognet_jax/algorithms/best_pool.py). The rows with the pool were measured with its first
+version (commit de9d6d7), which could evict the kept member when its mean was the pool's
+lowest; the version in the code never evicts it and keeps non-finite values out (commit
+92b7ccb), not yet re-measured. Rows "-nopool" and "before the pool" ran the earlier
 defaults, which kept the policy with the best single fresh value: the maximum of hundreds of
 noisy means, whose in-loop estimate was up to 4 above its honest value on tagging and Dec-Tiger
 (the sweeps' summary.md files give both).
