@@ -24,6 +24,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -200,6 +201,10 @@ def compiled_program(
     return compile_kept(fn, args, key, check)
 
 
+#: program identities whose memory ``Program.check_memory`` found within the budget
+_MEMORY_CHECKED: set = set()
+
+
 class Program:
     """The compiled functions of a group: ``init``, ``step`` (one iteration of every run),
     ``finish`` and each run's honest evaluation. One run: the search itself, params as
@@ -291,12 +296,20 @@ class Program:
         (``cognet-jax check``): the initial state's and one iteration's programs traced and
         held to ``run.memory_gb`` (``memory.trace_checked``). One run only."""
         memory = budget_bytes(self.config.run.memory_gb)
+        identity = json.dumps(
+            program_identity(self.config, search=True), sort_keys=True, default=str
+        )
+        builders = (env_entry(self.config.env.name).build, type(self.algorithm))
+        key = (identity, *builders)
+        if key in _MEMORY_CHECKED:  # the same programs passed already (in this process)
+            return
         init = self._one(self.algorithm.init)
         args = (self.k_init, self.held)
         trace_checked(jax.jit(init), args, memory, "the initial state")
         state = jax.eval_shape(init, *args)
         step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
         trace_checked(jax.jit(step), (self.k_run, state, self.held), memory, "one iteration")
+        _MEMORY_CHECKED.add(key)
 
     def compile_step(self, state, before_compile=lambda: None):
         """``(step(state) -> (state, metrics), compile seconds)``: one iteration of every run,
