@@ -91,14 +91,31 @@ def current_meta(meta: dict, path) -> dict:
     return meta
 
 
+def _first_difference(stored: dict, current: dict) -> str:
+    """What differs first between a checkpoint's meta and this group's, as words: the seeds,
+    or the first config field (``section.key: stored -> now``; a field an older version did
+    not write shows as "not written")."""
+    if stored.get("runs") != current.get("runs"):
+        return "group of seeds and settings"
+    for old, new in zip(stored.get("configs", []), current.get("configs", [])):
+        for section in sorted(set(old) | set(new)):
+            a, b = old.get(section, {}), new.get(section, {})
+            for key in sorted(set(a) | set(b)):
+                if a.get(key, "not written") != b.get(key, "not written"):
+                    was, now = a.get(key, "not written"), b.get(key, "not written")
+                    return f"config ({section}.{key}: {was} there, {now} now)"
+    return "config or seed"
+
+
 def restore_group(program: Program, state, path: Path):
     """``(state, raw, iteration)`` from the checkpoint at ``path`` (``raw``: what
     ``read_checkpoint`` read, whose history ``restore_history`` restores); ``MismatchError``
     when another group (configs, seeds or generator) wrote it."""
     raw = read_checkpoint(path)
     raw["meta"] = current_meta(raw["meta"], path)
-    if _without_run_section(raw["meta"]) != _without_run_section(_meta(program.runs)):
-        raise MismatchError(f"{path} was written by another config or seed")
+    stored_meta, meta = _without_run_section(raw["meta"]), _without_run_section(_meta(program.runs))
+    if stored_meta != meta:
+        raise MismatchError(f"{path} was written by another {_first_difference(stored_meta, meta)}")
     stored = restore_key(raw, "run", program.config.run.prng_impl)
     expected = jax.random.key_data(_run_keys(program))
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):

@@ -187,3 +187,12 @@ def test_resume_refuses_changes_outside_run_section(tmp_path):
     assert err.value.field == "algorithm.nodes"
     with pytest.raises(FileNotFoundError):
         resume_target(tmp_path, ["run.plots=false"])
+
+
+def test_a_checkpoint_of_another_config_names_the_field_that_differs():
+    from cognet_jax.records import _first_difference
+
+    old = {"runs": [[0, 1]], "configs": [{"algorithm": {"nodes": 3}, "env": {"noise": 0.1}}]}
+    new = {"runs": [[0, 1]], "configs": [{"algorithm": {"nodes": 3, "best_pool": 4}}]}
+    assert _first_difference(old, new) == "config (algorithm.best_pool: not written there, 4 now)"
+    assert _first_difference({**old, "runs": [[0, 2]]}, new) == "group of seeds and settings"
