@@ -296,7 +296,7 @@ def extra_table() -> list[str]:
         reach = _first_reach(data["rows"], target) if target and "probe" in str(overrides) else ""
         sets = " ".join(f"`{o}`" for o in overrides)
         rows.append(
-            f"| {name} | {experiment} {sets} | {what} | {len(values)} | "
+            f"| {name} | {Path(experiment).name} {sets} | {what} | {len(values)} | "
             f"{sum(values) / len(values):.3f} ({min(values):.3f}, {max(values):.3f}) | "
             f"{before_cell} | {_agent_steps(data['config']):.3g} | {data['wall_s']:.0f} | "
             f"{reach} |"
