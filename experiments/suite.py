@@ -196,6 +196,20 @@ EXTRA = {
         "more candidates, fewer rollouts each",
         None,
     ),
+    **{
+        name: (
+            experiment,
+            overrides,
+            SEEDS,
+            "the defaults as in the code: the pool after its fix",
+            None,
+        )
+        for name, experiment, overrides in (
+            ("tagging-thesis-n3-pool-fixed", "tagging-thesis-n3", NEW),
+            ("hearing-tiger-pool-fixed", "hearing-tiger-n7", []),
+            ("readme-seek-pool-fixed", str(HERE / "readme-seek-n3.toml"), []),
+        )
+    },
     "beacon-i600": (
         "beacon-n5",
         ["algorithm.iterations=600", "algorithm.eval_rollouts=250"],
@@ -231,7 +245,9 @@ def run_cognet(rows: list[str]) -> None:
 def run_extra(names: list[str]) -> None:
     for name in names:
         experiment, overrides, seeds, _, _ = EXTRA[name]
-        _sweep(experiment, overrides, seeds, RESULTS / name)
+        rows = [row for row, (exp, _) in ROWS.items() if exp == experiment and row in IMPORTS]
+        imports = ["--import", str(IMPORTS[rows[0]])] if rows else []
+        _sweep(experiment, overrides, seeds, RESULTS / name, imports)
 
 
 def _search_cell(path: Path, hand: float | None) -> str:
@@ -354,7 +370,7 @@ The defaults race a pool of the 4 best policies on fresh rollouts (`algorithm.be
 cognet_jax/algorithms/best_pool.py). The rows with the pool were measured with its first
 version (commit de9d6d7), which could evict the kept member when its mean was the pool's
 lowest; the version in the code never evicts it and keeps non-finite values out (commit
-92b7ccb), not yet re-measured. Rows "-nopool" and "before the pool" ran the earlier
+92b7ccb), re-measured so far on three rows ("-pool-fixed"). Rows "-nopool" and "before the pool" ran the earlier
 defaults, which kept the policy with the best single fresh value: the maximum of hundreds of
 noisy means, whose in-loop estimate was up to 4 above its honest value on tagging and Dec-Tiger
 (the sweeps' summary.md files give both).
