@@ -4,6 +4,8 @@ repository).
 
     python experiments/models.py fire-fighting --houses 4 --levels 3 --out ff243.dpomdp
     python experiments/models.py fire-fighting --houses 3 --levels 3 --out ff233.dpomdp
+    python experiments/models.py mars --out mars.dpomdp
+    python experiments/models.py meeting-grid --out grid3x3corners.dpomdp
 
 **Fire fighting** (Oliehoek, Spaan and Vlassis 2008, "Optimal and approximate Q-value functions
 for decentralized POMDPs", JAIR 32; MADP's ``ProblemFireFighting`` in the form its distributed
@@ -73,6 +75,44 @@ E, column 3 facing W) under ``2 2``, the outcome "agent 1 moves, agent 2 does no
 to state 90 (agent 2 facing S) where the rules give 91. ``box_pushing(madp_quirk=True)`` (the
 default) writes MADP's line, so the published optima (17.6, 66.081, 98.593, 107.72 at horizons
 2 to 5) are those of the generated file; ``--rules-only`` writes 91.
+
+**Mars rovers** (Amato and Zilberstein 2009, "Achieving goal-oriented behavior in decentralized
+POMDPs", AAMAS; 256 states, 6 actions and 8 observations per agent, as MADP's ``Mars``): two
+rovers on a 2 x 2 grid whose four cells are sites: cells 0 (top left) and 3 (bottom right) are
+drill sites, 1 and 2 sample sites.
+
+* a state holds both rovers' cells and which sites are done: ``64 p1 + 16 p2 + done`` (bits of
+  ``done``: site ``c`` is bit ``c``); the episode starts with the rovers anywhere (uniform) and
+  no site done;
+* actions ``north, east, south, west, sample, drill``: a move succeeds with probability 0.9
+  (into the grid's edge the rover stays), else the rover stays; ``sample`` and ``drill`` keep
+  the rover in place and mark its cell's site done; once every site is done the next state is
+  drawn from the start distribution again;
+* each rover observes its cell and whether that cell's site is done (after the step);
+* rewards ``R(s, ja)``: both rovers on one site not yet done, both drilling: +6 on a drill
+  site, -10 on a sample site (ruined); both sampling a sample site: +2; one drilling while the
+  other samples: -10. Otherwise per rover: -0.1 for a move; for an experiment on a site done
+  before (or by the other rover in this step), -1; drilling alone, -10; sampling, +2. The
+  discount is 0.9.
+
+These are the rules as published and as re-implemented in public code (the POMDPs.jl
+``StochasticMarsPOMDP``); MADP's file may differ in details this description leaves open (the
+order of states, the reset).
+
+**Meeting in a 3 x 3 grid with corners** (Amato, Dibangoye and Zilberstein 2009, "Incremental
+policy generation for finite-horizon DEC-POMDPs", ICAPS; 81 states, 5 actions and 9
+observations per agent, as MADP's ``Grid3x3corners``): two agents on a 3 x 3 grid.
+
+* a state is both agents' cells, ``9 c1 + c2`` (cell ``3 row + column``, row 0 on top); the
+  episode starts with the agents in opposite corners (cells 0 and 8);
+* actions ``north, south, east, west, stay``: a move succeeds with probability 0.6, else the
+  agent stays (into the edge of the grid it stays), as in Bernstein et al.'s 2 x 2 grid;
+* each agent observes the walls around it: left / right / neither times top / bottom /
+  neither (9 observations, which on 3 x 3 name its cell);
+* reward 1 in every step the agents share the top-left or the bottom-right corner (the state
+  before the step), 0 otherwise; the discount is 1. **[choice]** the published description
+  names the corners as the only meeting places; which corners, and the start, are this
+  generator's choices.
 """
 
 from __future__ import annotations
@@ -324,6 +364,160 @@ def _product(values) -> float:
     return round(result, 10)
 
 
+# ---------------------------------------------------------------------------------------------
+# Mars rovers and meeting in a 3 x 3 grid (module docstring)
+# ---------------------------------------------------------------------------------------------
+#: moves on a grid of ``width`` columns: action -> (row step, column step)
+MARS_MOVES = {0: (-1, 0), 1: (0, 1), 2: (1, 0), 3: (0, -1)}
+MARS_SAMPLE, MARS_DRILL = 4, 5
+MARS_DRILL_SITES = (0, 3)
+MARS_START = [64 * p1 + 16 * p2 for p1 in range(4) for p2 in range(4)]
+
+
+def _moved(cell: int, move: tuple[int, int], width: int) -> int:
+    """The cell one step ``move`` from ``cell`` on a ``width x width`` grid (the same cell at
+    the edge)."""
+    row, col = divmod(cell, width)
+    row, col = row + move[0], col + move[1]
+    return cell if not (0 <= row < width and 0 <= col < width) else width * row + col
+
+
+def _rover_outcomes(cell: int, action: int, moves: dict, width: int, succeed: float) -> dict:
+    """``{next cell: probability}`` of one agent's move (or experiment: stays)."""
+    if action not in moves:
+        return {cell: 1.0}
+    target = _moved(cell, moves[action], width)
+    if target == cell:
+        return {cell: 1.0}
+    return {target: succeed, cell: round(1.0 - succeed, 10)}
+
+
+def mars_reward(cells: tuple[int, int], done: int, actions: tuple[int, int]) -> float:
+    """``R(s, ja)`` of Mars rovers (module docstring): ``cells`` of both rovers, ``done`` the
+    bits of the sites done."""
+    experiments = (MARS_SAMPLE, MARS_DRILL)
+    if cells[0] == cells[1] and not done >> cells[0] & 1:
+        site_is_drill = cells[0] in MARS_DRILL_SITES
+        if actions == (MARS_DRILL, MARS_DRILL):
+            return 6.0 if site_is_drill else -10.0
+        if actions == (MARS_SAMPLE, MARS_SAMPLE) and not site_is_drill:
+            return 2.0
+        if actions[0] in experiments and actions[1] in experiments and actions[0] != actions[1]:
+            return -10.0
+    reward, seen = 0.0, done
+    for cell, action in zip(cells, actions):
+        if action not in experiments:
+            reward -= 0.1
+        elif seen >> cell & 1:
+            reward -= 1.0
+        else:
+            reward += -10.0 if action == MARS_DRILL else 2.0
+        if action in experiments:
+            seen |= 1 << cell
+    return round(reward, 10)
+
+
+def mars_rovers() -> str:
+    """The ``.dpomdp`` text of Mars rovers (module docstring)."""
+    start = ["0"] * 256
+    for s in MARS_START:
+        start[s] = _number(1 / 16)
+    out = [
+        "# Mars rovers (experiments/models.py, from Amato and Zilberstein 2009)",
+        "agents: 2",
+        "discount: 0.9",
+        "values: reward",
+        "states: 256",
+        "start:",
+        " ".join(start),
+        "actions:",
+        "north east south west sample drill",
+        "north east south west sample drill",
+        "observations:",
+        " ".join(f"c{c}{f}" for c in range(4) for f in ("open", "done")),
+        " ".join(f"c{c}{f}" for c in range(4) for f in ("open", "done")),
+    ]
+    for s in range(256):
+        cells, done = (s // 64, s // 16 % 4), s % 16
+        for actions in itertools.product(range(6), repeat=2):
+            after = done
+            for cell, action in zip(cells, actions):
+                if action in (MARS_SAMPLE, MARS_DRILL):
+                    after |= 1 << cell
+            dist: dict = {}
+            firsts = _rover_outcomes(cells[0], actions[0], MARS_MOVES, 2, 0.9)
+            seconds = _rover_outcomes(cells[1], actions[1], MARS_MOVES, 2, 0.9)
+            for (c1, p1), (c2, p2) in itertools.product(firsts.items(), seconds.items()):
+                if after == 15:  # every site done: the start distribution again
+                    for nxt in MARS_START:
+                        dist[nxt] = dist.get(nxt, 0.0) + p1 * p2 / 16
+                else:
+                    nxt = 64 * c1 + 16 * c2 + after
+                    dist[nxt] = dist.get(nxt, 0.0) + p1 * p2
+            a1, a2 = actions
+            out += [
+                f"T: {a1} {a2} : {s} : {n} : {_number(round(p, 10))}"
+                for n, p in sorted(dist.items())
+            ]
+            out.append(f"R: {a1} {a2} : {s} : * : * : {_number(mars_reward(cells, done, actions))}")
+    for s in range(256):
+        cells, done = (s // 64, s // 16 % 4), s % 16
+        seen = [2 * c + (done >> c & 1) for c in cells]
+        out.append(f"O: * : {s} : {seen[0]} {seen[1]} : 1.0")
+    return "\n".join(out) + "\n"
+
+
+#: meeting in a 3 x 3 grid: action -> (row step, column step); 4 stays
+GRID_MOVES = {0: (-1, 0), 1: (1, 0), 2: (0, 1), 3: (0, -1)}
+GRID_MEETING_CELLS = (0, 8)
+
+
+def grid_walls(cell: int) -> int:
+    """The observation of an agent in ``cell`` of the 3 x 3 grid: ``3 x vertical + horizontal``
+    with 0 neither wall, 1 the top (left) wall, 2 the bottom (right) wall."""
+    row, col = divmod(cell, 3)
+    return 3 * {0: 1, 1: 0, 2: 2}[row] + {0: 1, 1: 0, 2: 2}[col]
+
+
+def meeting_grid() -> str:
+    """The ``.dpomdp`` text of meeting in a 3 x 3 grid with corners (module docstring)."""
+    names = [f"{v}{h}" for v in ("mid", "top", "bottom") for h in ("Mid", "Left", "Right")]
+    out = [
+        "# meeting in a 3 x 3 grid with corners (experiments/models.py, from Amato, Dibangoye"
+        " and Zilberstein 2009)",
+        "agents: 2",
+        "discount: 1.0",
+        "values: reward",
+        "states: 81",
+        "start: 8",
+        "actions:",
+        "north south east west stay",
+        "north south east west stay",
+        "observations:",
+        " ".join(names),
+        " ".join(names),
+    ]
+    for s in range(81):
+        cells = divmod(s, 9)
+        met = float(cells[0] == cells[1] and cells[0] in GRID_MEETING_CELLS)
+        for a1, a2 in itertools.product(range(5), repeat=2):
+            dist: dict = {}
+            firsts = _rover_outcomes(cells[0], a1, GRID_MOVES, 3, 0.6)
+            seconds = _rover_outcomes(cells[1], a2, GRID_MOVES, 3, 0.6)
+            for (c1, p1), (c2, p2) in itertools.product(firsts.items(), seconds.items()):
+                dist[9 * c1 + c2] = dist.get(9 * c1 + c2, 0.0) + p1 * p2
+            out += [
+                f"T: {a1} {a2} : {s} : {n} : {_number(round(p, 10))}"
+                for n, p in sorted(dist.items())
+            ]
+            if met:
+                out.append(f"R: {a1} {a2} : {s} : * : * : 1")
+    for s in range(81):
+        c1, c2 = divmod(s, 9)
+        out.append(f"O: * : {s} : {grid_walls(c1)} {grid_walls(c2)} : 1.0")
+    return "\n".join(out) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="model", required=True)
@@ -336,10 +530,19 @@ def main(argv: list[str] | None = None) -> int:
     box = sub.add_parser("box-pushing", help="cooperative box pushing (Seuken, Zilberstein 2007)")
     box.add_argument("--rules-only", action="store_true", help="without MADP's one odd line")
     box.add_argument("--out", type=Path, required=True)
+    for name, what in (
+        ("mars", "Mars rovers (Amato, Zilberstein 2009)"),
+        ("meeting-grid", "meeting in a 3x3 grid with corners (Amato et al. 2009)"),
+    ):
+        sub.add_parser(name, help=what).add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     try:
         if args.model == "box-pushing":
             text = box_pushing(madp_quirk=not args.rules_only)
+        elif args.model == "mars":
+            text = mars_rovers()
+        elif args.model == "meeting-grid":
+            text = meeting_grid()
         else:
             text = fire_fighting(args.houses, args.levels, args.agents, args.madp_rounding)
     except ValueError as err:

@@ -132,3 +132,33 @@ def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
     record = json.loads((tmp_path / "run" / "results.json").read_text())
     polish = record["polish"]
     assert polish["exact_evaluations"] <= polish["budget"] == 2 * 20 * 3 // 4
+
+
+def test_mars_rovers_sizes_rows_and_the_horizon_1_optimum(models):
+    """Mars rovers: 256 states, 6 actions and 8 observations per agent; every transition row
+    sums to 1; at horizon 1 the best joint action is both sampling, worth 3.375 by the rules
+    (same cell 1/4: a sample site +2, a drill site +2 - 1; apart 3/4: +2 each)."""
+    mars = parse_dpomdp(models.mars_rovers())
+    assert mars.transition.shape == (256, 36, 256)
+    assert mars.observation.shape[-1] == 64
+    np.testing.assert_allclose(mars.transition.sum(-1), 1.0, atol=1e-9)
+    assert np.count_nonzero(mars.initial_belief) == 16
+    assert brute_force_optimum(mars, 1).value == pytest.approx(3.375, abs=1e-9)
+    both_drill = mars.joint_action_index([5, 5])
+    assert mars.reward[0, both_drill] == 6.0  # both on drill site 0, nothing done
+    assert mars.reward[64 + 16, both_drill] == -10.0  # both on sample site 1: ruined
+    last_site_left = 64 * 1 + 16 * 2 + 0b1011  # rovers on cells 1 and 2; only site 2 not done
+    row = mars.transition[last_site_left, mars.joint_action_index([4, 4])]
+    assert np.count_nonzero(row) == 16  # the last site done: the start distribution again
+
+
+def test_meeting_grid_rewards_only_the_two_corners(models):
+    """Meeting in a 3 x 3 grid: 81 states, 5 actions and 9 observations per agent (the walls
+    around the agent), reward 1 when both share the top-left or bottom-right corner; from
+    opposite corners nobody meets within 2 steps (optimum 0 at horizon 2)."""
+    grid = parse_dpomdp(models.meeting_grid())
+    assert grid.transition.shape == (81, 25, 81)
+    np.testing.assert_allclose(grid.transition.sum(-1), 1.0, atol=1e-9)
+    assert {int(s) for s in np.flatnonzero(grid.reward.max(1))} == {0, 80}
+    assert brute_force_optimum(grid, 1).value == 0.0
+    assert [models.grid_walls(c) for c in (0, 4, 8)] == [4, 0, 8]
