@@ -39,6 +39,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -46,7 +47,7 @@ from tqdm.auto import tqdm
 from cognet_jax.cli_parser import DEFAULT_EXPERIMENT, merge_common, parser
 from cognet_jax.compile_cache import use_compile_cache
 from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
-from cognet_jax.errors import InputError, UsageError
+from cognet_jax.errors import InputError, SimulatorWarning, UsageError
 from cognet_jax.hosts import init_distributed, set_cpu_devices
 from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line
@@ -422,8 +423,26 @@ def _stdout_gone() -> bool:
         return False
 
 
+def _one_line_warnings() -> None:
+    """A ``SimulatorWarning`` is printed as one ``warning:`` line (not Python's two-line form
+    naming this package's source)."""
+    shown = warnings.showwarning
+    if getattr(shown, "one_line", False):
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, SimulatorWarning):
+            print(f"warning: {one_line(message)}", file=sys.stderr)
+            return None
+        return shown(message, category, filename, lineno, file, line)
+
+    show.one_line = True
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     install_stop_handlers()
+    _one_line_warnings()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = argparse.Namespace(debug="--debug" in argv)
     try:

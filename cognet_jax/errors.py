@@ -38,6 +38,11 @@ class SimulatorError(InputError):
     its declared sizes (``envs.base.check_simulator``): the simulator's code, not this library."""
 
 
+class SimulatorWarning(UserWarning):
+    """A simulator that works but will make a search slow or noisy (``check_simulator``); the
+    command line prints it as one ``warning:`` line."""
+
+
 class ResourceError(InputError):
     """A setting asks for more memory than the budget allows (one line, with the numbers)."""
 

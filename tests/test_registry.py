@@ -240,6 +240,39 @@ def test_cli_imports_a_plugin_that_registers_a_simulator(tmp_path, capsys):
     assert len(err) == 1 and "--import" in err[0] and "missing.py" in err[0]
 
 
+def test_a_step_that_calls_back_into_python_is_named_before_compiling(tmp_path, capsys):
+    """``jax.debug.print`` in a user's step: refused in one line before anything compiles (it
+    would make every step of every rollout print); a ``jax.pure_callback``: one warning."""
+    from cognet_jax.cli import main
+
+    step = "        pos = jnp.minimum(state + actions, 4.0)\n"
+    calls = {
+        "debug": "        jax.debug.print('pos {}', pos)\n",
+        "pure": "        pos = jax.pure_callback(lambda p: p, jax.ShapeDtypeStruct((1,), "
+        "jnp.float32), pos, vmap_method='sequential')\n",
+    }
+    for kind, call in calls.items():
+        name = f"{kind}-line"
+        plugin = tmp_path / f"{kind}_plugin.py"
+        code = PLUGIN.replace('"line"', f'"{name}"').replace(step, step + call)
+        plugin.write_text("import jax\n" + code)
+        toml = tmp_path / f"{kind}.toml"
+        toml.write_text(
+            f'[experiment]\nalgorithm = "cogdice"\n[env]\nname = "{name}"\n'
+            "[algorithm]\nnodes = 2\nregions = 2\niterations = 2\nsamples = 4\n"
+            "elites = 2\neval_rollouts = 2\n[evaluation]\nrollouts = 10\n"
+        )
+        rc = main(["--import", str(plugin), "check", str(toml)])
+        err = capsys.readouterr().err.strip().splitlines()
+        if kind == "debug":
+            assert rc == 2 and len(err) == 1, err
+            assert "jax.debug.print" in err[0] and name in err[0] and "remove it" in err[0]
+        else:
+            warned = [line for line in err if line.startswith("warning:")]
+            assert rc == 0 and len(warned) == 1, err
+            assert "pure_callback" in warned[0] and name in warned[0]
+
+
 def test_readme_states_the_user_simulator_module_size():
     """The README's line count of the user simulator (up to its registration) is the block's."""
     text = (Path(__file__).parents[1] / "README.md").read_text()

@@ -24,6 +24,7 @@ inverse CDF (``normal_from_uniform``).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, Protocol
 
 import jax
@@ -31,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
-from cognet_jax.errors import SimulatorError
+from cognet_jax.errors import SimulatorError, SimulatorWarning
 
 EnvState = Any
 EnvParams = Any
@@ -227,8 +228,51 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
             f"{owner}: step returned a reward {reward.dtype}{list(reward.shape)}, expected one "
             "float (the joint reward, a shape () array)"
         )
+    callbacks = _host_callbacks(env.step, u_step, state, actions, env_params)
+    debug = [c for c in callbacks if c in _DEBUG_PRIMITIVES]
+    if debug:  # output only: nothing a search needs, and it stalls compiling for minutes
+        raise SimulatorError(
+            f"{owner}: step calls jax.debug.print or jax.debug.callback ({', '.join(debug)}): "
+            "every step of every rollout would call back into Python, millions of calls per "
+            "iteration; remove it (call the step directly to debug it)"
+        )
+    if callbacks:
+        warnings.warn(
+            SimulatorWarning(
+                f"{owner}: step calls back into Python ({', '.join(callbacks)}): every step "
+                "of every rollout makes that call, millions per iteration, so the search "
+                "will be slow"
+            ),
+            stacklevel=2,
+        )
     if values:
         _check_values(env, env_params, owner)
+
+
+#: primitives that call Python from inside a compiled program; the first two only for output
+_DEBUG_PRIMITIVES = ("debug_callback", "debug_print")
+_CALLBACK_PRIMITIVES = (*_DEBUG_PRIMITIVES, "io_callback", "pure_callback")
+
+
+def _host_callbacks(fn, *args) -> list[str]:
+    """Names of the host-callback primitives in ``fn``'s program (nested ones included)."""
+    found: set[str] = set()
+
+    def walk(jaxpr):
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name in _CALLBACK_PRIMITIVES:
+                found.add(eqn.primitive.name)
+            for value in eqn.params.values():
+                for inner in value if isinstance(value, (tuple, list)) else (value,):
+                    inner = getattr(inner, "jaxpr", inner)
+                    if hasattr(inner, "eqns"):
+                        walk(inner)
+
+    try:
+        walk(jax.make_jaxpr(fn)(*args).jaxpr)
+    except Exception:  # traced once already: any failure here was reported above
+        return []
+    return sorted(found)
 
 
 def _check_values(env, env_params, owner: str) -> None:
