@@ -102,9 +102,10 @@ class AlgorithmEntry:
     ``"network.learning_rate"``) that are hyper-parameters (sweepable in one program);
     ``discrete``: the algorithm needs discrete observations (simulators that can discretise,
     e.g. tagging, then return indices); ``reads``: the optional sections it reads
-    (``"network"``); ``resolve(section, env) -> section``: the section with its ``"auto"``
-    settings replaced by numbers read from the simulator's sizes (``load_config`` calls it, so
-    a run's results.json holds the numbers it ran with)."""
+    (``"network"``); ``resolve(config, env, env_params) -> section``: the ``[algorithm]``
+    section with its ``"auto"`` settings replaced by numbers read from the simulator (its
+    sizes, or a measurement on it; ``load_config`` calls it, so a run's results.json holds the
+    numbers it ran with)."""
 
     name: str
     section: type
@@ -113,7 +114,7 @@ class AlgorithmEntry:
     dynamic: tuple[str, ...] = ()
     discrete: bool = False
     reads: tuple[str, ...] = ()
-    resolve: Callable[[Any, Any], Any] | None = None
+    resolve: Callable[[Any, Any, Any], Any] | None = None
 
 
 _ENVS: dict[str, EnvEntry] = {}
@@ -185,7 +186,7 @@ def register_algorithm(
     discrete: bool = False,
     reads: tuple[str, ...] = (),
     overwrite: bool = True,
-    resolve: Callable[[Any, Any], Any] | None = None,
+    resolve: Callable[[Any, Any, Any], Any] | None = None,
 ) -> AlgorithmEntry:
     """Register (or, with ``overwrite``, replace) the algorithm ``name``; returns its entry.
     ``dynamic``: dotted config fields (``"algorithm.alpha"``) read by ``hyper``."""
@@ -338,8 +339,8 @@ def config_from_dict(data: dict) -> Config:
     validate(config)
     resolve = algorithm_entry(experiment.algorithm).resolve
     if resolve is not None:
-        env, _ = build_env(config)
-        config = dataclasses.replace(config, algorithm=resolve(config.algorithm, env))
+        env, env_params = build_env(config)
+        config = dataclasses.replace(config, algorithm=resolve(config, env, env_params))
         validate(config)
     return config
 
@@ -364,6 +365,14 @@ def build_env(config: Config):
 #: simulators built by ``build_env``, by ``_env_key`` (the most recent ``_BUILT_ENVS_MAX``)
 _BUILT_ENVS: dict = {}
 _BUILT_ENVS_MAX = 4
+
+
+def env_description(config: Config) -> str:
+    """A text that differs between configs whose simulators differ (``build_env``'s key): for
+    measurements on a simulator kept by what it was built from."""
+    entry = env_entry(config.env.name)
+    builder, shown = _env_key(config, entry)
+    return f"{builder.__module__}.{builder.__qualname__}:{id(builder)}:{shown}"
 
 
 def _env_key(config: Config, entry) -> tuple:

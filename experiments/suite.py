@@ -109,8 +109,33 @@ NEW = [*BEFORE_POOL, "algorithm.best_pool=4"]
 #: the heatmap experiments compare the best policy on paired fresh rollouts, which replaces the
 #: pool: the defaults there turn that off
 UNPAIRED = ["algorithm.paired_best=false"]
+#: the sizes the default budget had before the noise pilot (``algorithms/sizing.py``): the
+#: rows measured before it pin them (on beacon, chase, plume and the README simulator the pilot
+#: keeps them)
+BEFORE_PILOT = [
+    "algorithm.iterations=400",
+    "algorithm.candidates=200",
+    "algorithm.eval_rollouts=375",
+    "algorithm.elites=10",
+]
+#: the same at 1/64 and 1/8 of the paper setting's budget
+BEFORE_PILOT_PAPER = {
+    "1of64": [
+        "algorithm.iterations=312",
+        "algorithm.candidates=200",
+        "algorithm.eval_rollouts=250",
+        "algorithm.elites=10",
+    ],
+    "1of8": [
+        "algorithm.iterations=400",
+        "algorithm.candidates=312",
+        "algorithm.eval_rollouts=1000",
+        "algorithm.elites=16",
+    ],
+    "full": [],
+}
 #: the defaults without the pool (the search of the rows measured before it)
-NO_POOL = ["algorithm.best_pool=0"]
+NO_POOL = ["algorithm.best_pool=0", *BEFORE_PILOT]
 #: further sweeps: folder -> (experiment, overrides, seeds, what it tests, earlier sweep to
 #: compare with (experiments/results/sweeps/NAME) or None)
 EXTRA = {
@@ -124,6 +149,29 @@ EXTRA = {
         )
         for row, (experiment, _) in ROWS.items()
     },
+    **{
+        f"cognet-{row}-before-pilot": (
+            ROWS[row][0],
+            BEFORE_PILOT,
+            SEEDS,
+            "the defaults before the noise pilot sized the search (with the pool's first version)",
+            None,
+        )
+        for row in ("hearing-tiger", "hearing-tiger-noisy", "box-push")
+    },
+    "beacon-k1000": (
+        "beacon-n5",
+        [
+            "algorithm.iterations=150",
+            "algorithm.candidates=200",
+            "algorithm.eval_rollouts=1000",
+            "algorithm.elites=10",
+        ],
+        SEEDS,
+        "rejected rule: the pilot's rollouts per candidate (1000 on beacon) paid for with "
+        "iterations",
+        None,
+    ),
     "hearing-tiger-norestart": (
         "hearing-tiger-n7",
         ["algorithm.restart_tol=0", *NO_POOL],
@@ -180,7 +228,20 @@ EXTRA = {
             ("1of8", "3.75e10", "1/8"),
             ("full", "3e11", "all"),
         )
-        for suffix, extra, what in (("", [], ""), ("-nopool", NO_POOL, ", without the pool"))
+        for suffix, extra, what in (
+            ("", [], ""),
+            (
+                "-before-pilot",
+                BEFORE_PILOT_PAPER[name],
+                ", sized as before the noise pilot (with the pool's first version)",
+            ),
+            (
+                "-nopool",
+                ["algorithm.best_pool=0", *BEFORE_PILOT_PAPER[name]],
+                ", without the pool, sized as before the noise pilot",
+            ),
+        )
+        if suffix != "-before-pilot" or BEFORE_PILOT_PAPER[name]
     },
     "paper-budget-1of64-c800": (
         "tagging-paper-auto",
@@ -201,13 +262,13 @@ EXTRA = {
             experiment,
             overrides,
             SEEDS,
-            "the defaults as in the code: the pool after its fix",
+            "the pool after its fix, sized as before the noise pilot",
             None,
         )
         for name, experiment, overrides in (
             ("tagging-thesis-n3-pool-fixed", "tagging-thesis-n3", NEW),
-            ("hearing-tiger-pool-fixed", "hearing-tiger-n7", []),
-            ("readme-seek-pool-fixed", str(HERE / "readme-seek-n3.toml"), []),
+            ("hearing-tiger-pool-fixed", "hearing-tiger-n7", BEFORE_PILOT),
+            ("readme-seek-pool-fixed", str(HERE / "readme-seek-n3.toml"), BEFORE_PILOT),
         )
     },
     "beacon-i600": (
@@ -360,20 +421,25 @@ counting clear hearings (Dec-Tiger), stepping along the larger offset (beacon), 
 the bearing (chase), climbing the patch (plume), pushing when the range is small (box pushing).
 The encoded variant needs a VAE trained on the simulator's patches; only the heatmap's is
 built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The
-COGNet-DICE cells ran the pool of best policies as first committed (the notes below the next
-table); "not run" marks a simulator not yet swept under the defaults with the pool (its
-earlier sweep is the "-nopool" row below)."""
+defaults size the search from a noise pilot (cognet_jax/algorithms/sizing.py): on Dec-Tiger,
+its noisy variant and box pushing it moves the budget from rollouts to candidates, and those
+cells ran the code as it is (the pool after its fix); on beacon, chase and the README simulator
+it keeps the sizes of before, and those cells ran the pool's first version (notes below the
+next table). "not run" marks a simulator not yet swept under the defaults."""
 
 
 EXTRA_NOTES = """\
 The defaults race a pool of the 4 best policies on fresh rollouts (`algorithm.best_pool`,
-cognet_jax/algorithms/best_pool.py). The rows with the pool were measured with its first
-version (commit de9d6d7), which could evict the kept member when its mean was the pool's
-lowest; the version in the code never evicts it and keeps non-finite values out (commit
-92b7ccb), re-measured so far on three rows ("-pool-fixed"). Rows "-nopool" and "before the pool" ran the earlier
-defaults, which kept the policy with the best single fresh value: the maximum of hundreds of
-noisy means, whose in-loop estimate was up to 4 above its honest value on tagging and Dec-Tiger
-(the sweeps' summary.md files give both).
+cognet_jax/algorithms/best_pool.py). Rows measured with its first version (commit de9d6d7)
+could evict the kept member when its mean was the pool's lowest; the version in the code never
+evicts it and keeps non-finite values out (commit 92b7ccb): the "-pool-fixed" rows and the
+rows run after the noise pilot. Rows "-before-pilot" ran the budget's split before the pilot
+(400 iterations x 200 candidates x 375 rollouts at the default budget); "beacon-k1000" ran the
+pilot's first rule, which also bought rollouts with iterations where the pilot asked for more
+than the budget's (rejected: 25.44 against 27.28). Rows "-nopool" and "before the pool" ran the
+earlier defaults, which kept the policy with the best single fresh value: the maximum of
+hundreds of noisy means, whose in-loop estimate was up to 4 above its honest value on tagging
+and Dec-Tiger (the sweeps' summary.md files give both).
 "Earlier sweep" is the committed 8-seed sweep of the same experiment before tied structures and
 restarts (experiments/results/sweeps, table "COGNet-DICE (default)"). The time to the
 hand-written controller is read from `run.probe_seconds` probes: the wall time (compile

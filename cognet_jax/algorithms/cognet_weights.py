@@ -102,6 +102,7 @@ from cognet_jax.algorithms.cross_entropy import (
     smooth,
 )
 from cognet_jax.algorithms.engine import Search, SearchParams, streams
+from cognet_jax.algorithms.noise_pilot import measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
@@ -126,7 +127,7 @@ from cognet_jax.observations import (
     neural_controller,
 )
 from cognet_jax.prng import fast_key
-from cognet_jax.registry import fields_from, register_algorithm
+from cognet_jax.registry import env_description, fields_from, register_algorithm
 from cognet_jax.reporting import neural_plots
 
 
@@ -559,6 +560,25 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     return CognetWeights(env, settings, memory, pipeline, stats)
 
 
+def resolve(config, env, env_params) -> CognetWeightsSection:
+    """``config.algorithm`` with its "auto" sizes filled in (``sizing.sized``). When
+    ``eval_rollouts`` is "auto", the sizes read the simulator's noise under the initial
+    distribution (``noise_pilot``, measured once per simulator and distribution in a process),
+    so rollouts per candidate follow what tells candidates apart on this simulator."""
+    section = config.algorithm
+    if section.eval_rollouts != "auto":
+        return sized(section, env)
+    shown = {
+        k: v for k, v in dataclasses.asdict(section).items() if k not in (*SIZE_FIELDS, "budget")
+    }
+    network = dataclasses.asdict(config.network) if config.network is not None else None
+    noise = measure_noise_cached(
+        [env_description(config), shown, network],
+        lambda: (build(config, env, env_params), env_params),
+    )
+    return sized(section, env, noise)
+
+
 def hyper(config) -> WeightsHyper:
     """The dynamic hyper-parameters of ``config.algorithm``."""
     return fields_from(WeightsHyper, config.algorithm)
@@ -572,5 +592,5 @@ register_algorithm(
     dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
     reads=("network",),
     overwrite=False,
-    resolve=sized,
+    resolve=resolve,
 )
