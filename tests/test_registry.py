@@ -242,7 +242,8 @@ def test_cli_imports_a_plugin_that_registers_a_simulator(tmp_path, capsys):
 
 def test_a_step_that_calls_back_into_python_is_named_before_compiling(tmp_path, capsys):
     """``jax.debug.print`` in a user's step: refused in one line before anything compiles (it
-    would make every step of every rollout print); a ``jax.pure_callback``: one warning."""
+    would make every step of every rollout print); a ``jax.pure_callback``: one warning; one
+    that cannot run under ``vmap``: refused as the simulator's error."""
     from cognet_jax.cli import main
 
     step = "        pos = jnp.minimum(state + actions, 4.0)\n"
@@ -250,6 +251,8 @@ def test_a_step_that_calls_back_into_python_is_named_before_compiling(tmp_path, 
         "debug": "        jax.debug.print('pos {}', pos)\n",
         "pure": "        pos = jax.pure_callback(lambda p: p, jax.ShapeDtypeStruct((1,), "
         "jnp.float32), pos, vmap_method='sequential')\n",
+        "unbatched": "        pos = jax.pure_callback(lambda p: p, jax.ShapeDtypeStruct((1,), "
+        "jnp.float32), pos)\n",
     }
     for kind, call in calls.items():
         name = f"{kind}-line"
@@ -267,10 +270,14 @@ def test_a_step_that_calls_back_into_python_is_named_before_compiling(tmp_path, 
         if kind == "debug":
             assert rc == 2 and len(err) == 1, err
             assert "jax.debug.print" in err[0] and name in err[0] and "remove it" in err[0]
-        else:
+        elif kind == "pure":
             warned = [line for line in err if line.startswith("warning:")]
             assert rc == 0 and len(warned) == 1, err
             assert "pure_callback" in warned[0] and name in warned[0]
+        else:  # the user's error under vmap, named as the simulator's, not an internal one
+            errors = [line for line in err if line.startswith("error:")]
+            assert rc == 2 and len(errors) == 1, err
+            assert name in errors[0] and "under jax.vmap raised" in errors[0]
 
 
 def test_readme_states_the_user_simulator_module_size():

@@ -285,7 +285,13 @@ def _check_values(env, env_params, owner: str) -> None:
     actions = jnp.arange(min(env.action_counts), dtype=jnp.int32)[:, None]
     actions = jnp.broadcast_to(actions, (actions.shape[0], env.num_agents))
     step = jax.vmap(lambda a: env.step(u[env.reset_noise :], state, a, env_params)[1:])
-    obs, reward = step(actions)
+    try:  # under vmap, as every search runs it
+        obs, reward = step(actions)
+    except Exception as err:  # the simulator's own error
+        raise SimulatorError(
+            f"{owner}: step(u, state, actions, params) under jax.vmap raised "
+            f"{type(err).__name__}: {err}"
+        ) from err
     for what, x in (("observation", obs), ("reward", reward)):
         x = np.asarray(x)
         if jnp.issubdtype(x.dtype, jnp.floating) and not np.isfinite(x).all():
