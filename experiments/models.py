@@ -104,15 +104,16 @@ policy generation for finite-horizon DEC-POMDPs", ICAPS; 81 states, 5 actions an
 observations per agent, as MADP's ``Grid3x3corners``): two agents on a 3 x 3 grid.
 
 * a state is both agents' cells, ``9 c1 + c2`` (cell ``3 row + column``, row 0 on top); the
-  episode starts with the agents in opposite corners (cells 0 and 8);
+  episode starts with the agents in the top-right and the bottom-left corner (cells 2 and 6),
+  two moves from either meeting corner;
 * actions ``north, south, east, west, stay``: a move succeeds with probability 0.6, else the
   agent stays (into the edge of the grid it stays), as in Bernstein et al.'s 2 x 2 grid;
 * each agent observes the walls around it: left / right / neither times top / bottom /
   neither (9 observations, which on 3 x 3 name its cell);
 * reward 1 in every step the agents share the top-left or the bottom-right corner (the state
-  before the step), 0 otherwise; the discount is 1. **[choice]** the published description
-  names the corners as the only meeting places; which corners, and the start, are this
-  generator's choices.
+  before the step), 0 otherwise; the discount is 1. **[choice]** which corners and the start
+  are this generator's reading of the published optima (0 at horizon 2: nobody meets in one
+  step; 0.133 at horizon 3, where these rules give 0.6^4 = 0.1296: the details differ).
 """
 
 from __future__ import annotations
@@ -489,7 +490,7 @@ def meeting_grid() -> str:
         "discount: 1.0",
         "values: reward",
         "states: 81",
-        "start: 8",
+        "start: 24",
         "actions:",
         "north south east west stay",
         "north south east west stay",

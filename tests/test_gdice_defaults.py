@@ -41,7 +41,12 @@ def test_layered_support_allows_only_the_next_layer():
     assert np.all(layer_of_next == expected)
 
 
-@pytest.mark.parametrize("name,horizon", [("dectiger", 4), ("GridSmall", 3)])
+@pytest.mark.parametrize(
+    "name,horizon",
+    # every branch of exact_value_layered: h 1, below 4, 4 and beyond (sparse observation rows
+    # on GridSmall, full rows on Dec-Tiger)
+    [("dectiger", 1), ("dectiger", 2), ("dectiger", 4), ("GridSmall", 3), ("GridSmall", 5)],
+)
 def test_layered_exact_equals_generic_exact_and_numpy(name, horizon):
     model = parse_dpomdp(_file(name), discount=1.0)
     env, params = make_tabular(model, horizon)

@@ -154,11 +154,13 @@ def test_mars_rovers_sizes_rows_and_the_horizon_1_optimum(models):
 
 def test_meeting_grid_rewards_only_the_two_corners(models):
     """Meeting in a 3 x 3 grid: 81 states, 5 actions and 9 observations per agent (the walls
-    around the agent), reward 1 when both share the top-left or bottom-right corner; from
-    opposite corners nobody meets within 2 steps (optimum 0 at horizon 2)."""
+    around the agent), reward 1 when both share the top-left or bottom-right corner; from the
+    other two corners nobody meets within 2 steps (optimum 0 at horizon 2, the published
+    value)."""
     grid = parse_dpomdp(models.meeting_grid())
     assert grid.transition.shape == (81, 25, 81)
     np.testing.assert_allclose(grid.transition.sum(-1), 1.0, atol=1e-9)
     assert {int(s) for s in np.flatnonzero(grid.reward.max(1))} == {0, 80}
     assert brute_force_optimum(grid, 1).value == 0.0
+    assert int(np.argmax(grid.initial_belief)) == 9 * 2 + 6
     assert [models.grid_walls(c) for c in (0, 4, 8)] == [4, 0, 8]

@@ -195,3 +195,33 @@ def test_monte_carlo_agrees_with_exact_asymmetric():
     assert np.all(np.abs(mean - exact) < 3 * se), (mean, exact, se)
     # the controllers differ enough for the comparison to mean something
     assert np.ptp(exact) > 10 * se.max()
+
+
+def test_sparse_observation_rows_draw_and_value_as_the_full_rows():
+    """A model that observes deterministically keeps its observation rows as lists
+    (``obs_outcomes``): rollouts draw exactly what the full rows draw, and exact values are the
+    same, on the GridSmall benchmark (16 states, one observation of 4 per row)."""
+    from cognet_jax.exact_jax import exact_value
+
+    _require_files()
+    env, params = make_tabular(parse_dpomdp((DPOMDP_DIR / "GridSmall.dpomdp").read_text()), 4)
+    assert params.obs_outcomes is not None and params.obs_outcomes.shape[-1] == 1
+    dense = params.replace(obs_outcomes=None, obs_outcome_probs=None)
+    rng = np.random.default_rng(0)
+    n = 20_000
+    u = jnp.asarray(rng.uniform(size=(n, 2)), jnp.float32)
+    s = jnp.asarray(rng.integers(0, env.num_states, n), jnp.int32)
+    a = jnp.asarray(np.stack([rng.integers(0, c, n) for c in env.action_counts], 1), jnp.int32)
+    sparse_out = jax.vmap(lambda u, s, a: env.step(u, s, a, params))(u, s, a)
+    dense_out = jax.vmap(lambda u, s, a: env.step(u, s, a, dense))(u, s, a)
+    for x, y in zip(sparse_out, dense_out):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    for seed in range(5):
+        r = np.random.default_rng(seed)
+        policy = DeterministicTabularPolicy(
+            jnp.asarray(r.integers(0, min(env.action_counts), (2, 3)), jnp.int32),
+            jnp.asarray(r.integers(0, 3, (2, 3, max(env.obs_counts))), jnp.int32),
+        )
+        assert float(exact_value(env, params, policy, 3)) == pytest.approx(
+            float(exact_value(env, dense, policy, 3)), abs=1e-5
+        )

@@ -56,7 +56,12 @@ class TabularParams:
     with the last one) and ``successor_probs [S, JA, K]`` (0 in the padding); the exact
     evaluator then costs ``S * K`` instead of ``S * S'`` per joint node and step. ``None`` for a
     dense model. A sparse model keeps the rows only (``transition`` is ``None``): rollouts, the
-    exact evaluator and the best responses all read the rows."""
+    exact evaluator and the best responses all read the rows.
+
+    Likewise ``obs_outcomes [JA, S', Ko]`` and ``obs_outcome_probs`` list the non-zero entries
+    of every observation row when they are sparse (``None`` otherwise); rollouts draw from them
+    (the same draws as from the full rows: box pushing, Mars rovers and the grids observe
+    deterministically, one entry of 25 to 81), the exact evaluator reads ``observation``."""
 
     transition: jax.Array | None
     observation: jax.Array
@@ -65,6 +70,8 @@ class TabularParams:
     discount: jax.Array | float = 1.0
     successors: jax.Array | None = None
     successor_probs: jax.Array | None = None
+    obs_outcomes: jax.Array | None = None
+    obs_outcome_probs: jax.Array | None = None
 
 
 def _strides(counts: tuple[int, ...]) -> tuple[int, ...]:
@@ -140,7 +147,11 @@ class TabularEnv:
             next_state = params.successors[state, ja, k]
         else:
             next_state = categorical_from_uniform(u[0], params.transition[state, ja])
-        jo = categorical_from_uniform(u[1], params.observation[ja, next_state])
+        if params.obs_outcomes is not None:  # sparse rows, as the transitions
+            k = categorical_from_uniform(u[1], params.obs_outcome_probs[ja, next_state])
+            jo = params.obs_outcomes[ja, next_state, k]
+        else:
+            jo = categorical_from_uniform(u[1], params.observation[ja, next_state])
         return next_state, self.split_joint_obs(jo), reward
 
 
@@ -166,6 +177,7 @@ def make_tabular(
     )
     gamma = model.discount if discount is None else float(discount)
     successors, successor_probs = sparse_rows(model.transition)
+    obs_outcomes, obs_outcome_probs = sparse_rows(model.observation)
     params = TabularParams(
         transition=jnp.asarray(model.transition, jnp.float32) if successors is None else None,
         observation=jnp.asarray(model.observation, jnp.float32),
@@ -174,13 +186,16 @@ def make_tabular(
         discount=jnp.asarray(gamma, jnp.float32),
         successors=successors,
         successor_probs=successor_probs,
+        obs_outcomes=obs_outcomes,
+        obs_outcome_probs=obs_outcome_probs,
     )
     return env, params
 
 
 def sparse_rows(transition: np.ndarray):
     """``(successors [S, JA, K] int32, probs [S, JA, K] float32)`` of the non-zero entries of
-    every row of ``transition [S, JA, S']`` (K = the most non-zeros of any row), or
+    every row of ``transition [S, JA, S']`` (or of any table of rows, e.g. the observations
+    ``[JA, S', JO]``) (K = the most non-zeros of any row), or
     ``(None, None)`` when K > S' / 2 (dense enough that the full rows are as cheap). One joint
     action at a time, so the temporaries stay ``[S, S']`` (a 2025-state model's whole table
     would take 0.5 GB of sort indices)."""
