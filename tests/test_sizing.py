@@ -97,12 +97,15 @@ def test_a_loaded_config_is_sized_from_one_pilot_whatever_the_budget(monkeypatch
         calls.append(1)
         return real(algorithm, env_params)
 
+    told = []
     monkeypatch.setattr(noise_pilot, "measure_noise", counted)
     monkeypatch.setattr(noise_pilot, "_MEASURED", {})
+    monkeypatch.setattr(noise_pilot, "announce", told.append)
     first = load_config("hearing-tiger-n7", ["run.plots=false"]).algorithm
     overrides = ["run.progress=false", "algorithm.budget=1e8"]
     second = load_config("hearing-tiger-n7", overrides).algorithm
     assert len(calls) == 1  # the budget and the run section do not change what is measured
+    assert len(told) == 1 and "measuring the simulator's noise" in told[0]
     assert isinstance(first.eval_rollouts, int) and isinstance(second.eval_rollouts, int)
     load_config("hearing-tiger-noisy-n7")
     assert len(calls) == 2  # another simulator: measured again

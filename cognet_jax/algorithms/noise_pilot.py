@@ -81,6 +81,10 @@ def measure_noise(algorithm, env_params) -> Noise:
     return noise_of_returns(np.asarray(jax.jit(jax.vmap(returns))(policies)))
 
 
+#: called with one line before a measurement: the command line prints it (a measurement with
+#: its compile takes up to about 10 s); ``None`` in a library: silent
+announce = None
+
 #: measurements of this process, by ``measure_noise_cached``'s key (the most recent few)
 _MEASURED: dict[str, Noise] = {}
 _MEASURED_MAX = 8
@@ -93,5 +97,10 @@ def measure_noise_cached(key_parts, build) -> Noise:
     if key not in _MEASURED:
         if len(_MEASURED) >= _MEASURED_MAX:
             _MEASURED.pop(next(iter(_MEASURED)))
+        if announce is not None:
+            announce(
+                f"measuring the simulator's noise ({PILOT_CANDIDATES} candidates x "
+                f"{PILOT_ROLLOUTS} rollouts) to size the search ..."
+            )
         _MEASURED[key] = measure_noise(*build())
     return _MEASURED[key]
