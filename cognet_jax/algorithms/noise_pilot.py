@@ -51,9 +51,6 @@ class Noise:
             return math.inf
         return (resolution * self.within / self.between) ** 2
 
-    def record(self) -> dict:
-        return {"within": self.within, "between": self.between}
-
 
 def noise_of_returns(returns: np.ndarray) -> Noise:
     """``Noise`` of returns ``[candidates, rollouts]`` (rollouts on common keys)."""

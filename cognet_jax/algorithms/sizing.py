@@ -75,10 +75,11 @@ def sized(section, env, noise=None):
     lo_i, hi_i = ITERATIONS_RANGE
     lo_k, hi_k = EVAL_ROLLOUTS_RANGE
 
+    resolving = resolving_rollouts(noise)
     c = AUTO_CANDIDATES if "candidates" in auto else values["candidates"]
     i = values["iterations"]
     if "iterations" in auto:
-        base = min(EVAL_ROLLOUTS_BASE, resolving_rollouts(noise))
+        base = min(EVAL_ROLLOUTS_BASE, resolving)
         base = base if "eval_rollouts" in auto else values["eval_rollouts"]
         i = max(1, round(min(hi_i, max(lo_i, rollouts / (c * base)))))
     k = values["eval_rollouts"]
@@ -87,7 +88,6 @@ def sized(section, env, noise=None):
         budget_k = rollouts / (c * i)
         k = int(min(hi_k, max(lo_k, budget_k)))
         spare = budget_k > hi_k
-        resolving = resolving_rollouts(noise)
         if "candidates" in auto and resolving < k:
             k, spare = int(min(hi_k, max(lo_k, math.sqrt(resolving * budget_k)))), True
     if "candidates" in auto and spare and rollouts / (i * k) > c:

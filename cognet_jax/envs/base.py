@@ -196,13 +196,16 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     actions = jax.ShapeDtypeStruct((env.num_agents,), jnp.int32)
 
     def traced(what, fn, *args):
+        """``(program, output shapes)`` of ``fn`` traced once on abstract values."""
         try:
-            return jax.eval_shape(fn, *args)
+            return jax.make_jaxpr(fn, return_shape=True)(*args)
         except Exception as err:  # the simulator's own error
             raise SimulatorError(f"{owner}: {what} raised {type(err).__name__}: {err}") from err
 
-    state = traced("reset(u, params)", env.reset, u_reset, env_params)
-    out = traced("step(u, state, actions, params)", env.step, u_step, state, actions, env_params)
+    _, state = traced("reset(u, params)", env.reset, u_reset, env_params)
+    step_program, out = traced(
+        "step(u, state, actions, params)", env.step, u_step, state, actions, env_params
+    )
     if not (isinstance(out, tuple) and len(out) == 3):
         raise SimulatorError(f"{owner}: step must return (state, obs, reward)")
     next_state, obs, reward = out
@@ -228,7 +231,7 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
             f"{owner}: step returned a reward {reward.dtype}{list(reward.shape)}, expected one "
             "float (the joint reward, a shape () array)"
         )
-    callbacks = _host_callbacks(env.step, u_step, state, actions, env_params)
+    callbacks = _host_callbacks(step_program.jaxpr)
     debug = [c for c in callbacks if c in _DEBUG_PRIMITIVES]
     if debug:  # output only: nothing a search needs, and it stalls compiling for minutes
         raise SimulatorError(
@@ -254,8 +257,8 @@ _DEBUG_PRIMITIVES = ("debug_callback", "debug_print")
 _CALLBACK_PRIMITIVES = (*_DEBUG_PRIMITIVES, "io_callback", "pure_callback")
 
 
-def _host_callbacks(fn, *args) -> list[str]:
-    """Names of the host-callback primitives in ``fn``'s program (nested ones included)."""
+def _host_callbacks(jaxpr) -> list[str]:
+    """Names of the host-callback primitives in the program ``jaxpr`` (nested ones included)."""
     found: set[str] = set()
 
     def walk(jaxpr):
@@ -268,10 +271,7 @@ def _host_callbacks(fn, *args) -> list[str]:
                     if hasattr(inner, "eqns"):
                         walk(inner)
 
-    try:
-        walk(jax.make_jaxpr(fn)(*args).jaxpr)
-    except Exception:  # traced once already: any failure here was reported above
-        return []
+    walk(jaxpr)
     return sorted(found)
 
 

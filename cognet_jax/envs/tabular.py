@@ -140,19 +140,28 @@ class TabularEnv:
         u = _uniforms(u, self.step_noise)
         ja = self.joint_action(actions)
         reward = params.reward[state, ja].astype(jnp.float32)
-        if params.successors is not None:  # sparse rows: the k-th successor of the row
-            # (an inverse-CDF draw over K entries instead of S': fire fighting 2-3-3 steps 175x
-            # faster than from its dense 432-wide rows)
-            k = categorical_from_uniform(u[0], params.successor_probs[state, ja])
-            next_state = params.successors[state, ja, k]
-        else:
-            next_state = categorical_from_uniform(u[0], params.transition[state, ja])
-        if params.obs_outcomes is not None:  # sparse rows, as the transitions
-            k = categorical_from_uniform(u[1], params.obs_outcome_probs[ja, next_state])
-            jo = params.obs_outcomes[ja, next_state, k]
-        else:
-            jo = categorical_from_uniform(u[1], params.observation[ja, next_state])
+        # sparse rows: an inverse-CDF draw over the K listed entries instead of the whole row
+        # (fire fighting 2-3-3 steps 175x faster than from its dense 432-wide rows)
+        next_state = _draw(
+            u[0], params.successors, params.successor_probs, params.transition, (state, ja)
+        )
+        jo = _draw(
+            u[1],
+            params.obs_outcomes,
+            params.obs_outcome_probs,
+            params.observation,
+            (ja, next_state),
+        )
         return next_state, self.split_joint_obs(jo), reward
+
+
+def _draw(u, listed, listed_probs, full, row) -> jax.Array:
+    """The column drawn with uniform ``u`` from the row ``row`` (an index tuple) of a table:
+    from its listed non-zero entries when the table keeps them (``listed`` not ``None``), else
+    from the full row (the same draw either way)."""
+    if listed is None:
+        return categorical_from_uniform(u, full[row])
+    return listed[row][categorical_from_uniform(u, listed_probs[row])]
 
 
 def _uniforms(u: jax.Array, n: int) -> jax.Array:
