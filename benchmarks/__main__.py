@@ -16,6 +16,12 @@ overwrites the published figures; ``--out DIR`` chooses another folder.
   iteration of COG-DICE (region controllers) and G-DICE (tabular controllers) in JAX;
 * time-to-value: a full ``tagging-thesis-spec-n3`` run (JAX, measured) against the references'
   per-iteration time x 500 (extrapolated);
+* ``--pairs`` (and ``--full`` with torch): what a user runs against torch -- one whole search
+  iteration of the thesis variant and of the default ``cognet-dice`` (3 and 6 nodes, and the
+  paper setting at a tenth of its iteration) and rollouts at 1e4, in paired rounds
+  (``benchmarks.iteration_pairs``), and a whole ``cognet-jax train`` against a whole torch run,
+  cold and warm caches (``benchmarks.end_to_end``); ``--pairs`` alone merges them into
+  ``benchmarks/results.json`` and README.md;
 * ``--full``: scaling of the COGNet-DICE iteration time with rollouts (1e3..1e6), horizon
   (3..150) and nodes (3..32), XLA buffer memory vs rollouts, and a PNG of the curves; and the
   wall time of a 32-seed ``cognet-jax sweep tagging-thesis-spec-n3`` against one seed (fresh
@@ -235,7 +241,7 @@ def output_dir(args: argparse.Namespace) -> Path:
     (and ``--parser`` / ``--report-only``, which update it), a scratch folder otherwise."""
     if args.out is not None:
         return args.out
-    if args.full or args.parser or args.report_only:
+    if args.full or args.parser or args.pairs or args.report_only:
         return HERE
     return Path(tempfile.gettempdir()) / "cognet-benchmarks"
 
@@ -257,6 +263,12 @@ def main(argv=None) -> int:
         "a smaller run never overwrites the published table)",
     )
     p.add_argument(
+        "--pairs",
+        action="store_true",
+        help="measure only what a user runs against torch (whole iterations in paired rounds, "
+        "whole runs end to end) and merge it into results.json and README.md",
+    )
+    p.add_argument(
         "--parser",
         action="store_true",
         help="measure only the MADP parser row and merge it into results.json and README.md",
@@ -275,6 +287,21 @@ def main(argv=None) -> int:
         if not args.no_write:
             out = json.loads((out_dir / "results.json").read_text())
             out["parser"] = row
+            (out_dir / "results.json").write_text(json.dumps(out, indent=1))
+            write_readme(out, out_dir / "README.md")
+        return 0
+    if args.pairs:
+        from benchmarks import end_to_end, iteration_pairs
+
+        out = json.loads((out_dir / "results.json").read_text())
+        out["iteration_pairs"] = iteration_pairs.measure(print)
+        out["end_to_end"] = end_to_end.measure(print)
+        out["pairs_run"] = dict(
+            command="python -m benchmarks --pairs",
+            date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            load_average=os.getloadavg(),
+        )
+        if not args.no_write:
             (out_dir / "results.json").write_text(json.dumps(out, indent=1))
             write_readme(out, out_dir / "README.md")
         return 0
@@ -319,6 +346,11 @@ def main(argv=None) -> int:
         final_value=results["final_value"],
     )
     log(f"full tagging-thesis-spec-n3 run: {wall:.1f} s (compile {results['compile_s']:.1f} s)")
+    if args.full and with_torch:
+        from benchmarks import end_to_end, iteration_pairs
+
+        out["iteration_pairs"] = iteration_pairs.measure(log)
+        out["end_to_end"] = end_to_end.measure(log)
     if args.full:
         out["scaling"] = measure_scaling(cases, log)
         out["sweep"] = jax_cases.sweep_ratio()

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks.paired import CALLS_PER_ROUND, SETTLE_S
+from benchmarks.report_pairs import end_to_end_lines, headline, pairs_table
 
 #: Targets of the benchmark issue (2-core CPU).
 ROLLOUT_TARGET_RATE = 20e6  # agent-steps/s, 6 nodes, 1e5 rollouts
@@ -203,6 +204,9 @@ def time_to_value(out: dict) -> list[str]:
 
 def targets(out: dict) -> list[str]:
     lines = ["| target | measured | verdict |", "|---|---|---|"]
+    first = headline(out)
+    if first:
+        lines.append(first)
     rows = out["rollouts"]
     for impl, label in (("jax", ""), ("jax-hash", ', `run.prng_impl = "hash"` (opt-in generator)')):
         r6 = _find(rows, impl=impl, nodes=6, rollouts=100_000)
@@ -517,6 +521,23 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
             "No torch reference exists for the last two.",
             "",
         ]
+    if out.get("iteration_pairs"):
+        lines += [
+            "## What a user runs, against torch (paired rounds)",
+            "",
+            *pairs_table(out),
+            "",
+            "`python -m benchmarks --pairs` (`benchmarks/iteration_pairs.py`): one whole search "
+            "iteration as a run compiles it (state carried from call to call), against the same "
+            "algorithm and sizes in `benchmarks/torch_reference` (the thesis variant: "
+            "`vectorized.py`; the default: `weights.py`), eager and `torch.compile`d, in paired "
+            "rounds as above; the ratio takes the faster torch reference of each round. The "
+            "default runs the library's defaults (tied structures, restarts, a pool of 4 best "
+            "policies raced on fresh rollouts).",
+            "",
+        ]
+    if out.get("end_to_end"):
+        lines += ["## Time to value, end to end (measured)", "", *end_to_end_lines(out), ""]
     lines += [
         "## One search iteration",
         "",

@@ -9,7 +9,7 @@ from benchmarks.__main__ import HERE, output_dir
 
 
 def _args(**kw) -> argparse.Namespace:
-    base = dict(quick=False, full=False, parser=False, report_only=False, out=None)
+    base = dict(quick=False, full=False, parser=False, pairs=False, report_only=False, out=None)
     return argparse.Namespace(**{**base, **kw})
 
 
@@ -18,7 +18,9 @@ def test_smaller_runs_never_write_the_published_table(flags):
     assert output_dir(_args(**flags)) != HERE
 
 
-@pytest.mark.parametrize("flags", [{"full": True}, {"parser": True}, {"report_only": True}])
+@pytest.mark.parametrize(
+    "flags", [{"full": True}, {"parser": True}, {"pairs": True}, {"report_only": True}]
+)
 def test_full_runs_and_updates_write_the_published_table(flags):
     assert output_dir(_args(**flags)) == HERE
 
@@ -93,3 +95,26 @@ def test_paired_headline_is_the_least_favourable_size():
     assert "| 9.50x | **missed** |" in row and "(3 nodes;" in row
     assert "3 nodes 9.5x (rounds 8.5-10.5x), 6 nodes 19.0x (rounds 18.0-20.0x)" in row
     assert smallest_paired_ratio([size(3, 9.5)], "jax-hash") is None
+
+
+def test_headline_is_the_least_favourable_of_every_ratio_against_its_target():
+    """Iterations, rollouts and whole runs: the headline is the row furthest below its
+    target (a whole cold run at 1.5x of a 2x target is worse than an iteration at 9x of 10x)."""
+    from benchmarks.report_pairs import headline
+
+    def pair(case, ratio):
+        return dict(case=case, ratio=ratio, rounds=11)
+
+    out = {
+        "iteration_pairs": [pair("iteration: default, 3 nodes", 9.0), pair("rollouts", 14.0)],
+        "paired": [{"nodes": 3, "rollouts": 100_000, "jax": {"ratio": 13.0}}],
+        "end_to_end": {"experiment": "e", "ratio_warm": 12.0, "ratio_cold": 1.5},
+    }
+    line = headline(out)
+    assert "cold caches, target 2x | 1.50x | **missed** |" in line
+    assert "(3 of 5 rows at their target)" in line
+    out["end_to_end"]["ratio_cold"] = 2.5
+    assert "iteration: default, 3 nodes (paired rounds, median of 11), target 10x | 9.00x" in (
+        headline(out)
+    )
+    assert headline({}) is None

@@ -1,6 +1,6 @@
 """PyTorch references of COGNet-DICE on the tagging simulator, for speed comparisons.
 
-Two implementations of the same algorithm and simulator as ``cognet_jax`` (SPEC sections 1, 2,
+Implementations of the thesis algorithm and simulator of ``cognet_jax`` (SPEC sections 1, 2,
 5 and 7.1; ``cognet_jax.algorithms.cognet_thesis.CognetThesis.step``):
 
 * ``TorchCognetLoop`` (``loop.py``): as the thesis code was written -- one ``nn.Module`` and one
@@ -13,6 +13,9 @@ Two implementations of the same algorithm and simulator as ``cognet_jax`` (SPEC 
   uniform block per step, all candidates evaluated in one batch with common random numbers.
 * ``TorchCognetCompiled`` (``vectorized.py``): the vectorised one with each rollout time step
   compiled by ``torch.compile`` (inductor); the same draws, so the same numbers.
+* ``TorchWeightsSearch`` / ``TorchWeightsCompiled`` (``weights.py``): the default
+  ``cognet-dice`` (cross-entropy over the node networks' weights), eager and compiled; its own
+  API (``step``, ``run``, ``returns``), settings read from a cognet_jax config.
 
 Common API::
 
@@ -40,28 +43,30 @@ rollouts' ``(z_{t+1}, q_{t+1})`` pairs; (8) ``eval_rollouts`` rollouts of the up
 anytime best. ``torch.set_num_threads`` is left at its default.
 """
 
-from benchmarks.torch_reference.common import (
-    CognetHyper,
-    CognetSettings,
-    EntropyConfig,
-    Progress,
-    as_hyper,
-    as_settings,
-)
-from benchmarks.torch_reference.loop import TorchCognetLoop
-from benchmarks.torch_reference.tagging import TaggingConfig, make_tagging
-from benchmarks.torch_reference.vectorized import TorchCognetCompiled, TorchCognetVectorized
+import importlib
 
-__all__ = [
-    "CognetHyper",
-    "CognetSettings",
-    "EntropyConfig",
-    "Progress",
-    "TaggingConfig",
-    "TorchCognetCompiled",
-    "TorchCognetLoop",
-    "TorchCognetVectorized",
-    "as_hyper",
-    "as_settings",
-    "make_tagging",
-]
+#: public name -> module of ``benchmarks.torch_reference`` that defines it; imported at first use
+#: (PEP 562), so a process that runs only the weight-space reference (``torch_run``) imports
+#: torch alone, not cognet_jax and JAX (``common`` reads cognet_jax's config declarations)
+_EXPORTS = {
+    "CognetHyper": "common",
+    "CognetSettings": "common",
+    "EntropyConfig": "common",
+    "Progress": "common",
+    "as_hyper": "common",
+    "as_settings": "common",
+    "TorchCognetLoop": "loop",
+    "TaggingConfig": "tagging",
+    "make_tagging": "tagging",
+    "TorchCognetCompiled": "vectorized",
+    "TorchCognetVectorized": "vectorized",
+    "TorchWeightsCompiled": "weights",
+    "TorchWeightsSearch": "weights",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)

@@ -1,0 +1,112 @@
+"""The README's tables of what a user runs against torch: whole iterations and rollouts at 1e4
+in paired rounds (``benchmarks.iteration_pairs``), whole runs end to end
+(``benchmarks.end_to_end``), and the headline: the least favourable of all these ratios."""
+
+from __future__ import annotations
+
+#: issue 55's targets: every search-iteration row, and a whole run warm / cold
+ITERATION_RATIO_TARGET = 10.0
+END_TO_END_WARM_TARGET = 10.0
+END_TO_END_COLD_TARGET = 2.0
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "**missed**"
+
+
+def ratios(out: dict) -> list[tuple[str, float, float]]:
+    """``(what, ratio, target)`` of every measured row: the paired iterations and rollouts
+    (``iteration_pairs``), the rollouts at 1e5 (``paired``) and the end-to-end pair."""
+    found = [
+        (
+            f"{r['case']} (paired rounds, median of {r['rounds']})",
+            r["ratio"],
+            ITERATION_RATIO_TARGET,
+        )
+        for r in out.get("iteration_pairs") or []
+    ]
+    for p in out.get("paired") or []:
+        what = f"rollouts: {p['rollouts']:.0e}, {p['nodes']} nodes (paired rounds)"
+        found.append((what, p["jax"]["ratio"], ITERATION_RATIO_TARGET))
+    e2e = out.get("end_to_end")
+    if e2e:
+        run = f"whole run `cognet-jax train {e2e['experiment']}` against the torch.compile run"
+        found.append((f"{run}, warm caches", e2e["ratio_warm"], END_TO_END_WARM_TARGET))
+        found.append((f"{run}, cold caches", e2e["ratio_cold"], END_TO_END_COLD_TARGET))
+    return found
+
+
+def headline(out: dict) -> str | None:
+    """The targets table's first row: the ratio furthest below (or least above) its target."""
+    found = ratios(out)
+    if not found:
+        return None
+    what, ratio, target = min(found, key=lambda f: f[1] / f[2])
+    met = sum(r >= t for _, r, t in found)
+    return (
+        f"| **headline**: the least favourable of every ratio against torch below ({met} of "
+        f"{len(found)} rows at their target): {what}, target {target:g}x | {ratio:.2f}x | "
+        f"{_verdict(ratio >= target)} |"
+    )
+
+
+def pairs_table(out: dict) -> list[str]:
+    rows = out.get("iteration_pairs") or []
+    if not rows:
+        return []
+    lines = [
+        "| what the user runs | agent-steps per call | rounds x calls | JAX ms | torch eager ms "
+        "| torch.compile ms | JAX / best torch: median (lowest-highest round) | target |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        ms = r["median_s"]
+        lines.append(
+            f"| {r['case']} | {r['agent_steps']:.3g} | {r['rounds']} x {r['calls_per_round']} | "
+            f"{ms['jax'] * 1e3:.2f} | {ms['torch-vectorized'] * 1e3:.2f} | "
+            f"{ms['torch-compiled'] * 1e3:.2f} | {r['ratio']:.1f}x ({r['ratio_min']:.1f}-"
+            f"{r['ratio_max']:.1f}x) | {_verdict(r['ratio'] >= ITERATION_RATIO_TARGET)} |"
+        )
+    return lines
+
+
+def end_to_end_lines(out: dict) -> list[str]:
+    e2e = out.get("end_to_end")
+    if not e2e:
+        return []
+    med = e2e["median_s"]
+    jax_d = [d for d in e2e["details"]["jax"] if d["phase"] == "warm"]
+    torch_d = [d for d in e2e["details"]["torch"] if d["phase"] == "warm"]
+    cold_j = next(d for d in e2e["details"]["jax"] if d["phase"] == "cold")
+    cold_t = next(d for d in e2e["details"]["torch"] if d["phase"] == "cold")
+    sets = " ".join(f"--set {s}" for s in e2e["sets"])
+    return [
+        "| run | JAX process s | torch.compile process s | ratio | target |",
+        "|---|---|---|---|---|",
+        f"| cold caches (1 run each) | {med['jax']['cold']:.1f} (compile "
+        f"{cold_j['compile_s']:.1f}) | {med['torch']['cold']:.1f} (first iteration "
+        f"{cold_t['first_iteration_s']:.1f}) | "
+        f"{e2e['ratio_cold']:.2f}x | >= {END_TO_END_COLD_TARGET:g}x: "
+        f"{_verdict(e2e['ratio_cold'] >= END_TO_END_COLD_TARGET)} |",
+        f"| warm caches (median of {len(jax_d)}) | {med['jax']['warm']:.1f} | "
+        f"{med['torch']['warm']:.1f} | {e2e['ratio_warm']:.2f}x | >= "
+        f"{END_TO_END_WARM_TARGET:g}x: {_verdict(e2e['ratio_warm'] >= END_TO_END_WARM_TARGET)} |",
+        "",
+        f"Command on both sides: `cognet-jax train {e2e['experiment']} {sets}` (no plots) and "
+        "`python -m benchmarks.torch_run` with the same settings, iterations and a 10,000-rollout "
+        "honest evaluation (`benchmarks/end_to_end.py`), each in a fresh process timed from "
+        "outside. Honest values of the warm runs: JAX "
+        + ", ".join(f"{d['value']:.3f}" for d in jax_d)
+        + "; torch "
+        + ", ".join(f"{d['value']:.3f}" for d in torch_d)
+        + ". Inside the torch process (warm, median): "
+        + f"imports {_med(torch_d, 'import_s'):.1f} s, first iteration "
+        + f"{_med(torch_d, 'first_iteration_s'):.1f} s, the other iterations "
+        + f"{_med(torch_d, 'loop_s'):.1f} s; JAX (warm, median): compile "
+        + f"{_med(jax_d, 'compile_s'):.1f} s, iterations {_med(jax_d, 'loop_s'):.1f} s.",
+    ]
+
+
+def _med(rows: list[dict], key: str) -> float:
+    values = sorted(r[key] for r in rows)
+    return values[len(values) // 2]
