@@ -17,10 +17,8 @@ the new checkpoint, never a torn one.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -28,44 +26,12 @@ import jax
 import numpy as np
 from flax import serialization
 
+from cognet_jax.atomic_files import atomic_write_bytes
 from cognet_jax.errors import CorruptFileError, MismatchError
 from cognet_jax.prng import impl_of
 
 CHECKPOINT_NAME = "checkpoint.msgpack"
 FORMAT = 1
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temp file, fsync, ``os.replace``, fsync dir). A
-    failed write (full disk, file size limit, a folder in the way) leaves ``path`` as it was,
-    removes the temporary file and raises ``OSError`` naming ``path``."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as err:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise OSError(err.errno, f"cannot write {path}: {err.strerror or err}") from None
-    try:
-        fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode())
 
 
 def stack_history(history: list) -> Any:

@@ -353,16 +353,16 @@ _M_ARENA_MAX = -8
 
 #: Python's garbage-collector thresholds for the executable (the first is 700 by default):
 #: tracing and lowering make many short-lived objects, and the collector then walks the
-#: tracer's large live graph again and again. Tracing and lowering two COGNet-DICE
-#: ``make_train`` programs three times took 3.3-3.8 s instead of 3.6-4.4 s; the test suite
+#: tracer's large live graph again and again, so fewer collections trace faster
+#: (benchmarks/NOTES.md, "Measurements behind code choices"); the test suite
 #: (tests/conftest.py) uses them too. No number changes.
 GC_THRESHOLDS = (50_000, 20, 20)
 
 
 def limit_malloc_arenas() -> None:
     """At most one malloc arena per CPU (glibc's default is 8 per CPU): XLA's threads then
-    reuse freed memory instead of each holding its own. The 2025-state fire fighting run of
-    issue 33 peaks at 0.95 GB instead of 1.05 GB, at the same speed. Nothing happens where the
+    reuse freed memory instead of each holding its own: a lower peak at the same speed
+    (benchmarks/NOTES.md, "Measurements behind code choices"). Nothing happens where the
     C library is not glibc or ``MALLOC_ARENA_MAX`` is set."""
     if os.environ.get("MALLOC_ARENA_MAX") or not sys.platform.startswith("linux"):
         return

@@ -10,7 +10,10 @@ from cognet_jax.compile_cache import CACHE_VARIABLE
 from cognet_jax.errors import UsageError
 
 #: what ``cognet-jax --help`` says first
-DESCRIPTION = "cognet-jax: plan decentralised POMDP controllers (G-DICE, COG-DICE, COGNet-DICE)."
+DESCRIPTION = (
+    "cognet-jax: plan decentralised POMDP controllers by cross-entropy search "
+    "('cognet-jax list' names the experiments)."
+)
 DEFAULT_EXPERIMENT = "tagging-thesis-n3"
 
 

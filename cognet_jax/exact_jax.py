@@ -127,9 +127,9 @@ def exact_value_layered(
     )  # [h, Q], [h, Q, JO]
     # the last layer earns its rewards only: h - 1 backups instead of h, the same numbers;
     # from h 4 on, of the first layer only joint node 0 (where every run starts) is computed
-    # too (fire fighting 2-3-3 at h 4: a G-DICE run 93 s -> 68 s). Not below h 4: there the
-    # separate first layer raised the peak memory of the 2025-state model's tiny run (every
-    # sample valued exactly) from under 1 GB to 1.16 GB (tests/test_models.py)
+    # too, which saves time; not below h 4, where the separate first layer raised the peak
+    # memory of the largest test model's run above the suite's bound (tests/test_models.py;
+    # benchmarks/NOTES.md, "Measurements behind code choices")
     v = params.reward[:, ja[-1]].T  # [Q, S]: V at the last step
     if env.horizon == 1:
         return v[0] @ params.initial_belief

@@ -25,12 +25,15 @@ observations), to pass to ``plot_node_responses`` / ``controller_graph_edges``::
 from __future__ import annotations
 
 import functools
+import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+
+from cognet_jax.atomic_files import atomic_write_bytes
 
 __all__ = [
     "controller_graph_edges",
@@ -71,8 +74,9 @@ def _save(fig, path, dpi: int, title: str | None = None) -> str | Path:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    image = io.BytesIO()  # written whole, atomically: a failed write keeps the old figure
+    fig.savefig(image, dpi=dpi, bbox_inches="tight", format=Path(path).suffix[1:] or "png")
+    atomic_write_bytes(path, image.getvalue())
     return path
 
 

@@ -1,16 +1,16 @@
 """PRNG implementations selectable with ``run.prng_impl``, ``make_key`` and ``fast_key``.
 
-``"threefry2x32"`` (the default) is JAX's own implementation. JAX lowers the Threefry hash on
-CPU as a rolled loop (a ``while`` of 5 iterations whose state goes to memory between
-iterations, chosen for compile time). ``THREEFRY_IMPL`` computes the same stream, bit for bit
-(same seed, ``split``, ``fold_in`` and ``random_bits``; tests/test_prng.py compares them), with
-the 20 rounds written out as plain element-wise operations: one ``[1e5, 11]`` block of uniforms
-takes about 1.1 ms instead of 9 ms. ``fast_key`` converts a threefry key (typed, or a raw
-``uint32[..., 2]`` key of the old ``jax.random.PRNGKey`` kind) to it. The rollout engine uses
-it for its large per-step blocks, whatever key the caller passed; elsewhere keys stay JAX's,
-because the unrolled rounds, inlined at each of an iteration's many small draws, double the
-compile time. With ``jax_threefry_partitionable`` off (JAX's older stream) ``THREEFRY_IMPL``
-defers to JAX's functions and stays exact.
+``"threefry2x32"`` (the default) is JAX's own implementation. JAX lowers the Threefry hash on CPU as
+a rolled loop (a ``while`` of 5 iterations whose state goes to memory between iterations, chosen for
+compile time). ``THREEFRY_IMPL`` computes the same stream, bit for bit (same seed, ``split``,
+``fold_in`` and ``random_bits``; tests/test_prng.py compares them), with the 20 rounds written out
+as plain element-wise operations, several times faster on large blocks (benchmarks/NOTES.md,
+"Measurements behind code choices"). ``fast_key`` converts a threefry key (typed, or a raw
+``uint32[..., 2]`` key of the old ``jax.random.PRNGKey`` kind) to it. The rollout engine uses it for
+its large per-step blocks, whatever key the caller passed; elsewhere keys stay JAX's, because the
+unrolled rounds, inlined at each of an iteration's many small draws, double the compile time. With
+``jax_threefry_partitionable`` off (JAX's older stream) ``THREEFRY_IMPL`` defers to JAX's functions
+and stays exact.
 
 Besides it, ``rbg`` and ``unsafe_rbg`` (JAX's own) and ``"hash"``: a counter-based generator
 registered through ``jax.extend.random.define_prng_impl``, so every ``jax.random`` function

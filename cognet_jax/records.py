@@ -19,9 +19,8 @@ import numpy as np
 from cognet_jax.api import (
     split_seed_key,
 )
+from cognet_jax.atomic_files import atomic_write_bytes, atomic_write_text
 from cognet_jax.checkpoint import (
-    atomic_write_bytes,
-    atomic_write_text,
     policy_bytes,
     read_checkpoint,
     restore_history,

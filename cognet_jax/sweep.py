@@ -36,6 +36,7 @@ ends and on a stop signal, so ``cognet-jax evaluate`` works on any run of a swee
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 import json
 import time
@@ -46,7 +47,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from cognet_jax.checkpoint import atomic_write_text
+from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
 from cognet_jax.driver import GroupOptions, run_group
 from cognet_jax.errors import MismatchError, read_json
@@ -317,20 +318,21 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     names = list(result["grid"])
     # tabular problems: the exact values of each best policy (the search's ``exact_record``)
     exact_keys = [k for k in ("exact", "exact_infinite") if k in result["rows"][0]["final_value"]]
-    with (out / "runs.csv").open("w", newline="") as f:
-        w = csv.writer(f)
+    table = io.StringIO(newline="")  # written whole, atomically: a failed write keeps the old one
+    w = csv.writer(table)
+    w.writerow(
+        ["setting", "group", "seed", *names, "final_mean", "final_stderr", "final_rollouts"]
+        + ["in_loop_best"]
+        + [f"final_{k}" for k in exact_keys]
+    )
+    for r in result["rows"]:
+        fv = r["final_value"]
         w.writerow(
-            ["setting", "group", "seed", *names, "final_mean", "final_stderr", "final_rollouts"]
-            + ["in_loop_best"]
-            + [f"final_{k}" for k in exact_keys]
+            [r["setting"], r["group"], r["seed"], *(r["grid"][n] for n in names)]
+            + [repr(fv["mean"]), repr(fv["stderr"]), fv["rollouts"], repr(r["in_loop_best"])]
+            + [repr(fv.get(k)) for k in exact_keys]
         )
-        for r in result["rows"]:
-            fv = r["final_value"]
-            w.writerow(
-                [r["setting"], r["group"], r["seed"], *(r["grid"][n] for n in names)]
-                + [repr(fv["mean"]), repr(fv["stderr"]), fv["rollouts"], repr(r["in_loop_best"])]
-                + [repr(fv.get(k)) for k in exact_keys]
-            )
+    atomic_write_text(out / "runs.csv", table.getvalue())
     atomic_write_text(out / "runs.json", json.dumps(result, indent=1))
     summary = summarize(result)
     lines = [

@@ -1,15 +1,14 @@
 """Programs kept traced between processes, so a repeated run neither traces nor lowers again.
 
 JAX's persistent compilation cache (turned on by the command line,
-``compile_cache.use_compile_cache``)
-skips XLA's compilation of a program it has seen, but not the Python tracing and the lowering
-that come first and give the cache its key: for the default experiment they take 1.0 of the
-1.3 s a warm ``cognet-jax train`` spends before its loop. This module keeps the traced program
-as well, with JAX's own serialization (:mod:`jax.export`): the first run traces the program,
-exports it to ``<cache folder>-traced/<key>.bin`` and compiles the exported program; a later run
-with the same key reads that file and compiles the same exported program, which JAX's
-compilation cache then loads. First and later runs compile the very same program, so they give
-the same numbers.
+``compile_cache.use_compile_cache``) skips XLA's compilation of a program it has seen, but not the
+Python tracing and the lowering that come first and give the cache its key, most of what a warm
+``cognet-jax train`` spends before its loop (benchmarks/NOTES.md, "Measurements behind code
+choices"). This module keeps the traced program as well, with JAX's own serialization
+(:mod:`jax.export`): the first run traces the program, exports it to
+``<cache folder>-traced/<key>.bin`` and compiles the exported program; a later run with the same
+key reads that file and compiles the same exported program, which JAX's compilation cache then
+loads. First and later runs compile the very same program, so they give the same numbers.
 
 The key is a SHA-256 of everything the traced program depends on: the source of every module
 of the package, the JAX, jaxlib and Python versions, the JAX settings that change tracing

@@ -43,6 +43,7 @@ import numpy as np
 import optax
 from flax import serialization
 
+from cognet_jax.atomic_files import atomic_write_bytes
 from cognet_jax.envs.heatmap import HIGH, LOW, PATCH, all_patches, scene
 
 #: numbers in one observed patch (the VAE's input)
@@ -226,7 +227,7 @@ def save_vae(path: str | Path, vae: TrainedVAE) -> None:
         "hidden": vae.model.hidden,
         "params": serialization.to_state_dict(jax.device_get(vae.params)),
     }
-    Path(path).write_bytes(serialization.msgpack_serialize(blob))
+    atomic_write_bytes(path, serialization.msgpack_serialize(blob))
 
 
 def load_vae(path: str | Path) -> TrainedVAE:

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from shared_files import compile_cache_env
 
-from cognet_jax.checkpoint import CHECKPOINT_NAME, atomic_write_bytes, read_checkpoint
+from cognet_jax.atomic_files import atomic_write_bytes
+from cognet_jax.checkpoint import CHECKPOINT_NAME, read_checkpoint
 from cognet_jax.cli import main
 from cognet_jax.config import ConfigError
 from cognet_jax.driver import train as run_training

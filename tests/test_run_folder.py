@@ -160,7 +160,7 @@ def test_a_thread_left_running_by_a_module_does_not_keep_the_command_alive(tmp_p
 
 
 def test_a_failed_write_names_the_file_and_keeps_the_previous_one(tmp_path, monkeypatch):
-    from cognet_jax import checkpoint
+    from cognet_jax import atomic_files as checkpoint
 
     path = tmp_path / "results.json"
     checkpoint.atomic_write_text(path, "old")
@@ -172,3 +172,28 @@ def test_a_failed_write_names_the_file_and_keeps_the_previous_one(tmp_path, monk
     with pytest.raises(OSError, match=f"cannot write {path}: File too large"):
         checkpoint.atomic_write_text(path, "new")
     assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+def test_sweep_tables_and_figures_are_written_whole(tmp_path, monkeypatch):
+    """runs.csv and the figures go through the same atomic write: a failure names the file and
+    leaves the previous one (they were written in place before)."""
+    from cognet_jax import atomic_files, plots, sweep
+
+    (tmp_path / "runs.csv").write_text("old table")
+    monkeypatch.setattr(
+        atomic_files.os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(28, "No space"))
+    )
+    row = dict(
+        setting=0, group=0, seed=0, grid={}, in_loop_best=1.0,
+        final_value=dict(mean=1.0, stderr=0.1, rollouts=10),
+    )  # fmt: skip
+    with pytest.raises(OSError, match="cannot write .*runs.csv: No space"):
+        sweep.write_outputs(dict(grid={}, rows=[row]), tmp_path)
+    assert (tmp_path / "runs.csv").read_text() == "old table"
+    import matplotlib.figure
+
+    fig = matplotlib.figure.Figure()
+    fig.subplots().plot([0, 1])
+    with pytest.raises(OSError, match="cannot write .*values.png: No space"):
+        plots._save(fig, tmp_path / "values.png", dpi=50)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs.csv"]

@@ -103,14 +103,13 @@ def scaled_normal(scale: jax.Array | float, u: jax.Array) -> jax.Array:
     """``scale * normal_from_uniform(u)``, skipping the inverse CDF when ``scale`` is zero.
 
     Noise-free settings (the tagging thesis setting, a heatmap without sensor noise) then pay
-    nothing for their zero noise: the inverse CDF is a few hundred operations per draw and was
-    the largest part of a tagging step. A constant zero ``scale`` (a program's params baked in,
-    as ``cognet-jax train`` compiles them) gives zeros without tracing the inverse CDF at all:
-    the default tagging iteration's HLO 434 kB instead of 486 kB, compiled in 1.03 s instead
-    of 1.27 s (XLA level 0, one measurement each; the heatmap's 0.95 s instead of 1.15 s).
+    nothing for their zero noise: the inverse CDF is a few hundred operations per draw and was the
+    largest part of a tagging step. A constant zero ``scale`` (a program's params baked in, as
+    ``cognet-jax train`` compiles them) gives zeros without tracing the inverse CDF at all, a
+    smaller program that compiles faster (benchmarks/NOTES.md, "Measurements behind code choices").
     Otherwise ``lax.cond`` on the scalar ``scale``: with an unbatched ``scale`` only one branch
-    runs; under ``vmap`` over a batched ``scale`` both run and the result is selected. The
-    value is the same every way (``0 * x = 0`` for the finite ``x`` this returns)."""
+    runs; under ``vmap`` over a batched ``scale`` both run and the result is selected. The value is
+    the same every way (``0 * x = 0`` for the finite ``x`` this returns)."""
     if not isinstance(scale, jax.core.Tracer) and not np.any(scale):  # a constant zero
         return jnp.zeros(u.shape, jnp.float32)
     scale = jnp.asarray(scale, jnp.float32)

@@ -291,9 +291,9 @@ def _ix(*sets: np.ndarray) -> tuple:
     """``np.ix_(*sets)``: the block of an array at these index sets (one per leading axis), to
     read or assign. A set ``0, 1, ..., k-1`` (what ``*`` gives) becomes the slice ``0:k``, and
     with at most one set left as indices this is plain numpy indexing that keeps every axis in
-    place: the same block, without gathering it through index arrays. A wildcard line over a
-    large model then costs little: the 2,025-state fire fighting model (2,000 ``R: * : * : s'
-    : * : r`` lines) parsed in 1.8-2.3 s instead of 3.3 s (2-core CPU, 2026-11-27)."""
+    place: the same block, without gathering it through index arrays, so a wildcard line
+    over a large model costs little (benchmarks/NOTES.md, "Measurements behind code
+    choices")."""
     ranges = [len(x) > 0 and x[0] == 0 and np.array_equal(x, np.arange(len(x))) for x in sets]
     if len(sets) - sum(ranges) > 1:
         return np.ix_(*sets)
