@@ -81,12 +81,19 @@ def _one_cache_warning(folder: Path) -> None:
         text = " ".join(str(message).split())
         if "compilation cache" not in text:
             return shown(message, category, filename, lineno, file, line)
-        if not _CACHE_TOLD:
-            _CACHE_TOLD.append(text)
-            print(f"note: compilation cache {folder}: {text[:160]}", file=sys.stderr)
+        cache_note(f"compilation cache {folder}: {text[:160]}")
 
     warnings.showwarning = show
 
 
-#: the compilation cache's first warning of this process (``_one_cache_warning``)
+#: the first note about a cache of this process (``cache_note``)
 _CACHE_TOLD: list[str] = []
+
+
+def cache_note(text: str) -> None:
+    """One ``note:`` line on stderr per process about the caches (JAX's compilation cache
+    warning, or an unusable kept program removed by ``traced``): the first; later ones are
+    dropped, so a run says at most one line about its caches."""
+    if not _CACHE_TOLD:
+        _CACHE_TOLD.append(text)
+        print(f"note: {text}", file=sys.stderr)

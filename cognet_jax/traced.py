@@ -47,6 +47,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from cognet_jax.compile_cache import cache_note
+
 #: programs whose constants (model arrays baked in) take more bytes than this are not kept:
 #: exporting them holds further copies of the constants (the 2025-state fire fighting model's
 #: 4.8 MB raised the run's peak RSS by about 0.1 GB), and tracing is a small part of such runs
@@ -275,22 +277,16 @@ def _fits(exported, out_tree, args) -> bool:
     return n_in == len(exported.in_avals) and out_tree.num_leaves == len(exported.out_avals)
 
 
-#: set once an unusable kept program was reported: one line per process at most
-_TOLD = []
-
-
 def _discard(path: Path, err: BaseException) -> None:
-    """Remove an unusable kept program; the first in a process is reported in one line."""
+    """Remove an unusable kept program; reported in one line, the only line a process says
+    about its caches (``compile_cache.cache_note``)."""
     with contextlib.suppress(OSError):
         path.unlink()
-    if not _TOLD:
-        _TOLD.append(path)
-        reason = " ".join(str(err).split())[:100] or type(err).__name__
-        print(
-            f"note: unusable kept programs in {path.parent} are removed and traced afresh "
-            f"({path.name[:12]}: {reason})",
-            file=sys.stderr,
-        )
+    reason = " ".join(str(err).split())[:100] or type(err).__name__
+    cache_note(
+        f"unusable kept programs in {path.parent} are removed and traced afresh "
+        f"({path.name[:12]}: {reason})"
+    )
 
 
 __all__ = ["compile_kept", "program_key", "source_digest", "trace_cache_dir"]

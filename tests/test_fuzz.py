@@ -387,7 +387,9 @@ def test_damaged_kept_programs(capsys, tmp_path, monkeypatch):
     folder = tmp_path / "xla-traced"
     monkeypatch.setattr(traced, "trace_cache_dir", lambda: folder)
     monkeypatch.setattr(traced, "_COMPILED", OrderedDict())
-    monkeypatch.setattr(traced, "_TOLD", [])
+    from cognet_jax import compile_cache
+
+    monkeypatch.setattr(compile_cache, "_CACHE_TOLD", [])
 
     def program(scale):
         return lambda key, x: jnp.cumsum(x * scale + jax.random.normal(key, x.shape))
@@ -406,7 +408,7 @@ def test_damaged_kept_programs(capsys, tmp_path, monkeypatch):
         traced.compile_kept(program(3.0), other_args, other, no_check)
         kinds.add(_damage(rnd, folder / f"{key}.bin", folder / f"{other}.bin"))
         traced._COMPILED.clear()
-        traced._TOLD.clear()
+        compile_cache._CACHE_TOLD.clear()
         capsys.readouterr()
         out = traced.compile_kept(program(2.0), args, key, no_check)(*args)
         np.testing.assert_array_equal(np.asarray(out), np.asarray(jax.jit(program(2.0))(*args)))

@@ -191,13 +191,45 @@ def _swap(path, other):
 
 @pytest.mark.parametrize("damage", [_flip, _swap], ids=["flipped-bytes", "swapped-between-keys"])
 def test_a_damaged_or_swapped_file_is_traced_afresh_with_one_line(cache, damage, capsys):
-    monkey_told = traced._TOLD.copy()
-    traced._TOLD.clear()
+    from cognet_jax import compile_cache
+
+    monkey_told = compile_cache._CACHE_TOLD.copy()
+    compile_cache._CACHE_TOLD.clear()
     try:
         traces, out, direct = _kept_then_damaged(cache, damage)
     finally:
-        traced._TOLD[:] = monkey_told
+        compile_cache._CACHE_TOLD[:] = monkey_told
     assert traces  # not read from the damaged file
     np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(direct["y"]))
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "traced afresh" in err[0], err
+
+
+def test_a_cache_folder_filled_without_the_size_bound_is_repaired(tmp_path):
+    """Entries without JAX's access-time files get one (time 0), orphan access-time files go:
+    without them JAX warns at every write and never stores a new entry."""
+    from cognet_jax.compile_cache import repair_cache_folder
+
+    (tmp_path / "a-cache").write_bytes(b"x")
+    (tmp_path / "b-cache").write_bytes(b"y")
+    (tmp_path / "b-atime").write_bytes(b"12345678")
+    (tmp_path / "c-atime").write_bytes(b"12345678")
+    repair_cache_folder(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "a-atime",
+        "a-cache",
+        "b-atime",
+        "b-cache",
+    ]
+    assert (tmp_path / "a-atime").read_bytes() == bytes(8)
+    assert (tmp_path / "b-atime").read_bytes() == b"12345678"
+    repair_cache_folder(tmp_path / "absent")  # nothing to repair: no error
+
+
+def test_a_run_says_at_most_one_line_about_its_caches(capsys, monkeypatch):
+    from cognet_jax import compile_cache
+
+    monkeypatch.setattr(compile_cache, "_CACHE_TOLD", [])
+    compile_cache.cache_note("compilation cache /x: cannot write")
+    traced._discard(Path("/nonexistent/abc.bin"), ValueError("bad"))
+    assert capsys.readouterr().err.splitlines() == ["note: compilation cache /x: cannot write"]
