@@ -51,7 +51,7 @@ from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
 from cognet_jax.errors import InputError, SimulatorWarning, UsageError
 from cognet_jax.hosts import init_distributed, set_cpu_devices
 from cognet_jax.io.dpomdp import parse_dpomdp
-from cognet_jax.plugins import import_plugin, one_line
+from cognet_jax.plugins import import_plugin, one_line, user_code_error
 from cognet_jax.registry import load_config
 from cognet_jax.run_folder import check_out, claim
 from cognet_jax.signals import Stopped, in_background, install_stop_handlers
@@ -482,6 +482,10 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
         if args.debug:
             raise
+        mine = user_code_error(err)
+        if mine is not None:  # raised in a user's --import module: theirs to fix
+            print(f"error: {mine}", file=sys.stderr)
+            return 2
         print(
             f"error: internal error {type(err).__name__}: {one_line(err)} "
             "(run again with --debug for the traceback)",

@@ -100,6 +100,8 @@ def import_plugin(name: str) -> None:
         with _guarded_import(name):
             _import(name, path, origin if name.endswith(".py") else None)
         note_foreign_code(name, origin)
+        if origin:
+            _ORIGINS[str(Path(origin).resolve())] = name
     except UsageError:
         raise
     except _ImportEnded as err:
@@ -112,6 +114,27 @@ def import_plugin(name: str) -> None:
         raise UsageError(
             f"--import {name}: {where_raised(err, origin)}: {type(err).__name__}: {one_line(err)}"
         ) from None
+
+
+#: resolved file of every ``--import`` module -> the name it was given by
+_ORIGINS: dict[str, str] = {}
+
+
+def user_code_error(err: BaseException) -> str | None:
+    """The one-line report of ``err`` when it was raised in the code of an ``--import``
+    module (a simulator's or algorithm's function, while tracing or running it): whose code,
+    which function, where, and the error (JAX's message names the shapes or dtypes it
+    expected and got); ``None`` when no frame of such a module is in its traceback."""
+    frames = traceback.extract_tb(err.__traceback__)
+    own = [f for f in frames if str(Path(f.filename).resolve()) in _ORIGINS]
+    if not own:
+        return None
+    frame = own[-1]
+    module = _ORIGINS[str(Path(frame.filename).resolve())]
+    return (
+        f"the code of --import {module} failed in {frame.name}() at {frame.filename}:"
+        f"{frame.lineno}: {type(err).__name__}: {one_line(err)}"
+    )
 
 
 def _import(name: str, path: Path, origin: str | None) -> None:

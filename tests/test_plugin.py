@@ -147,3 +147,30 @@ def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
     rows = json.loads((sweep / "runs.json").read_text())["rows"]
     assert len(rows) == 2 and rows[0]["final_value"]["mean"] == value  # seed 0 is train's
     assert np.isfinite(rows[1]["final_value"]["mean"])
+
+
+def test_an_error_in_a_plugin_algorithm_names_its_code(tmp_path, capsys):
+    """An algorithm from --import whose ask fails while tracing (a shape mismatch) is the
+    user's code: exit 2, one line naming the module, the function, the file and line, and
+    JAX's message with the shapes -- not 'internal error'."""
+    broken = THRESHOLD_SEARCH.replace(
+        "        policies = self._draw(streams(key).sample, self.settings.samples)\n",
+        "        policies = self._draw(streams(key).sample, self.settings.samples)\n"
+        "        policies = policies.replace(thresholds=policies.thresholds @ jnp.ones((3, 1)))\n",
+    )
+    assert broken != THRESHOLD_SEARCH
+    module = tmp_path / "broken_search.py"
+    module.write_text(broken)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds"\n')
+    code = main(
+        ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "r"), "--no-progress"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert len(err) == 1 and "internal error" not in err[0], err
+    line = broken.splitlines().index(
+        "        policies = policies.replace(thresholds=policies.thresholds @ jnp.ones((3, 1)))"
+    )
+    assert f"the code of --import {module} failed in ask() at {module}:{line + 1}" in err[0]
+    assert "TypeError" in err[0] and "got (2,) and (3,)" in err[0], err[0]
