@@ -243,6 +243,21 @@ EXTRA = {
         )
         if suffix != "-before-pilot" or BEFORE_PILOT_PAPER[name]
     },
+    "paper-budget-1of64-notie": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10", "algorithm.tie_structure=false"],
+        3,
+        "1/64 of the paper's budget, the defaults without tied structures",
+        None,
+    ),
+    "paper-cognet-builtin": (
+        "tagging-paper-cognet",
+        ["run.probe_seconds=10"],
+        3,
+        "the built-in tagging-paper-cognet (1000 x 800 x 50, no tied structures, restarts or "
+        "pool; 1/25 of the paper's budget), whose seed 0 alone gave 109.985",
+        None,
+    ),
     "paper-budget-1of64-c800": (
         "tagging-paper-auto",
         [
