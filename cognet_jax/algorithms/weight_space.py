@@ -52,23 +52,26 @@ def tie(sample: WeightSample) -> WeightSample:
     ``node_tie`` is 1, every node of that agent gets node 0's network (a reactive controller:
     the next node depends on the observation only); where ``agent_tie`` is 1, every agent gets
     agent 0's whole controller (actions and networks). The Gaussians and categoricals are
-    then refit to the weights the candidates ran, so a tied elite teaches every node."""
+    then refit to the weights the candidates ran, so a tied elite teaches every node.
+
+    Written as gathers of a source index per node and per agent: a ``where`` between each
+    array and a broadcast slice of it let XLA fuse the random draws that made the array into
+    both reads and compute them again (the default iteration at the thesis setting took 11.5 ms
+    instead of 4; the same numbers)."""
     lead = sample.node_tie.ndim - 1  # 1 with a candidate axis, else 0
+    agents, q = sample.actions.shape[-2:]
+    node_src = jnp.where(sample.node_tie[..., None] == 1, 0, jnp.arange(q))  # [..., agents, Q]
+    agent_src = jnp.where(sample.agent_tie[..., None] == 1, 0, jnp.arange(agents))  # [..., agents]
 
-    def nodes_tied(x):  # x [..., agents, Q, ...]
-        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead + 1), x.shape)
-        flag = sample.node_tie.reshape(sample.node_tie.shape + (1,) * (x.ndim - lead - 1))
-        return jnp.where(flag == 1, first, x)
+    def pick(x, src, axis):
+        index = src.reshape(src.shape + (1,) * (x.ndim - src.ndim))
+        return jnp.take_along_axis(x, jnp.broadcast_to(index, x.shape), axis=axis)
 
-    sample = sample.replace(**{f: nodes_tied(getattr(sample, f)) for f in NETWORK_FIELDS})
-
-    def agents_tied(x):  # x [..., agents, ...]
-        first = jnp.broadcast_to(jax.lax.slice_in_dim(x, 0, 1, axis=lead), x.shape)
-        flag = sample.agent_tie.reshape(sample.agent_tie.shape + (1,) * (x.ndim - lead))
-        return jnp.where(flag == 1, first, x)
-
+    sample = sample.replace(
+        **{f: pick(getattr(sample, f), node_src, lead + 1) for f in NETWORK_FIELDS}
+    )
     fields = (*NETWORK_FIELDS, "actions", "node_tie")
-    return sample.replace(**{f: agents_tied(getattr(sample, f)) for f in fields})
+    return sample.replace(**{f: pick(getattr(sample, f), agent_src, lead) for f in fields})
 
 
 def gaussian_refit(mean, std, elite_draws, alpha):
