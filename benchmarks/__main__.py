@@ -294,12 +294,13 @@ def main(argv=None) -> int:
         from benchmarks import end_to_end, iteration_pairs
 
         out = json.loads((out_dir / "results.json").read_text())
+        load = os.getloadavg()
         out["iteration_pairs"] = iteration_pairs.measure(print)
         out["end_to_end"] = end_to_end.measure(print)
         out["pairs_run"] = dict(
             command="python -m benchmarks --pairs",
             date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            load_average=os.getloadavg(),
+            load_average=load,
         )
         if not args.no_write:
             (out_dir / "results.json").write_text(json.dumps(out, indent=1))

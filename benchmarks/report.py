@@ -451,6 +451,15 @@ def write_plots(out: dict, folder: Path) -> Path:
     return path
 
 
+def _pairs_run(out: dict) -> str:
+    """When the paired iterations and the end-to-end pair were measured, if apart from the
+    rest (``--pairs``)."""
+    run = out.get("pairs_run")
+    if not run:
+        return ""
+    return f"Measured {run['date']} (load average {run['load_average'][0]:.2f}). "
+
+
 def write_readme(out: dict, path: Path, notes: str = "") -> None:
     """The generated README: machine, command, every table; ``notes`` (hand-written analysis
     kept in benchmarks/NOTES.md) is appended as is."""
@@ -527,7 +536,8 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
             "",
             *pairs_table(out),
             "",
-            "`python -m benchmarks --pairs` (`benchmarks/iteration_pairs.py`): one whole search "
+            _pairs_run(out)
+            + "`python -m benchmarks --pairs` (`benchmarks/iteration_pairs.py`): one whole search "
             "iteration as a run compiles it (state carried from call to call), against the same "
             "algorithm and sizes in `benchmarks/torch_reference` (the thesis variant: "
             "`vectorized.py`; the default: `weights.py`), eager and `torch.compile`d, in paired "
