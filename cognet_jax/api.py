@@ -27,6 +27,7 @@ from typing import Any
 import jax
 
 from cognet_jax.algorithms.engine import SearchParams
+from cognet_jax.budget import check_budget
 from cognet_jax.config import (
     INT32_MAX,
     Config,
@@ -37,8 +38,7 @@ from cognet_jax.config import (
     section_from_dict,
 )
 from cognet_jax.envs.base import check_simulator
-from cognet_jax.errors import ResourceError
-from cognet_jax.memory import budget_bytes, gb
+from cognet_jax.memory import budget_bytes
 from cognet_jax.prng import make_key
 from cognet_jax.registry import (
     algorithm_entry,
@@ -61,93 +61,11 @@ def params_of(config: Config, env_params=None) -> SearchParams:
     )
 
 
-#: agent-steps per second: about the fastest this library simulates on a 2-core CPU
-#: (benchmarks/README.md: region controllers, 1e5 rollouts); time at this rate is a lower bound
-FASTEST_RATE = 2e8
-#: a run whose simulated agent-steps take longer than this even at ``FASTEST_RATE`` is refused
-ABSURD_SECONDS = 7 * 86400.0
-#: a run over this (at ``FASTEST_RATE``) gets a warning with the estimate before it starts
-LONG_SECONDS = 3600.0
-
-
-def simulated_agent_steps(config: Config, env) -> tuple[int, int]:
-    """``(search, evaluation)``: agent-steps the search simulates at least (``iterations`` x the
-    section's ``rollouts_per_iteration()`` x horizon x agents; 0 for a section without it) and
-    the honest evaluation simulates."""
-    per_rollout = env.horizon * env.num_agents
-    rollouts = getattr(config.algorithm, "rollouts_per_iteration", None)
-    search = config.algorithm.iterations * rollouts() * per_rollout if rollouts else 0
-    return search, config.evaluation.rollouts * per_rollout
-
-
-def estimated_seconds(config: Config, env) -> float:
-    """Seconds a run of ``config`` takes at least: its agent-steps (search and honest
-    evaluation, ``simulated_agent_steps``) at ``FASTEST_RATE``. An estimate, no check."""
-    return sum(simulated_agent_steps(config, env)) / FASTEST_RATE
-
-
-def check_budget(config: Config, env) -> float:
-    """Seconds the run takes at least (its agent-steps at ``FASTEST_RATE``), checked before
-    anything is built or compiled: ``ConfigError`` naming the field when that is absurd (over
-    ``ABSURD_SECONDS``), ``ResourceError`` when the honest evaluation's returns cannot fit the
-    memory budget ``run.memory_gb``."""
-    search, evaluation = simulated_agent_steps(config, env)
-    returns = 4 * config.evaluation.rollouts
-    if returns > budget_bytes(config.run.memory_gb):
-        raise ResourceError(
-            f"evaluation.rollouts: {config.evaluation.rollouts} returns need {gb(returns)}, over "
-            f"the memory budget of {gb(budget_bytes(config.run.memory_gb))}; lower "
-            "evaluation.rollouts or raise run.memory_gb"
-        )
-    seconds = estimated_seconds(config, env)
-    if seconds > ABSURD_SECONDS:
-        field = "evaluation.rollouts" if evaluation > search else _largest_size(config)
-        raise ConfigError(
-            field,
-            f"the run simulates {search + evaluation:.3g} agent-steps (horizon {env.horizon}, "
-            f"{env.num_agents} agents): at least {seconds / 86400:.0f} days at "
-            f"{FASTEST_RATE:.0e} agent-steps/s, over the limit of {ABSURD_SECONDS / 86400:.0f} "
-            "days",
-        )
-    return seconds
-
-
-#: the horizon a size check compares with, for simulators without a default horizon
-TYPICAL_HORIZON = 100
-
-
-def _largest_size(config: Config) -> str:
-    """The size field of the search that is the largest multiple of its default (the one to
-    blame when the run's agent-steps are absurd): the horizon or an integer field of
-    ``[algorithm]``."""
-    horizon = "problem" if "problem" in env_entry(config.env.name).reads else "env"
-    candidates = [(f"{horizon}.horizon", getattr(config, horizon), "horizon")]
-    candidates += [(f"algorithm.{f.name}", config.algorithm, f.name) for f in _int_fields(config)]
-    default_of = {}
-    for name, section, field in candidates:
-        default = {f.name: f.default for f in dataclasses.fields(type(section))}.get(field)
-        if field == "horizon" and not isinstance(default, int):
-            default = TYPICAL_HORIZON  # a simulator whose horizon comes from its setting
-        value = getattr(section, field, None)
-        if isinstance(value, int) and isinstance(default, int) and default > 0:
-            default_of[name] = value / default
-    return max(default_of, key=default_of.get) if default_of else "algorithm.iterations"
-
-
-def _int_fields(config: Config):
-    return [
-        f
-        for f in dataclasses.fields(type(config.algorithm))
-        if isinstance(getattr(config.algorithm, f.name), int)
-        and not isinstance(getattr(config.algorithm, f.name), bool)
-    ]
-
-
 @dataclasses.dataclass(frozen=True)
 class Built:
     """Everything a run of ``config`` is made of, built once (``build``): the simulator and its
     params, the search and its ``SearchParams``, and ``seconds``, the run's time at least
-    (its agent-steps at ``FASTEST_RATE``, ``check_budget``)."""
+    (its agent-steps at ``budget.FASTEST_RATE``, ``check_budget``)."""
 
     config: Config
     env: Any
@@ -296,7 +214,13 @@ def search_program(algorithm, iterations: int):
     return run
 
 
-def make_train(config: Config):
+def _built(config: Config | Built) -> Built:
+    """``config`` as a ``Built`` run: built here from a ``Config``, taken as it is otherwise
+    (so a caller that built once passes what it built)."""
+    return config if isinstance(config, Built) else build(config)
+
+
+def make_train(config: Config | Built):
     """A pure ``train(key, params=None) -> (final_state, metrics)`` running
     ``algorithm.iterations`` iterations and then ``finish`` (the G-DICE polish), so
     ``algorithm.best_policy(final_state)`` is the policy ``cognet-jax train --seed s`` writes
@@ -305,9 +229,11 @@ def make_train(config: Config):
     ``params``: a ``SearchParams`` like ``build_algorithm(config)[1]`` (``None``: that one, as
     constants of the program, as the command line runs it), e.g. with another ``alpha`` or
     noise level, so ``jax.vmap(train, in_axes=(None, 0))(key, stacked_params)`` searches with
-    many settings in one program. ``make_evaluate(config)`` gives the honest value."""
-    algorithm, default = build_algorithm(config)
-    run = search_program(algorithm, config.algorithm.iterations)
+    many settings in one program. ``make_evaluate(config)`` gives the honest value.
+    ``config`` may be the ``Built`` run of ``build(config)`` (nothing is built again)."""
+    built = _built(config)
+    algorithm, default = built.algorithm, built.params
+    run = search_program(algorithm, built.config.algorithm.iterations)
 
     def train(key, params=None):
         return run(key, default if params is None else params)
@@ -315,14 +241,15 @@ def make_train(config: Config):
     return train
 
 
-def make_evaluate(config: Config):
+def make_evaluate(config: Config | Built):
     """A pure ``evaluate(key, policy, params=None) -> (mean, stderr)``: the honest value of
     ``policy``, the mean return of ``evaluation.rollouts`` fresh rollouts drawn from the seed
     key's evaluation key (``honest_returns``), which the search never uses. ``results.json``'s
     ``final_value`` sums the same returns in float64; this float32 mean agrees with it to
-    float32 rounding."""
-    algorithm, default = build_algorithm(config)
-    returns = honest_returns(algorithm, config.evaluation)
+    float32 rounding. ``config`` may be the ``Built`` run of ``build(config)``."""
+    built = _built(config)
+    algorithm, default = built.algorithm, built.params
+    returns = honest_returns(algorithm, built.config.evaluation)
 
     def evaluate(key, policy, params=None):
         return mean_and_stderr(returns(key, policy, default if params is None else params))

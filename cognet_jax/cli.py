@@ -175,15 +175,10 @@ MANY_RUNS = 1000
 
 def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -> None:
     """Refuse, before anything is built for each run, a sweep whose runs together take more
-    than ``api.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
-    announce a large one (over ``MANY_RUNS`` runs, or over ``api.LONG_SECONDS``)."""
-    from cognet_jax.api import (
-        ABSURD_SECONDS,
-        LONG_SECONDS,
-        build_env,
-        check_budget,
-        estimated_seconds,
-    )
+    than ``budget.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
+    announce a large one (over ``MANY_RUNS`` runs, or over ``budget.LONG_SECONDS``)."""
+    from cognet_jax.api import build_env
+    from cognet_jax.budget import ABSURD_SECONDS, LONG_SECONDS, check_budget, estimated_seconds
 
     config = load_config(experiment, overrides)
     env = build_env(config)[0]

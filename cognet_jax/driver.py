@@ -25,10 +25,7 @@ from typing import Any
 import jax
 from tqdm.auto import tqdm
 
-from cognet_jax.api import (
-    FASTEST_RATE,
-    LONG_SECONDS,
-)
+from cognet_jax.budget import FASTEST_RATE, LONG_SECONDS
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
     stack_history,
@@ -156,7 +153,7 @@ def _prepare(runs: list[Run], opts: GroupOptions):
 
 def _warn_if_long(program: Program, runs: int) -> None:
     """One line before compiling when the group's runs take over ``LONG_SECONDS`` even at the
-    fastest rate measured (``api.check_budget``'s estimate, made when it was built)."""
+    fastest rate measured (``budget.check_budget``'s estimate, made when it was built)."""
     seconds = program.built.seconds * runs
     if seconds > LONG_SECONDS:
         print(

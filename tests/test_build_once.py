@@ -64,6 +64,12 @@ def test_every_command_builds_its_simulator_once_and_checks_its_budget_once(coun
     cognet_jax.make_train(config)
     assert seen == {"builds": 1, "checks": 1}
 
+    seen = counts()  # a library user builds once and hands the run to both makers
+    built = cognet_jax.build(config)
+    cognet_jax.make_train(built)
+    cognet_jax.make_evaluate(built)
+    assert seen == {"builds": 1, "checks": 1}
+
 
 def test_evaluate_checks_the_rollouts_it_was_given(counts, tmp_path, capsys):
     out = tmp_path / "run"

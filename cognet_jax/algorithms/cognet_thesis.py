@@ -97,7 +97,7 @@ class CognetThesisSection(EntropySection):
     best_rollouts: int = 0
 
     def rollouts_per_iteration(self) -> int:
-        """Rollouts one iteration simulates (the size checks of ``api.check_budget``)."""
+        """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
         return rollouts_per_iteration(self)
 
     def check(self, config) -> None:

@@ -168,7 +168,7 @@ class CognetWeightsSection:
     restart_tol: float = 0.02
 
     def rollouts_per_iteration(self) -> int:
-        """Rollouts one iteration simulates (the size checks of ``api.check_budget``)."""
+        """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
         return rollouts_per_iteration(self)
 
     def check(self, config) -> None:

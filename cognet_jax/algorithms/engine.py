@@ -116,7 +116,7 @@ class ThresholdSection(EntropySection):
     best_rollouts: int = 0
 
     def rollouts_per_iteration(self) -> int:
-        """Rollouts one iteration simulates at least (the size checks of ``api.check_budget``)."""
+        """Rollouts one iteration simulates at least (``budget.check_budget``'s size checks)."""
         return self.samples * self.eval_rollouts + self.best_rollouts
 
     def check(self, config) -> None:

@@ -1,0 +1,94 @@
+"""The budget policy of a run: how long it takes at least (its agent-steps at the fastest rate
+this library simulates), what is refused as absurd, what is announced as long. ``api.build``
+checks it once per run (``check_budget``); the driver and the command line read the same
+constants to announce long runs and sweeps."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from cognet_jax.config import Config, ConfigError
+from cognet_jax.errors import ResourceError
+from cognet_jax.memory import budget_bytes, gb
+from cognet_jax.registry import env_entry
+
+#: agent-steps per second: about the fastest this library simulates on a 2-core CPU
+#: (benchmarks/README.md: region controllers, 1e5 rollouts); time at this rate is a lower bound
+FASTEST_RATE = 2e8
+#: a run whose simulated agent-steps take longer than this even at ``FASTEST_RATE`` is refused
+ABSURD_SECONDS = 7 * 86400.0
+#: a run over this (at ``FASTEST_RATE``) gets a warning with the estimate before it starts
+LONG_SECONDS = 3600.0
+
+
+def simulated_agent_steps(config: Config, env) -> tuple[int, int]:
+    """``(search, evaluation)``: agent-steps the search simulates at least (``iterations`` x the
+    section's ``rollouts_per_iteration()`` x horizon x agents; 0 for a section without it) and
+    the honest evaluation simulates."""
+    per_rollout = env.horizon * env.num_agents
+    rollouts = getattr(config.algorithm, "rollouts_per_iteration", None)
+    search = config.algorithm.iterations * rollouts() * per_rollout if rollouts else 0
+    return search, config.evaluation.rollouts * per_rollout
+
+
+def estimated_seconds(config: Config, env) -> float:
+    """Seconds a run of ``config`` takes at least: its agent-steps (search and honest
+    evaluation, ``simulated_agent_steps``) at ``FASTEST_RATE``. An estimate, no check."""
+    return sum(simulated_agent_steps(config, env)) / FASTEST_RATE
+
+
+def check_budget(config: Config, env) -> float:
+    """Seconds the run takes at least (its agent-steps at ``FASTEST_RATE``), checked before
+    anything is built or compiled: ``ConfigError`` naming the field when that is absurd (over
+    ``ABSURD_SECONDS``), ``ResourceError`` when the honest evaluation's returns cannot fit the
+    memory budget ``run.memory_gb``."""
+    search, evaluation = simulated_agent_steps(config, env)
+    returns = 4 * config.evaluation.rollouts
+    if returns > budget_bytes(config.run.memory_gb):
+        raise ResourceError(
+            f"evaluation.rollouts: {config.evaluation.rollouts} returns need {gb(returns)}, over "
+            f"the memory budget of {gb(budget_bytes(config.run.memory_gb))}; lower "
+            "evaluation.rollouts or raise run.memory_gb"
+        )
+    seconds = estimated_seconds(config, env)
+    if seconds > ABSURD_SECONDS:
+        field = "evaluation.rollouts" if evaluation > search else _largest_size(config)
+        raise ConfigError(
+            field,
+            f"the run simulates {search + evaluation:.3g} agent-steps (horizon {env.horizon}, "
+            f"{env.num_agents} agents): at least {seconds / 86400:.0f} days at "
+            f"{FASTEST_RATE:.0e} agent-steps/s, over the limit of {ABSURD_SECONDS / 86400:.0f} "
+            "days",
+        )
+    return seconds
+
+
+#: the horizon a size check compares with, for simulators without a default horizon
+TYPICAL_HORIZON = 100
+
+
+def _largest_size(config: Config) -> str:
+    """The size field of the search that is the largest multiple of its default (the one to
+    blame when the run's agent-steps are absurd): the horizon or an integer field of
+    ``[algorithm]``."""
+    horizon = "problem" if "problem" in env_entry(config.env.name).reads else "env"
+    candidates = [(f"{horizon}.horizon", getattr(config, horizon), "horizon")]
+    candidates += [(f"algorithm.{f.name}", config.algorithm, f.name) for f in _int_fields(config)]
+    default_of = {}
+    for name, section, field in candidates:
+        default = {f.name: f.default for f in dataclasses.fields(type(section))}.get(field)
+        if field == "horizon" and not isinstance(default, int):
+            default = TYPICAL_HORIZON  # a simulator whose horizon comes from its setting
+        value = getattr(section, field, None)
+        if isinstance(value, int) and isinstance(default, int) and default > 0:
+            default_of[name] = value / default
+    return max(default_of, key=default_of.get) if default_of else "algorithm.iterations"
+
+
+def _int_fields(config: Config):
+    return [
+        f
+        for f in dataclasses.fields(type(config.algorithm))
+        if isinstance(getattr(config.algorithm, f.name), int)
+        and not isinstance(getattr(config.algorithm, f.name), bool)
+    ]
