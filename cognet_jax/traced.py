@@ -53,8 +53,11 @@ from cognet_jax.compile_cache import cache_note
 #: exporting them holds further copies of the constants (the 2025-state fire fighting model's
 #: 4.8 MB raised the run's peak RSS by about 0.1 GB), and tracing is a small part of such runs
 KEPT_CONSTANT_BYTES = 2**20
-#: JAX settings that change what a function traces to
+#: JAX settings that change what a function traces to, keyed by name; every other JAX setting is
+#: keyed too (``trace_settings``) except those whose names hold one of ``UNKEYED_WORDS``
+#: (caches, logging, timeouts: how a program is stored or reported, not what it computes)
 TRACE_SETTINGS = ("jax_enable_x64", "jax_default_prng_impl", "jax_threefry_partitionable")
+UNKEYED_WORDS = ("cache", "log", "timeout", "explain")
 #: JAX settings that change how a traced program is compiled (keys of the in-process programs)
 COMPILE_SETTINGS = (
     "jax_disable_most_optimizations",
@@ -115,6 +118,17 @@ def _avals(args) -> str:
     return f"{treedef}|{','.join(shapes)}"
 
 
+def trace_settings() -> dict[str, str]:
+    """The JAX settings a kept program is keyed by: ``TRACE_SETTINGS`` and every other setting
+    of ``jax.config`` but those named by ``UNKEYED_WORDS``, so a program traced under a
+    setting a module changed (matmul precision, rank promotion, x64, ...) is never read back
+    under another."""
+    values = getattr(jax.config, "values", {})
+    keyed = {k: str(v) for k, v in values.items() if not any(w in k for w in UNKEYED_WORDS)}
+    keyed.update({s: str(getattr(jax.config, s)) for s in TRACE_SETTINGS})
+    return keyed
+
+
 def program_key(what: str, identity: dict, constants, args) -> str | None:
     """The file name (hex digest) of a program ``what`` traced from ``identity`` (a JSON-able
     dict: config, budget, ...), ``constants`` (the pytree of arrays baked into the program) and
@@ -123,7 +137,7 @@ def program_key(what: str, identity: dict, constants, args) -> str | None:
     size = sum(getattr(x, "nbytes", 0) for x in jax.tree.leaves(constants))
     if size > KEPT_CONSTANT_BYTES:
         return None
-    settings = {s: str(getattr(jax.config, s)) for s in TRACE_SETTINGS}
+    settings = trace_settings()
     # the mesh a program is traced under (``run.shard_rollouts``) and the devices it may use
     settings["mesh"] = str(jax.sharding.get_abstract_mesh())
     settings["devices"] = str(jax.local_device_count())

@@ -233,3 +233,15 @@ def test_a_run_says_at_most_one_line_about_its_caches(capsys, monkeypatch):
     compile_cache.cache_note("compilation cache /x: cannot write")
     traced._discard(Path("/nonexistent/abc.bin"), ValueError("bad"))
     assert capsys.readouterr().err.splitlines() == ["note: compilation cache /x: cannot write"]
+
+
+def test_a_program_traced_under_another_jax_setting_is_keyed_apart():
+    """A module that changes a JAX setting beyond the three named ones (here the default
+    matmul precision) gets other keys: its programs are never read back in a run without it."""
+    import jax
+
+    args = (jnp.ones(3),)
+    before = traced.program_key("p", {"a": 1}, None, args)
+    with jax.default_matmul_precision("highest"):
+        during = traced.program_key("p", {"a": 1}, None, args)
+    assert during != before and traced.program_key("p", {"a": 1}, None, args) == before
