@@ -197,3 +197,39 @@ def test_sweep_tables_and_figures_are_written_whole(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="cannot write .*values.png: No space"):
         plots._save(fig, tmp_path / "values.png", dpi=50)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["runs.csv"]
+
+
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        ("return s, obs, jnp.stack([r, r, r])", "reward"),
+        ("return s.replace(agents=jnp.concatenate([s.agents, s.agents])), obs, r", "state"),
+        ("raise ValueError('my step is broken')", "my step is broken"),
+    ],
+    ids=["reward-of-shape-3", "growing-state", "raising-step"],
+)
+def test_a_broken_user_step_is_the_simulators_error(
+    tmp_path, capsys, monkeypatch, change, expected
+):
+    """The cases of issue 53 that ended as "internal error": each is refused before compiling,
+    exit 2, one line naming the simulator and what is wrong."""
+    monkeypatch.setattr(registry, "_FOREIGN_CODE", {})
+    plugin = tmp_path / "brokensim.py"
+    plugin.write_text(
+        "import jax.numpy as jnp\n"
+        "from cognet_jax.envs import beacon\n"
+        "from cognet_jax.registry import register_env\n"
+        "class Broken(beacon.Beacon):\n"
+        "    def step(self, u, state, actions, params):\n"
+        "        s, obs, r = super().step(u, state, actions, params)\n"
+        f"        {change}\n"
+        "def build(section, config):\n"
+        "    env, params = beacon.build_from_section(section, config)\n"
+        "    return Broken(horizon=env.horizon, num_agents=env.num_agents), params\n"
+        "register_env('broken-beacon-test', beacon.BeaconSection, build)\n"
+    )
+    args = ["--import", str(plugin), "train", "beacon-n5", "--set", "env.name=broken-beacon-test"]
+    assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY_TRAIN]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error" not in err[0], err
+    assert "broken-beacon-test" in err[0] and expected in err[0], err[0]
