@@ -20,6 +20,8 @@ from cognet_jax.algorithms.gdice_search import (
     BEST_RESPONSE_FLOATS,
     EXACT_AUTO_LIMIT,
     EXACT_EVALUATOR_LIMIT,
+    EXACT_TOP_MAX,
+    HYBRID_EXACT_LIMIT,
     POLISH_SWEEP_LIMIT,
     GDice,
     GDiceSection,
@@ -86,7 +88,7 @@ def resolve_evaluator(env, section, env_params) -> str:
     if evaluator == "rollouts":
         return evaluator
     cost = exact_iteration_cost(env, section, env_params)
-    top = min(section.exact_top, section.samples)
+    top = min(EXACT_TOP_MAX if section.exact_top == "auto" else section.exact_top, section.samples)
     if evaluator == "auto":
         evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "hybrid"
         if evaluator == "hybrid" and cost * top // section.samples > EXACT_AUTO_LIMIT:
@@ -102,6 +104,20 @@ def resolve_evaluator(env, section, env_params) -> str:
             + (" or exact_top" if evaluator == "hybrid" else ""),
         )
     return evaluator
+
+
+def resolve_exact_top(env, section, env_params, evaluator: str) -> int:
+    """``section.exact_top`` with "auto" resolved: with the hybrid evaluator, as many of the
+    samples as keep one iteration's exact values within ``HYBRID_EXACT_LIMIT`` multiply-adds,
+    at most ``EXACT_TOP_MAX`` and at least 1 (fire fighting 2-3-3: 34 at h 3, 25 at h 4, 20 at
+    h 5; box pushing 45 at h 4); ``EXACT_TOP_MAX`` where it is unused."""
+    if section.exact_top != "auto":
+        return section.exact_top
+    if evaluator != "hybrid":
+        return EXACT_TOP_MAX
+    cost = exact_iteration_cost(env, section, env_params)
+    fits = HYBRID_EXACT_LIMIT * section.samples // max(cost, 1)
+    return int(max(1, min(EXACT_TOP_MAX, section.samples, fits)))
 
 
 def affordable_polish(env, settings, env_params):
@@ -127,12 +143,14 @@ def affordable_polish(env, settings, env_params):
 
 def build(config, env, env_params, memory: int | None = None) -> GDice | GDicePortfolio:
     """The search of ``config`` (``experiment.algorithm = "gdice"``): the searches repeated
-    (``with_repeats``), the evaluator resolved (``resolve_evaluator``), the polish kept where
+    (``with_repeats``), the evaluator and its exact part resolved (``resolve_evaluator``,
+    ``resolve_exact_top``), the polish kept where
     affordable (``affordable_polish``), a portfolio when more than one search runs."""
     a = with_repeats(env, config.algorithm, env_params)
     evaluator = resolve_evaluator(env, a, env_params)
+    top = resolve_exact_top(env, a, env_params, evaluator)
     settings = affordable_polish(
-        env, fields_from(GDiceSettings, a, evaluator=evaluator), env_params
+        env, fields_from(GDiceSettings, a, evaluator=evaluator, exact_top=top), env_params
     )
     if a.restarts > 1 or a.shared_restarts > 0 or a.explore_restarts > 0:
         return GDicePortfolio(

@@ -130,6 +130,16 @@ EXACT_EVALUATOR_LIMIT = 2_000_000_000
 EXACT_AUTO_LIMIT = 300_000_000
 
 
+#: ``exact_top = "auto"``: the hybrid evaluator values at most ``EXACT_TOP_MAX`` samples
+#: exactly, fewer where they would cost more than ``HYBRID_EXACT_LIMIT`` multiply-adds per
+#: iteration. The exact values of a hybrid model are gather-bound, far slower per multiply-add
+#: than a fully exact small model's: fire fighting 2-3-3 at h 4 spent 235 of its 264 ms per
+#: iteration on the 150 exact values of 50 per search; 25 per search kept 8 seeds of 8 within
+#: 99.3% of the optimum (experiments/README.md, G-DICE in a minute)
+EXACT_TOP_MAX = 50
+HYBRID_EXACT_LIMIT = 40_000_000
+
+
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
 #: ``GDice.polish_moves``); above it the polish is skipped.
 POLISH_SWEEP_LIMIT = 3_000_000_000
@@ -158,8 +168,10 @@ class GDiceSection(ThresholdSection):
     #: "auto" (exact when one iteration's exact values cost at most ``EXACT_AUTO_LIMIT``
     #: multiply-adds, else hybrid when its exact part does, else rollouts)
     evaluator: Literal["rollouts", "exact", "hybrid", "auto"] = "rollouts"
-    #: evaluator "hybrid": the samples (best by rollouts) that get exact values
-    exact_top: int = 50
+    #: evaluator "hybrid": the samples (best by rollouts) that get exact values; "auto": as many
+    #: as keep one iteration's exact part within ``HYBRID_EXACT_LIMIT`` multiply-adds, at most
+    #: ``EXACT_TOP_MAX`` (``gdice.resolve_exact_top``)
+    exact_top: int | Literal["auto"] = "auto"
     #: identical agents: each sample is one controller used by every agent (a search over
     #: symmetric joint controllers; SPEC's G-DICE samples every agent independently)
     shared_controller: bool = False
@@ -203,7 +215,10 @@ class GDiceSection(ThresholdSection):
 
     def check(self, config) -> None:
         super().check(config)
-        require_positive(self, "algorithm", "restarts", "exact_top")
+        require_positive(self, "algorithm", "restarts")
+        require(
+            self.exact_top == "auto" or self.exact_top >= 1, "algorithm.exact_top", "must be >= 1"
+        )
         require(self.repeats == "auto" or self.repeats >= 1, "algorithm.repeats", "must be >= 1")
         for name in ("shared_restarts", "explore_restarts", "polish_sweeps"):
             require(getattr(self, name) >= 0, f"algorithm.{name}", "must be >= 0")
@@ -331,7 +346,8 @@ class GDice(TabularReports, ThresholdSearch):
         means = super().evaluate(key, policies, params)
         if s.evaluator == "rollouts":
             return means
-        _, top = jax.lax.top_k(means, min(s.exact_top, s.samples))
+        top_k = EXACT_TOP_MAX if s.exact_top == "auto" else s.exact_top  # built: resolved
+        _, top = jax.lax.top_k(means, min(top_k, s.samples))
         exact = self.exact_values(jax.tree.map(lambda x: x[top], policies), params)
         return jnp.full_like(means, -jnp.inf).at[top].set(exact)
 
