@@ -54,7 +54,7 @@ from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line, user_code_error
 from cognet_jax.registry import load_config
 from cognet_jax.run_folder import check_out, claim
-from cognet_jax.signals import Stopped, in_background, install_stop_handlers
+from cognet_jax.signals import Stopped, exit_on_stop, in_background, install_stop_handlers
 
 
 def _run_overrides(args) -> list[str]:
@@ -385,6 +385,7 @@ def run() -> None:
     down under a computation still running in XLA (a segmentation fault)."""
     set_up_process()
     code = main()
+    exit_on_stop()  # the work is done: a late stop signal ends the process without a traceback
     lingering = [
         t
         for t in threading.enumerate()

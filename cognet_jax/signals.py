@@ -63,6 +63,26 @@ def install_stop_handlers() -> None:
             signal.signal(sig, _raise_stopped)
 
 
+def exit_on_stop() -> None:
+    """Once a command's work is done: a stop signal ends the process at once, status ``128 +
+    signal``, with nothing printed (raising ``Stopped`` then could only land in the
+    interpreter's shutdown or in a callback that prints it as an ignored exception)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum, frame):
+        import os
+        import sys
+
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        os._exit(128 + int(signum))
+
+    for sig in _heeded():
+        signal.signal(sig, handler)
+
+
 @contextlib.contextmanager
 def deferred_stop():
     """Inside the block the first stop signal only sets ``flag["signum"]``; a second one

@@ -152,3 +152,24 @@ def test_sigterm_during_a_long_evaluate_ends_it_within_ten_seconds(tmp_path):
     time.sleep(3.0)  # into the compiled evaluation
     rest = _stopped(proc, lines, signal.SIGTERM)
     assert rest and rest[-1].startswith("error: stopped by"), rest
+
+
+def test_a_stop_signal_after_the_work_ends_the_process_quietly():
+    """Once a command is done (``cli.run`` calls ``exit_on_stop``), a late SIGTERM ends the
+    process with 143 and prints nothing: before, it could land in a callback of JAX's garbage
+    collector and print a traceback of an ignored exception, status 0."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, signal, sys, time\n"
+        "from cognet_jax.signals import exit_on_stop, install_stop_handlers\n"
+        "install_stop_handlers()\n"
+        "print('done', flush=True)\n"
+        "exit_on_stop()\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(10)\n"
+        "sys.exit(5)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (143, "done\n", "")
