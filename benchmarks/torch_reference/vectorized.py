@@ -32,19 +32,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from benchmarks.torch_reference.common import Progress, as_hyper, as_settings
+from benchmarks.torch_reference.kernels import compile_step, sample_categorical
 from benchmarks.torch_reference.tagging import (
     TaggingConfig,
     make_tagging,
     reset_batched,
     step_batched,
 )
-
-
-def sample_categorical(u: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
-    """Inverse-CDF draw: ``u [...]`` uniform, ``probs [..., K]`` -> int64 ``[...]``."""
-    cdf = probs.cumsum(-1)
-    idx = (cdf <= u[..., None] * cdf[..., -1:]).sum(-1)
-    return idx.clamp_max(probs.shape[-1] - 1)
 
 
 def elite_selection(values: torch.Tensor, threshold: float, num_elites: int):
@@ -311,16 +305,6 @@ class TorchCognetCompiled(TorchCognetVectorized):
     The step is the same function as the eager version's, so the two draw the same numbers;
     random draws stay outside the compiled step (``torch.rand`` with an explicit generator)."""
 
-    #: compiled graphs ``_advance`` may keep: one per (batch size, nodes, first step or later:
-    #: the first step's evader is a strided view); torch's default of 8 is used up by the
-    #: benchmark's 3-node sizes, after which dynamo silently runs the rest eagerly
-    RECOMPILE_LIMIT = 64
-
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        import torch._dynamo.config as dynamo_config
-
-        for name in ("recompile_limit", "cache_size_limit"):
-            if getattr(dynamo_config, name, 0) < self.RECOMPILE_LIMIT:
-                setattr(dynamo_config, name, self.RECOMPILE_LIMIT)
-        self._advance = torch.compile(self._advance, dynamic=False)
+        self._advance = compile_step(self._advance)

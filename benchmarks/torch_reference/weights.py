@@ -38,6 +38,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from benchmarks.torch_reference.kernels import compile_step, sample_categorical
 from benchmarks.torch_reference.tagging import (
     TaggingConfig,
     make_tagging,
@@ -98,14 +99,6 @@ def env_from_config(config) -> TaggingConfig:
     if e.respawn is not None:
         extra["respawn"] = e.respawn
     return make_tagging(e.setting, horizon=e.horizon, obs_division=e.obs_division, **extra)
-
-
-def sample_categorical(u: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
-    """Inverse-CDF draw: ``u [...]`` uniform, ``probs [..., K]`` (unnormalised) -> ``[...]``
-    (``vectorized.sample_categorical``; this module imports no cognet_jax code)."""
-    cdf = probs.cumsum(-1)
-    idx = (cdf <= u[..., None] * cdf[..., -1:]).sum(-1)
-    return idx.clamp_max(probs.shape[-1] - 1)
 
 
 def one_hot_float(x: torch.Tensor, k: int) -> torch.Tensor:
@@ -398,13 +391,6 @@ class TorchWeightsCompiled(TorchWeightsSearch):
     """``TorchWeightsSearch`` with the time step compiled by ``torch.compile`` (inductor,
     static shapes: one graph per row layout, made in the first iteration)."""
 
-    RECOMPILE_LIMIT = 64
-
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        import torch._dynamo.config as dynamo_config
-
-        for name in ("recompile_limit", "cache_size_limit"):
-            if getattr(dynamo_config, name, 0) < self.RECOMPILE_LIMIT:
-                setattr(dynamo_config, name, self.RECOMPILE_LIMIT)
-        self._advance = torch.compile(self._advance, dynamic=False)
+        self._advance = compile_step(self._advance)
