@@ -72,12 +72,8 @@ def jax_iteration_call(experiment: str, sets: list[str]):
 
 
 def torch_iteration_call(impl: str, kind: str, experiment: str, sets: list[str]):
-    """``call()``: one iteration of the torch reference ``impl`` of the case."""
-    if kind == "thesis":
-        from cognet_jax.registry import load_config
-
-        nodes = load_config(experiment, sets).algorithm.nodes
-        return torch_cases._reference(impl, nodes).step
+    """``call()``: one iteration of the torch reference ``impl`` of the case, with the sizes
+    of the experiment's config."""
     from benchmarks.torch_reference.weights import (
         TorchWeightsCompiled,
         TorchWeightsSearch,
@@ -87,6 +83,8 @@ def torch_iteration_call(impl: str, kind: str, experiment: str, sets: list[str])
     from cognet_jax.registry import load_config
 
     config = load_config(experiment, sets)
+    if kind == "thesis":
+        return torch_cases._reference(impl, config.algorithm.nodes).step
     cls = TorchWeightsCompiled if impl == "torch-compiled" else TorchWeightsSearch
     return cls(settings_from_config(config), env_from_config(config), seed=0).step
 
