@@ -4,6 +4,8 @@ in paired rounds (``benchmarks.iteration_pairs``), whole runs end to end
 
 from __future__ import annotations
 
+import statistics
+
 #: issue 55's targets: every search-iteration row, and a whole run warm / cold
 ITERATION_RATIO_TARGET = 10.0
 END_TO_END_WARM_TARGET = 10.0
@@ -100,13 +102,12 @@ def end_to_end_lines(out: dict) -> list[str]:
         + "; torch "
         + ", ".join(f"{d['value']:.3f}" for d in torch_d)
         + ". Inside the torch process (warm, median): "
-        + f"imports {_med(torch_d, 'import_s'):.1f} s, first iteration "
-        + f"{_med(torch_d, 'first_iteration_s'):.1f} s, the other iterations "
-        + f"{_med(torch_d, 'loop_s'):.1f} s; JAX (warm, median): compile "
-        + f"{_med(jax_d, 'compile_s'):.1f} s, iterations {_med(jax_d, 'loop_s'):.1f} s.",
+        + f"imports {_median(torch_d, 'import_s'):.1f} s, first iteration "
+        + f"{_median(torch_d, 'first_iteration_s'):.1f} s, the other iterations "
+        + f"{_median(torch_d, 'loop_s'):.1f} s; JAX (warm, median): compile "
+        + f"{_median(jax_d, 'compile_s'):.1f} s, iterations {_median(jax_d, 'loop_s'):.1f} s.",
     ]
 
 
-def _med(rows: list[dict], key: str) -> float:
-    values = sorted(r[key] for r in rows)
-    return values[len(values) // 2]
+def _median(rows: list[dict], key: str) -> float:
+    return statistics.median(r[key] for r in rows)

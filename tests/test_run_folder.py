@@ -90,23 +90,31 @@ def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
     assert keys == ["a key", None]
 
 
+def _beacon_plugin(path, cls: str, name: str, last_line: str):
+    """Write an ``--import`` module registering ``name``: the beacon simulator whose step ends
+    with ``last_line`` (``s, obs, r`` are the built-in step's outputs); returns ``path``."""
+    path.write_text(
+        "import jax.numpy as jnp\n"
+        "from cognet_jax.envs import beacon\n"
+        "from cognet_jax.registry import register_env\n"
+        f"class {cls}(beacon.Beacon):\n"
+        "    def step(self, u, state, actions, params):\n"
+        "        s, obs, r = super().step(u, state, actions, params)\n"
+        f"        {last_line}\n"
+        "def build(section, config):\n"
+        "    env, params = beacon.build_from_section(section, config)\n"
+        f"    return {cls}(horizon=env.horizon, num_agents=env.num_agents), params\n"
+        f"register_env({name!r}, beacon.BeaconSection, build)\n"
+    )
+    return path
+
+
 def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
     tmp_path, capsys, monkeypatch
 ):
     monkeypatch.setattr(registry, "_FOREIGN_CODE", {})  # this process's record, restored after
-    plugin = tmp_path / "badsim.py"
-    plugin.write_text(
-        "import jax.numpy as jnp\n"
-        "from cognet_jax.envs import beacon\n"
-        "from cognet_jax.registry import register_env\n"
-        "class Bad(beacon.Beacon):\n"
-        "    def step(self, u, state, actions, params):\n"
-        "        s, obs, r = super().step(u, state, actions, params)\n"
-        "        return s, obs[:, :1], r\n"
-        "def build(section, config):\n"
-        "    env, params = beacon.build_from_section(section, config)\n"
-        "    return Bad(horizon=env.horizon, num_agents=env.num_agents), params\n"
-        "register_env('bad-beacon-test', beacon.BeaconSection, build)\n"
+    plugin = _beacon_plugin(
+        tmp_path / "badsim.py", "Bad", "bad-beacon-test", "return s, obs[:, :1], r"
     )
     args = ["--import", str(plugin), "train", "beacon-n5", "--set", "env.name=bad-beacon-test"]
     assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY_TRAIN]) == 2
@@ -214,20 +222,7 @@ def test_a_broken_user_step_is_the_simulators_error(
     """The cases of issue 53 that ended as "internal error": each is refused before compiling,
     exit 2, one line naming the simulator and what is wrong."""
     monkeypatch.setattr(registry, "_FOREIGN_CODE", {})
-    plugin = tmp_path / "brokensim.py"
-    plugin.write_text(
-        "import jax.numpy as jnp\n"
-        "from cognet_jax.envs import beacon\n"
-        "from cognet_jax.registry import register_env\n"
-        "class Broken(beacon.Beacon):\n"
-        "    def step(self, u, state, actions, params):\n"
-        "        s, obs, r = super().step(u, state, actions, params)\n"
-        f"        {change}\n"
-        "def build(section, config):\n"
-        "    env, params = beacon.build_from_section(section, config)\n"
-        "    return Broken(horizon=env.horizon, num_agents=env.num_agents), params\n"
-        "register_env('broken-beacon-test', beacon.BeaconSection, build)\n"
-    )
+    plugin = _beacon_plugin(tmp_path / "brokensim.py", "Broken", "broken-beacon-test", change)
     args = ["--import", str(plugin), "train", "beacon-n5", "--set", "env.name=broken-beacon-test"]
     assert cli.main([*args, "--out", str(tmp_path / "r"), *TINY_TRAIN]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -132,10 +132,9 @@ EXACT_AUTO_LIMIT = 300_000_000
 
 #: ``exact_top = "auto"``: the hybrid evaluator values at most ``EXACT_TOP_MAX`` samples
 #: exactly, fewer where they would cost more than ``HYBRID_EXACT_LIMIT`` multiply-adds per
-#: iteration. The exact values of a hybrid model are gather-bound, far slower per multiply-add
-#: than a fully exact small model's: fire fighting 2-3-3 at h 4 spent 235 of its 264 ms per
-#: iteration on the 150 exact values of 50 per search; 25 per search kept 8 seeds of 8 within
-#: 99.3% of the optimum (experiments/README.md, G-DICE in a minute)
+#: iteration: the exact values of a hybrid model are gather-bound, far slower per multiply-add
+#: than a fully exact small model's, and dominated its iterations (experiments/README.md,
+#: "G-DICE defaults in a minute": the time and the 8-seed values behind the limit)
 EXACT_TOP_MAX = 50
 HYBRID_EXACT_LIMIT = 40_000_000
 

@@ -56,8 +56,7 @@ def tie(sample: WeightSample) -> WeightSample:
 
     Written as gathers of a source index per node and per agent: a ``where`` between each
     array and a broadcast slice of it let XLA fuse the random draws that made the array into
-    both reads and compute them again (the default iteration at the thesis setting took 11.5 ms
-    instead of 4; the same numbers)."""
+    both reads and compute them again (benchmarks/NOTES.md, twelfth pass)."""
     lead = sample.node_tie.ndim - 1  # 1 with a candidate axis, else 0
     agents, q = sample.actions.shape[-2:]
     node_src = jnp.where(sample.node_tie[..., None] == 1, 0, jnp.arange(q))  # [..., agents, Q]
