@@ -104,8 +104,11 @@ def _bound(config, env, params):
 #: the library's defaults before the pool of best policies, where an experiment pins the
 #: search its earlier rows were made with (those experiments also pin ``best_pool = 0``)
 BEFORE_POOL = ["algorithm.tie_structure=true", "algorithm.restart_tol=0.02"]
-#: the library's defaults
-NEW = [*BEFORE_POOL, "algorithm.best_pool=4"]
+#: the library's defaults before the refine phase, and with it
+BEFORE_REFINE = [*BEFORE_POOL, "algorithm.best_pool=4"]
+NEW = [*BEFORE_REFINE, "algorithm.refine=0.25"]
+#: rows whose sweep before the refine phase ran the pool's first version (notes below the table)
+FIRST_POOL = ("beacon", "bearing-chase", "readme-seek")
 #: the heatmap experiments compare the best policy on paired fresh rollouts, which replaces the
 #: pool: the defaults there turn that off
 UNPAIRED = ["algorithm.paired_best=false"]
@@ -117,6 +120,7 @@ BEFORE_PILOT = [
     "algorithm.candidates=200",
     "algorithm.eval_rollouts=375",
     "algorithm.elites=10",
+    "algorithm.refine=0",
 ]
 #: the same at 1/64 and 1/8 of the paper setting's budget
 BEFORE_PILOT_PAPER = {
@@ -150,6 +154,18 @@ EXTRA = {
         for row, (experiment, _) in ROWS.items()
     },
     **{
+        f"cognet-{row}-before-refine": (
+            experiment,
+            ["algorithm.refine=0"],
+            SEEDS,
+            "the defaults before the refine phase"
+            + (" (with the pool's first version)" if row in FIRST_POOL else ""),
+            None,
+        )
+        for row, (experiment, _) in ROWS.items()
+        if row != "plume"
+    },
+    **{
         f"cognet-{row}-before-pilot": (
             ROWS[row][0],
             BEFORE_PILOT,
@@ -166,6 +182,7 @@ EXTRA = {
             "algorithm.candidates=200",
             "algorithm.eval_rollouts=1000",
             "algorithm.elites=10",
+            "algorithm.refine=0",
         ],
         SEEDS,
         "rejected rule: the pilot's rollouts per candidate (1000 on beacon) paid for with "
@@ -184,6 +201,13 @@ EXTRA = {
         NEW,
         SEEDS,
         "the library's defaults",
+        "tagging-thesis-n3",
+    ),
+    "tagging-thesis-n3-defaults-before-refine": (
+        "tagging-thesis-n3",
+        BEFORE_REFINE,
+        SEEDS,
+        "the library's defaults before the refine phase",
         "tagging-thesis-n3",
     ),
     "tagging-thesis-n3": (
@@ -212,6 +236,11 @@ EXTRA = {
         for experiment, paired in (("tagging-thesis-n6", []), ("heatmap-2d-n4", UNPAIRED))
         for suffix, overrides, what in (
             ("-defaults", [*NEW, *paired], "the library's defaults"),
+            (
+                "-defaults-before-refine",
+                [*BEFORE_REFINE, *paired],
+                "the library's defaults before the refine phase",
+            ),
             ("", BEFORE_POOL, "the defaults before the pool"),
         )
     },
@@ -230,14 +259,15 @@ EXTRA = {
         )
         for suffix, extra, what in (
             ("", [], ""),
+            ("-before-refine", ["algorithm.refine=0"], ", before the refine phase"),
             (
                 "-before-pilot",
-                BEFORE_PILOT_PAPER[name],
+                [*BEFORE_PILOT_PAPER[name], "algorithm.refine=0"],
                 ", sized as before the noise pilot (with the pool's first version)",
             ),
             (
                 "-nopool",
-                ["algorithm.best_pool=0", *BEFORE_PILOT_PAPER[name]],
+                ["algorithm.best_pool=0", *BEFORE_PILOT_PAPER[name], "algorithm.refine=0"],
                 ", without the pool, sized as before the noise pilot",
             ),
         )
@@ -245,7 +275,12 @@ EXTRA = {
     },
     "paper-budget-1of64-notie": (
         "tagging-paper-auto",
-        ["algorithm.budget=4.6875e9", "run.probe_seconds=10", "algorithm.tie_structure=false"],
+        [
+            "algorithm.budget=4.6875e9",
+            "run.probe_seconds=10",
+            "algorithm.tie_structure=false",
+            "algorithm.refine=0",
+        ],
         3,
         "1/64 of the paper's budget, the defaults without tied structures",
         None,
@@ -266,6 +301,7 @@ EXTRA = {
             "algorithm.candidates=800",
             "algorithm.eval_rollouts=50",
             "algorithm.iterations=390",
+            "algorithm.refine=0",
         ],
         3,
         "1/64 of the paper's budget split as the built-in tagging-paper-cognet splits it: "
@@ -281,21 +317,26 @@ EXTRA = {
             None,
         )
         for name, experiment, overrides in (
-            ("tagging-thesis-n3-pool-fixed", "tagging-thesis-n3", NEW),
+            ("tagging-thesis-n3-pool-fixed", "tagging-thesis-n3", BEFORE_REFINE),
             ("hearing-tiger-pool-fixed", "hearing-tiger-n7", BEFORE_PILOT),
             ("readme-seek-pool-fixed", str(HERE / "readme-seek-n3.toml"), BEFORE_PILOT),
         )
     },
     "beacon-i600": (
         "beacon-n5",
-        ["algorithm.iterations=600", "algorithm.eval_rollouts=250"],
+        ["algorithm.iterations=600", "algorithm.eval_rollouts=250", "algorithm.refine=0"],
         SEEDS,
         "the default budget as 1.5x the iterations (more restarts) with fewer rollouts each",
         None,
     ),
     "box-push-c1000": (
         "box-push-n3",
-        ["algorithm.candidates=1000", "algorithm.eval_rollouts=75", "algorithm.iterations=400"],
+        [
+            "algorithm.candidates=1000",
+            "algorithm.eval_rollouts=75",
+            "algorithm.iterations=400",
+            "algorithm.refine=0",
+        ],
         SEEDS,
         "the default budget as 5x the candidates with fewer rollouts each",
         None,
@@ -338,10 +379,12 @@ def _search_cell(path: Path, hand: float | None) -> str:
     if hand is not None:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
         verdict = " (holds)" if ok else " (**below**)"
+    before = _values(path.parent.parent / f"{path.parent.name}-before-refine" / "runs.json")
+    before_cell = f"; before the refine phase {sum(before) / len(before):.3f}" if before else ""
     return (
         f"{mean:.3f}{verdict}, min {min(values):.3f}; {data['wall_s'] / len(values):.0f} s per "
         f"seed ({len(values)} seeds in one sweep); {_agent_steps(data['config']):.2g} "
-        f"agent-steps ({sizes})"
+        f"agent-steps ({sizes}){before_cell}"
     )
 
 

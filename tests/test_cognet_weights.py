@@ -349,3 +349,55 @@ def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it
     from cognet_jax.registry import config_from_dict
 
     assert config_from_dict(data).algorithm.paired_best
+
+
+@pytest.mark.parametrize("standardize", [False, True])
+def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standardize):
+    """The refine phase's distribution around a policy (``centered_distribution``): its mode
+    runs exactly the policy (tied and untied draws, raw and standardised inputs), and its
+    spreads are ``refine_scale`` of the initial ones."""
+    if standardize:
+        alg = heatmap_algorithm(standardize_inputs=True, hidden=5, refine_scale=0.2)
+    else:
+        alg, _ = small_algorithm(refine_scale=0.2)
+    init = alg.init_distribution()
+    for mix in (0.0, 1.0):  # untied and tied draws
+        dist = init.replace(
+            node_tie_probs=jnp.full_like(init.node_tie_probs, 0.5)
+            .at[:, 1]
+            .set(mix)
+            .at[:, 0]
+            .set(1 - mix)
+        )
+        samples = alg.draw(jax.random.key(3), dist, 2)
+        for c in range(2):
+            policy = alg.to_policy(jax.tree.map(lambda x: x[c], samples))  # noqa: B023
+            centred = alg.centered_distribution(policy)
+            back = alg.to_policy(alg.mode(centred))
+            for got, want in zip(jax.tree.leaves(back), jax.tree.leaves(policy)):
+                np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-4)
+            assert np.asarray(jnp.argmax(centred.node_tie_probs, -1)).tolist() == [int(mix)] * 2
+            np.testing.assert_allclose(centred.w1_std, 0.2 * init.w1_std, rtol=1e-6)
+            np.testing.assert_allclose(centred.m_std, 0.2 * init.m_std, rtol=1e-6)
+            peak = 0.8 + 0.2 / alg.env.num_actions
+            assert np.allclose(np.asarray(centred.action_probs).max(-1), peak)
+
+
+def test_the_last_iterations_search_around_the_kept_policy():
+    """With ``refine = 0.5`` of 4 iterations, the step that ends iteration 2 recentres the
+    distribution on the kept policy with the narrow spreads; the first step refits as before;
+    without ``refine`` no step recentres."""
+    alg, params = small_algorithm(iterations=4, refine=0.5, restart_tol=0.0)
+    step = jax.jit(alg.step)
+    state = alg.init(jax.random.key(0), params)
+    first, _ = step(jax.random.key(1), state, params)
+    assert float(first.distribution.w1_std.mean()) > 0.5 * float(state.distribution.w1_std.mean())
+    second, _ = step(jax.random.key(2), first, params)
+    want = alg.centered_distribution(second.best_policy)
+    for got, expected in zip(jax.tree.leaves(second.distribution), jax.tree.leaves(want)):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))
+    plain, plain_params = small_algorithm(iterations=4, refine=0.0, restart_tol=0.0)
+    s = plain.init(jax.random.key(0), plain_params)
+    for k in (1, 2):
+        s, _ = jax.jit(plain.step)(jax.random.key(k), s, plain_params)
+    assert float(s.distribution.w1_std.mean()) > 2 * float(want.w1_std.mean())

@@ -42,6 +42,13 @@ distribution again, the anytime best kept. A larger budget then buys further ind
 searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets another
 start (metrics ``injected`` marks the iterations that restarted).
 
+**Refine** (``refine``, ``refine_scale``, **[choice]**): the last ``refine`` share of the
+iterations searches around the kept policy: the distribution restarts centred on it (Gaussian
+means at its weights, spreads ``refine_scale`` of the initial ones, categoricals on its choices
+mixed with ``refine_scale`` of the uniform), and a converged distribution restarts there again,
+around the policy kept by then. Candidates close to the kept policy share most rollouts'
+trajectories under common random numbers, so small improvements of its thresholds show.
+
 **Input standardisation** (``standardize_inputs``, **[choice]**, off by default): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
 ``scale [agents, F]`` are the features' mean and standard deviation over the observations of
@@ -87,166 +94,43 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.algorithms.best_pool import BestPool, race
-from cognet_jax.algorithms.cross_entropy import (
-    Progress,
-    count_table,
-    inject_entropy,
-    select_tree,
-    smooth,
+from cognet_jax.algorithms.cognet_weights_settings import (
+    CognetWeightsSection,
+    WeightsHyper,
+    WeightsSettings,
+    pool_size,
+    refine_start,
+    rollouts_per_iteration,
 )
+from cognet_jax.algorithms.cross_entropy import Progress, select_tree
 from cognet_jax.algorithms.engine import Search, SearchParams, streams
 from cognet_jax.algorithms.noise_pilot import measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
     WeightSample,
-    gaussian_refit,
+    centered,
+    refit,
+    sample_of,
     tie,
-)
-from cognet_jax.config import (
-    NetworkSection,
-    require,
-    require_positive,
-    require_probability,
-    settings_class,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
     build_pipeline,
-    check_network,
     input_statistics,
     neural_controller,
 )
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import env_description, fields_from, register_algorithm
 from cognet_jax.reporting import neural_plots
-
-
-@dataclasses.dataclass
-class CognetWeightsSection:
-    """``[algorithm]`` of the default ``cognet-dice`` (this module). Per iteration
-    ``candidates`` joint controllers, each evaluated with ``eval_rollouts`` rollouts (common
-    random numbers), the best ``elites`` refit the distribution with smoothing ``alpha``;
-    ``action_floor`` / ``category_floor`` mix the categoricals with the uniform distribution
-    every iteration; the winner and the distribution's mode are re-evaluated on
-    ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
-    hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
-    ``vote_std``: initial Gaussian of the output votes; ``standardize_inputs``: search over a
-    network that reads each input feature standardised by its mean and standard deviation under
-    the random controller; ``paired_best``: the best policy so far is re-evaluated on the
-    challengers' fresh rollouts and replaced only when a challenger beats it there;
-    ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool). The
-    hidden width is ``network.hidden``."""
-
-    nodes: int = 3
-    iterations: int | Literal["auto"] = "auto"
-    candidates: int | Literal["auto"] = "auto"
-    eval_rollouts: int | Literal["auto"] = "auto"
-    elites: int | Literal["auto"] = "auto"
-    budget: float | Literal["auto"] = "auto"
-    alpha: float = 0.3
-    action_floor: float = 0.02
-    category_floor: float = 0.02
-    best_rollouts: int = 1000
-    common_random_numbers: bool = True
-    init_scale: float = 10.0
-    vote_mean: float = 5.0
-    vote_std: float = 5.0
-    standardize_inputs: bool = False
-    paired_best: bool = False
-    best_pool: int = 4
-    tie_structure: bool = True
-    restart_tol: float = 0.02
-
-    def rollouts_per_iteration(self) -> int:
-        """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
-        return rollouts_per_iteration(self)
-
-    def check(self, config) -> None:
-        require_positive(self, "algorithm", "nodes", "best_rollouts")
-        require(
-            self.budget == "auto" or 1 <= self.budget <= 1e16,
-            "algorithm.budget",
-            f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
-        )
-        require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
-        for name in ("init_scale", "vote_mean", "vote_std"):
-            v = getattr(self, name)
-            require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
-        require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
-        require(
-            self.best_pool == 0 or 2 <= self.best_pool <= 64,
-            "algorithm.best_pool",
-            f"0 (no pool) or 2 .. 64, got {self.best_pool}",
-        )
-        require(
-            0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
-        )
-        defaults = NetworkSection()
-        for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
-            require(
-                getattr(config.network, name) == getattr(defaults, name),
-                f"network.{name}",
-                "trains the node networks of cognet-dice-thesis; the default cognet-dice "
-                "samples network weights and has no optimiser",
-            )
-        check_network(config, training=False)
-        require(
-            not config.network.augment,
-            "network.augment",
-            "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
-            "network (use experiment.algorithm = 'cognet-dice-thesis')",
-        )
-        if any(getattr(self, f) == "auto" for f in SIZE_FIELDS):
-            return  # checked again once the registry resolved them (``sized``)
-        require_positive(self, "algorithm", *SIZE_FIELDS)
-        require(
-            self.elites <= self.candidates,
-            "algorithm.elites",
-            f"elites ({self.elites}) cannot exceed algorithm.candidates ({self.candidates})",
-        )
-        require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
-
-
-def pool_size(s) -> int:
-    """Members of the race of best policies: ``best_pool``, none with ``paired_best``."""
-    return 0 if s.paired_best else s.best_pool
-
-
-def rollouts_per_iteration(s) -> int:
-    """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
-    evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
-    far, ``paired_best``, or of the pool's members, ``best_pool``)."""
-    fresh = 2 + (1 if s.paired_best else 0) + pool_size(s)
-    return s.candidates * s.eval_rollouts + fresh * s.best_rollouts
-
-
-@struct.dataclass
-class WeightsHyper:
-    """Dynamic (sweepable) hyper-parameters; defaults those of the config section."""
-
-    alpha: jax.Array | float = CognetWeightsSection.alpha
-    action_floor: jax.Array | float = CognetWeightsSection.action_floor
-    category_floor: jax.Array | float = CognetWeightsSection.category_floor
-
-
-#: static settings: the fields of ``CognetWeightsSection`` without the hyper-parameters
-#: (``WeightsHyper``), and the hidden width ``network.hidden``
-WeightsSettings = settings_class(
-    "WeightsSettings",
-    CognetWeightsSection,
-    exclude=("alpha", "action_floor", "category_floor"),
-    extra=((NetworkSection, "hidden"),),
-)
 
 
 @struct.dataclass
@@ -394,47 +278,16 @@ class CognetWeights(Search):
     def update_distribution(
         self, dist: WeightDistribution, elites: WeightSample, hyper: WeightsHyper
     ) -> WeightDistribution:
-        """Refit to ``elites`` (leading ``[E]`` axis) with smoothing, then the uniform floors."""
-        s = self.settings
-        alpha, q = hyper.alpha, s.nodes
-
-        def categorical(old, draws, k, floor, support=None):
-            counts = count_table(jnp.moveaxis(draws, 0, -1), k)
-            return inject_entropy(smooth(old, counts, alpha), floor, support)
-
-        w1_mean, w1_std = gaussian_refit(dist.w1_mean, dist.w1_std, elites.w1, alpha)
-        b1_mean, b1_std = gaussian_refit(dist.b1_mean, dist.b1_std, elites.b1, alpha)
-        m_mean, m_std = gaussian_refit(dist.m_mean, dist.m_std, elites.m, alpha)
-        bias_mean, bias_std = gaussian_refit(dist.bias_mean, dist.bias_std, elites.bias, alpha)
-        return WeightDistribution(
-            action_probs=categorical(
-                dist.action_probs,
-                elites.actions,
-                self.env.num_actions,
-                hyper.action_floor,
-                action_support(self.env),
-            ),
-            w1_mean=w1_mean,
-            w1_std=w1_std,
-            b1_mean=b1_mean,
-            b1_std=b1_std,
-            unit_target_probs=categorical(
-                dist.unit_target_probs, elites.unit_targets, q, hyper.category_floor
-            ),
-            m_mean=m_mean,
-            m_std=m_std,
-            default_probs=categorical(dist.default_probs, elites.default, q, hyper.category_floor),
-            bias_mean=bias_mean,
-            bias_std=bias_std,
-            node_tie_probs=categorical(
-                dist.node_tie_probs, elites.node_tie, 2, hyper.category_floor * s.tie_structure
-            ),
-            agent_tie_probs=categorical(
-                dist.agent_tie_probs,
-                elites.agent_tie,
-                2,
-                hyper.category_floor * self._agents_can_tie,
-            ),
+        """Refit to ``elites`` (leading ``[E]`` axis) with smoothing, then the uniform floors
+        (``weight_space.refit``); the tie flags' floors are 0 where tying is not searched."""
+        floor = hyper.category_floor
+        return refit(
+            dist,
+            elites,
+            hyper.alpha,
+            (hyper.action_floor, floor, floor * self.settings.tie_structure),
+            floor * self._agents_can_tie,
+            action_support(self.env),
         )
 
     # ---------------------------------------------------------------- protocol
@@ -528,8 +381,42 @@ class CognetWeights(Search):
         )
         if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
             dist = select_tree(converged, self.init_distribution(), dist)
+        start = refine_start(s)
+        if start < s.iterations:  # the last iterations search around the kept policy
+            done = progress.iteration
+            recentre = (done == start) | ((done > start) & converged)
+            dist = select_tree(recentre, self.centered_distribution(best_policy), dist)
         state = WeightsState(dist, best_policy, progress, pool)
         return state, metrics
+
+    def centered_distribution(self, policy: NeuralPolicy) -> WeightDistribution:
+        """A distribution around ``policy`` (the refine phase): Gaussian means at its weights
+        and votes with ``refine_scale`` times the initial spreads, and every categorical on the
+        policy's choice mixed with ``refine_scale`` of the uniform one (the tie flags on whether
+        the policy is tied)."""
+        s = self.settings
+        layers = policy.net_params["params"]
+        w1, b1 = layers["Dense_0"]["kernel"], layers["Dense_0"]["bias"]
+        if s.standardize_inputs:  # unfold ``to_policy``'s folding of (x - mean) / scale
+            input_mean, input_scale = self.input_stats
+            scale = input_scale[:, None, :, None]
+            w1 = w1 * scale
+            b1 = b1 + jnp.sum((input_mean / input_scale)[:, None, :, None] * w1, axis=-2)
+        sample = sample_of(
+            w1,
+            b1,
+            layers["Dense_1"]["kernel"],
+            layers["Dense_1"]["bias"],
+            policy.action_probs,
+        )
+        return centered(
+            sample,
+            self.init_distribution(),
+            s.refine_scale,
+            action_support(self.env),
+            s.tie_structure,
+            self._agents_can_tie,
+        )
 
     def converged(self, dist: WeightDistribution) -> jax.Array:
         """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from cognet_jax.algorithms.cross_entropy import count_table, inject_entropy, smooth
+
 
 @struct.dataclass
 class WeightDistribution:
@@ -78,4 +80,118 @@ def gaussian_refit(mean, std, elite_draws, alpha):
     return (
         alpha * elite_draws.mean(0) + (1.0 - alpha) * mean,
         alpha * elite_draws.std(0) + (1.0 - alpha) * std,
+    )
+
+
+def sample_of(w1, b1, w2, b2, action_probs) -> WeightSample:
+    """The draws that make a policy's arrays (the inverse of ``CognetWeights.to_policy``, with
+    inputs not standardised): ``w1 [agents, Q, F, H]``, ``b1 [agents, Q, H]``, ``w2 [agents,
+    Q, H, Q]`` (one vote per unit), ``b2 [agents, Q, Q]`` (one default vote), ``action_probs
+    [agents, Q, actions]`` (one-hot). The tie flags say whether the policy is tied: every node
+    of an agent runs node 0's network (``node_tie``), every agent runs agent 0's controller
+    (``agent_tie``)."""
+    targets = jnp.argmax(jnp.abs(w2), -1).astype(jnp.int32)
+    default = jnp.argmax(jnp.abs(b2), -1).astype(jnp.int32)
+    sample = WeightSample(
+        actions=jnp.argmax(action_probs, -1).astype(jnp.int32),
+        w1=w1,
+        b1=b1,
+        unit_targets=targets,
+        m=jnp.take_along_axis(w2, targets[..., None], -1)[..., 0],
+        default=default,
+        bias=jnp.take_along_axis(b2, default[..., None], -1)[..., 0],
+        node_tie=jnp.zeros(w1.shape[0], jnp.int32),
+        agent_tie=jnp.int32(0),
+    )
+
+    def same(axis):
+        """Whether every slice along ``axis`` of every network field equals the first."""
+        equal = [
+            jnp.all(
+                x == jnp.take(x, jnp.array([0]), axis=axis), axis=tuple(range(axis + 1, x.ndim))
+            )
+            for x in (getattr(sample, f) for f in NETWORK_FIELDS)
+        ]
+        return jnp.all(jnp.stack([jnp.all(e, axis=-1) for e in equal]), axis=0)
+
+    node_tied = same(1).astype(jnp.int32)  # [agents]
+    agent_fields = [getattr(sample, f) for f in (*NETWORK_FIELDS, "actions")]
+    agent_tied = jnp.all(jnp.stack([jnp.all(x == x[:1]) for x in agent_fields])).astype(jnp.int32)
+    return sample.replace(node_tie=node_tied, agent_tie=agent_tied)
+
+
+def refit(dist: WeightDistribution, elites: WeightSample, alpha, floors, agent_floor, support):
+    """``dist`` refit to ``elites`` (leading ``[E]`` axis): categoricals by count MLE and
+    Gaussians by the elites' mean and std, each smoothed with rate ``alpha``; then every
+    categorical is mixed with the uniform one: ``floors = (actions, output-layer categories,
+    node tie)``, ``agent_floor`` for the agent tie; ``support [agents, 1, actions]`` the actions
+    each agent has."""
+    action_floor, category_floor, node_floor = floors
+    q = dist.default_probs.shape[-1]
+
+    def categorical(old, draws, k, floor, allowed=None):
+        counts = count_table(jnp.moveaxis(draws, 0, -1), k)
+        return inject_entropy(smooth(old, counts, alpha), floor, allowed)
+
+    def gaussian(name):
+        mean, std = getattr(dist, f"{name}_mean"), getattr(dist, f"{name}_std")
+        return gaussian_refit(mean, std, getattr(elites, name), alpha)
+
+    (w1_mean, w1_std), (b1_mean, b1_std) = gaussian("w1"), gaussian("b1")
+    (m_mean, m_std), (bias_mean, bias_std) = gaussian("m"), gaussian("bias")
+    num_actions = dist.action_probs.shape[-1]
+    return WeightDistribution(
+        action_probs=categorical(
+            dist.action_probs, elites.actions, num_actions, action_floor, support
+        ),
+        w1_mean=w1_mean,
+        w1_std=w1_std,
+        b1_mean=b1_mean,
+        b1_std=b1_std,
+        unit_target_probs=categorical(
+            dist.unit_target_probs, elites.unit_targets, q, category_floor
+        ),
+        m_mean=m_mean,
+        m_std=m_std,
+        default_probs=categorical(dist.default_probs, elites.default, q, category_floor),
+        bias_mean=bias_mean,
+        bias_std=bias_std,
+        node_tie_probs=categorical(dist.node_tie_probs, elites.node_tie, 2, node_floor),
+        agent_tie_probs=categorical(dist.agent_tie_probs, elites.agent_tie, 2, agent_floor),
+    )
+
+
+def centered(
+    sample: WeightSample,
+    init: WeightDistribution,
+    scale: float,
+    support,
+    tie_nodes: bool,
+    tie_agents: bool,
+) -> WeightDistribution:
+    """A distribution around one candidate's draws ``sample`` (the refine phase of
+    ``cognet_weights``): Gaussian means at its weights and votes, spreads ``scale`` times those
+    of the initial distribution ``init``; every categorical on the sample's choice mixed with
+    ``scale`` of the uniform one (actions within ``support``); the tie flags too where tying is
+    searched (``tie_nodes`` / ``tie_agents``), else ``init``'s."""
+    rate = min(1.0, scale)
+
+    def peaked(choice, k, allowed=None):
+        return inject_entropy(jax.nn.one_hot(choice, k, dtype=jnp.float32), rate, allowed)
+
+    q = init.default_probs.shape[-1]
+    return WeightDistribution(
+        action_probs=peaked(sample.actions, init.action_probs.shape[-1], support),
+        w1_mean=sample.w1,
+        w1_std=scale * init.w1_std,
+        b1_mean=sample.b1,
+        b1_std=scale * init.b1_std,
+        unit_target_probs=peaked(sample.unit_targets, q),
+        m_mean=sample.m,
+        m_std=scale * init.m_std,
+        default_probs=peaked(sample.default, q),
+        bias_mean=sample.bias,
+        bias_std=scale * init.bias_std,
+        node_tie_probs=peaked(sample.node_tie, 2) if tie_nodes else init.node_tie_probs,
+        agent_tie_probs=peaked(sample.agent_tie, 2) if tie_agents else init.agent_tie_probs,
     )

@@ -1,0 +1,150 @@
+"""Settings of the default ``cognet-dice`` (``algorithms.cognet_weights``): its ``[algorithm]``
+section with the checks of each field, the dynamic hyper-parameters, the static settings a
+compiled search reads, and the counts that follow from them (the pool's size, the first
+iteration of the refine phase, rollouts per iteration)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import jax
+from flax import struct
+
+from cognet_jax.algorithms.sizing import SIZE_FIELDS
+from cognet_jax.config import (
+    NetworkSection,
+    require,
+    require_positive,
+    require_probability,
+    settings_class,
+)
+from cognet_jax.observations import check_network
+
+
+@dataclasses.dataclass
+class CognetWeightsSection:
+    """``[algorithm]`` of the default ``cognet-dice`` (this module). Per iteration
+    ``candidates`` joint controllers, each evaluated with ``eval_rollouts`` rollouts (common
+    random numbers), the best ``elites`` refit the distribution with smoothing ``alpha``;
+    ``action_floor`` / ``category_floor`` mix the categoricals with the uniform distribution
+    every iteration; the winner and the distribution's mode are re-evaluated on
+    ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
+    hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
+    ``vote_std``: initial Gaussian of the output votes; ``standardize_inputs``: search over a
+    network that reads each input feature standardised by its mean and standard deviation under
+    the random controller; ``paired_best``: the best policy so far is re-evaluated on the
+    challengers' fresh rollouts and replaced only when a challenger beats it there;
+    ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool). The
+    hidden width is ``network.hidden``."""
+
+    nodes: int = 3
+    iterations: int | Literal["auto"] = "auto"
+    candidates: int | Literal["auto"] = "auto"
+    eval_rollouts: int | Literal["auto"] = "auto"
+    elites: int | Literal["auto"] = "auto"
+    budget: float | Literal["auto"] = "auto"
+    alpha: float = 0.3
+    action_floor: float = 0.02
+    category_floor: float = 0.02
+    best_rollouts: int = 1000
+    common_random_numbers: bool = True
+    init_scale: float = 10.0
+    vote_mean: float = 5.0
+    vote_std: float = 5.0
+    standardize_inputs: bool = False
+    paired_best: bool = False
+    best_pool: int = 4
+    tie_structure: bool = True
+    restart_tol: float = 0.02
+    refine: float = 0.25
+    refine_scale: float = 0.1
+
+    def rollouts_per_iteration(self) -> int:
+        """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
+        return rollouts_per_iteration(self)
+
+    def check(self, config) -> None:
+        require_positive(self, "algorithm", "nodes", "best_rollouts")
+        require(
+            self.budget == "auto" or 1 <= self.budget <= 1e16,
+            "algorithm.budget",
+            f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
+        )
+        require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
+        for name in ("init_scale", "vote_mean", "vote_std"):
+            v = getattr(self, name)
+            require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
+        require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        require(
+            self.best_pool == 0 or 2 <= self.best_pool <= 64,
+            "algorithm.best_pool",
+            f"0 (no pool) or 2 .. 64, got {self.best_pool}",
+        )
+        require(
+            0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
+        )
+        require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
+        require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        defaults = NetworkSection()
+        for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
+            require(
+                getattr(config.network, name) == getattr(defaults, name),
+                f"network.{name}",
+                "trains the node networks of cognet-dice-thesis; the default cognet-dice "
+                "samples network weights and has no optimiser",
+            )
+        check_network(config, training=False)
+        require(
+            not config.network.augment,
+            "network.augment",
+            "VAE augmentation adds training pairs; the weight-space cognet-dice trains no "
+            "network (use experiment.algorithm = 'cognet-dice-thesis')",
+        )
+        if any(getattr(self, f) == "auto" for f in SIZE_FIELDS):
+            return  # checked again once the registry resolved them (``sized``)
+        require_positive(self, "algorithm", *SIZE_FIELDS)
+        require(
+            self.elites <= self.candidates,
+            "algorithm.elites",
+            f"elites ({self.elites}) cannot exceed algorithm.candidates ({self.candidates})",
+        )
+        require(self.elites >= 2, "algorithm.elites", "needs >= 2 to fit a standard deviation")
+
+
+def pool_size(s) -> int:
+    """Members of the race of best policies: ``best_pool``, none with ``paired_best``."""
+    return 0 if s.paired_best else s.best_pool
+
+
+def refine_start(s) -> int:
+    """The iteration after which the search refines the kept policy (``refine``): the last
+    ``refine`` share of the iterations; ``iterations`` when there is none."""
+    return s.iterations - round(s.refine * s.iterations)
+
+
+def rollouts_per_iteration(s) -> int:
+    """Rollouts one iteration of the settings (or section) ``s`` simulates: the candidates'
+    evaluations plus the fresh evaluations of the winner and of the mode (and of the best so
+    far, ``paired_best``, or of the pool's members, ``best_pool``)."""
+    fresh = 2 + (1 if s.paired_best else 0) + pool_size(s)
+    return s.candidates * s.eval_rollouts + fresh * s.best_rollouts
+
+
+@struct.dataclass
+class WeightsHyper:
+    """Dynamic (sweepable) hyper-parameters; defaults those of the config section."""
+
+    alpha: jax.Array | float = CognetWeightsSection.alpha
+    action_floor: jax.Array | float = CognetWeightsSection.action_floor
+    category_floor: jax.Array | float = CognetWeightsSection.category_floor
+
+
+#: static settings: the fields of ``CognetWeightsSection`` without the hyper-parameters
+#: (``WeightsHyper``), and the hidden width ``network.hidden``
+WeightsSettings = settings_class(
+    "WeightsSettings",
+    CognetWeightsSection,
+    exclude=("alpha", "action_floor", "category_floor"),
+    extra=((NetworkSection, "hidden"),),
+)
