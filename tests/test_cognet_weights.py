@@ -401,3 +401,20 @@ def test_the_last_iterations_search_around_the_kept_policy():
     for k in (1, 2):
         s, _ = jax.jit(plain.step)(jax.random.key(k), s, plain_params)
     assert float(s.distribution.w1_std.mean()) > 2 * float(want.w1_std.mean())
+
+
+def test_starts_split_the_search_before_the_refine_phase_into_fresh_searches():
+    """``starts = 3`` of 8 iterations with a quarter refining: fresh starts after iterations 2
+    and 4, none at 6 (the refine phase begins there) or elsewhere."""
+    from cognet_jax.algorithms.cognet_weights_settings import fresh_start
+
+    alg, params = small_algorithm(iterations=8, refine=0.25, starts=3, restart_tol=0.0)
+    assert [d for d in range(9) if bool(fresh_start(alg.settings, jnp.int32(d)))] == [2, 4]
+    step = jax.jit(alg.step)
+    state = alg.init(jax.random.key(0), params)
+    for k in (1, 2):
+        state, _ = step(jax.random.key(k), state, params)
+    for got, want in zip(
+        jax.tree.leaves(state.distribution), jax.tree.leaves(alg.init_distribution())
+    ):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

@@ -48,6 +48,8 @@ means at its weights, spreads ``refine_scale`` of the initial ones, categoricals
 mixed with ``refine_scale`` of the uniform), and a converged distribution restarts there again,
 around the policy kept by then. Candidates close to the kept policy share most rollouts'
 trajectories under common random numbers, so small improvements of its thresholds show.
+``starts`` (1 by default) splits the iterations before it into that many independent searches
+of equal length, each from the initial distribution.
 
 **Input standardisation** (``standardize_inputs``, **[choice]**, off by default): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
@@ -104,6 +106,7 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     CognetWeightsSection,
     WeightsHyper,
     WeightsSettings,
+    fresh_start,
     pool_size,
     refine_start,
     rollouts_per_iteration,
@@ -381,6 +384,8 @@ class CognetWeights(Search):
         )
         if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
             dist = select_tree(converged, self.init_distribution(), dist)
+        if s.starts > 1:  # independent searches before the refine phase
+            dist = select_tree(fresh_start(s, progress.iteration), self.init_distribution(), dist)
         start = refine_start(s)
         if start < s.iterations:  # the last iterations search around the kept policy
             done = progress.iteration

@@ -59,6 +59,7 @@ class CognetWeightsSection:
     restart_tol: float = 0.02
     refine: float = 0.25
     refine_scale: float = 0.1
+    starts: int = 1
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
@@ -86,6 +87,7 @@ class CognetWeightsSection:
         )
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        require_positive(self, "algorithm", "starts")
         defaults = NetworkSection()
         for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
             require(
@@ -115,6 +117,14 @@ class CognetWeightsSection:
 def pool_size(s) -> int:
     """Members of the race of best policies: ``best_pool``, none with ``paired_best``."""
     return 0 if s.paired_best else s.best_pool
+
+
+def fresh_start(s, done):
+    """Whether the search starts afresh after ``done`` iterations (``[]`` int32): the
+    iterations before the refine phase are ``starts`` independent searches of equal length;
+    the anytime best is kept across them."""
+    period = max(1, refine_start(s) // s.starts)
+    return (s.starts > 1) & (done > 0) & (done % period == 0) & (done < period * s.starts)
 
 
 def refine_start(s) -> int:
