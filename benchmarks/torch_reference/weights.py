@@ -19,6 +19,10 @@ The same search, step by step (``TorchWeightsSearch.step``):
 5. with ``restart_tol``, a distribution whose hidden-layer spread shrank below that fraction of
    its initial one starts afresh.
 
+Not implemented: the refine phase (``algorithm.refine``) and ``algorithm.starts``. They only
+replace the distribution at a few iterations (centred on the kept policy, or the initial one),
+so a run does the same work with or without them; its values differ.
+
 Written the way a PyTorch engineer vectorises it: rows ``[P policies, K rollouts]``, one Python
 iteration per time step, every member network of a policy applied with two ``einsum`` calls
 (batched matmuls over the policy axis) and the current node's logits gathered (the variant

@@ -35,7 +35,9 @@ class CognetWeightsSection:
     network that reads each input feature standardised by its mean and standard deviation under
     the random controller; ``paired_best``: the best policy so far is re-evaluated on the
     challengers' fresh rollouts and replaced only when a challenger beats it there;
-    ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool). The
+    ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
+    ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale`` and ``starts``: tied
+    candidates, restarts, the refine phase and independent starts (``cognet_weights``). The
     hidden width is ``network.hidden``."""
 
     nodes: int = 3
