@@ -329,6 +329,16 @@ EXTRA = {
         "the defaults with half of the iterations refining instead of a quarter",
         None,
     ),
+    **{
+        f"beacon-starts{n}": (
+            "beacon-n5",
+            [f"algorithm.starts={n}"],
+            SEEDS,
+            f"the defaults with the iterations before the refine phase as {n} independent searches",
+            None,
+        )
+        for n in (2, 3)
+    },
     "beacon-i600": (
         "beacon-n5",
         ["algorithm.iterations=600", "algorithm.eval_rollouts=250", "algorithm.refine=0"],
@@ -550,7 +560,10 @@ Where the refine phase costs: on beacon the kept policy of most seeds sat near 2
 iteration 100 and, without the refine phase, left it only in the last hundred iterations;
 refining from iteration 300 around that policy keeps it there, while the seeds that had found
 the better controller early end above it. A restart of a stalled search before the refine phase
-is the next candidate rule (not measured yet)."""
+is the next candidate rule (not measured yet). Rows
+"beacon-starts2" and "beacon-starts3" of the table above split the iterations before the
+refine phase into independent searches (`algorithm.starts`); the sweep of "beacon-starts2"
+shared the machine with the test suite, so its wall time is not comparable."""
 
 
 #: bearings (radians) at which ``chase_map`` reads both controllers: 5-degree steps
