@@ -104,17 +104,12 @@ def sample_of(w1, b1, w2, b2, action_probs) -> WeightSample:
         agent_tie=jnp.int32(0),
     )
 
-    def same(axis):
-        """Whether every slice along ``axis`` of every network field equals the first."""
-        equal = [
-            jnp.all(
-                x == jnp.take(x, jnp.array([0]), axis=axis), axis=tuple(range(axis + 1, x.ndim))
-            )
-            for x in (getattr(sample, f) for f in NETWORK_FIELDS)
-        ]
-        return jnp.all(jnp.stack([jnp.all(e, axis=-1) for e in equal]), axis=0)
+    def nodes_equal(x):
+        """``[agents]``: whether every node's slice of ``x [agents, Q, ...]`` equals node 0's."""
+        return jnp.all((x == x[:, :1]).reshape(x.shape[0], -1), axis=1)
 
-    node_tied = same(1).astype(jnp.int32)  # [agents]
+    networks = [getattr(sample, f) for f in NETWORK_FIELDS]
+    node_tied = jnp.all(jnp.stack([nodes_equal(x) for x in networks]), 0).astype(jnp.int32)
     agent_fields = [getattr(sample, f) for f in (*NETWORK_FIELDS, "actions")]
     agent_tied = jnp.all(jnp.stack([jnp.all(x == x[:1]) for x in agent_fields])).astype(jnp.int32)
     return sample.replace(node_tie=node_tied, agent_tie=agent_tied)
