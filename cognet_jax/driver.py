@@ -345,7 +345,7 @@ def _write_runs(program, done, stacked, opts, timing, finished: _Finished) -> li
             iteration=iterations,
             resumed_from_iteration=done.start if opts.resume else None,
             final_value=finished.finals[r],
-            polish=finished.records[r],
+            finish=finished.records[r],
             wall_s=time.perf_counter() - done.t_start,
             **{k: timing[k] for k in ("compile_s", "loop_s", "eval_s")},
             peak_rss_bytes=peak_rss_bytes(),
@@ -361,7 +361,7 @@ def _write_runs(program, done, stacked, opts, timing, finished: _Finished) -> li
 
 def _log_run(record: dict, run: Run, algorithm, log) -> None:
     final = record["final_value"]
-    line = algorithm.finish_line(record["polish"]) if record["polish"] is not None else None
+    line = algorithm.finish_line(record["finish"]) if record["finish"] is not None else None
     if line:
         log(line)
     exact = f" (exact {final['exact']:.6f})" if "exact" in final else ""

@@ -3,7 +3,8 @@ search state, run keys and per-iteration metrics, ``checkpoint.save_checkpoint``
 run's folder (``write_run``): ``results.json`` (``RESULTS_SCHEMA``: experiment, algorithm,
 seed, setting and grid of a sweep, full config, ``final_value`` {mean, stderr, rollouts, exact
 values of tabular controllers}, ``in_loop_best`` (the search's own estimate), per-iteration
-values, polish record, timings), ``policy.msgpack`` (the best policy with its
+values, ``finish`` (the record of the algorithm's ``finish`` step, or null; ``polish`` in
+files written before it had that name), timings), ``policy.msgpack`` (the best policy with its
 ``fingerprint``), ``vae.msgpack`` when the observation pipeline has a VAE, and PNG plots."""
 
 from __future__ import annotations

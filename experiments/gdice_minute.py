@@ -73,7 +73,7 @@ def table() -> list[str]:
             share = ""  # 100 less the shortfall in % of the optimum's magnitude
             if value is not None and optimum:
                 share = f"{100 - 100 * (optimum - value) / abs(optimum):.1f}"
-            polish = (r.get("polish") or {}).get("seconds", 0.0)
+            polish = (r.get("finish", r.get("polish")) or {}).get("seconds", 0.0)
             goal = GOAL_SECONDS.get(h)
             verdict = "" if goal is None else ("met" if r["wall_s"] <= goal else f"> {goal:.0f}")
             shown = "" if value is None else f"{value:.4f}"

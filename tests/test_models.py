@@ -130,7 +130,7 @@ def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
     peak = int(next(x for x in proc.stderr.splitlines() if x.startswith("peak-rss-kib")).split()[1])
     assert peak <= 2**20, f"peak RSS {peak / 2**10:.0f} MB"  # KiB
     record = json.loads((tmp_path / "run" / "results.json").read_text())
-    polish = record["polish"]
+    polish = record["finish"]
     assert polish["exact_evaluations"] <= polish["budget"] == 2 * 20 * 3 // 4
 
 

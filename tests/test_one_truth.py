@@ -64,7 +64,7 @@ def test_make_train_and_make_evaluate_give_what_train_writes(experiment, tmp_pat
     seed = 3
     record = train(config, seed, tmp_path / "run", log=lambda *_: None)
     if experiment.startswith("gdice"):
-        assert record["polish"] is not None  # the CLI's run was polished
+        assert record["finish"] is not None  # the CLI's run was polished
     key = seed_key(config, seed)
     state, metrics = jax.jit(make_train(config))(key)
     _same_policy(state.best_policy, tmp_path / "run")

@@ -130,12 +130,12 @@ def test_train_and_sweep_record_the_polish(tmp_path):
     train(load_config("gdice-dpomdp", sets), 0, tmp_path / "train", log=lambda *_: None)
     # (the next test's Program.init and finish are these programs, compiled once)
     results = json.loads((tmp_path / "train" / "results.json").read_text())
-    polish = results["polish"]
+    polish = results["finish"]
     assert polish["value_after"] >= polish["value_before"] - 1e-6
     assert results["final_value"]["exact"] == pytest.approx(polish["value_after"], abs=1e-4)
     out = run_sweep("gdice-dpomdp", [0, 1], overrides=sets, log=lambda *_: None)
     for row in out["rows"]:
-        assert row["final_value"]["exact"] == pytest.approx(row["polish"]["value_after"], abs=1e-4)
+        assert row["final_value"]["exact"] == pytest.approx(row["finish"]["value_after"], abs=1e-4)
 
 
 def test_polish_budget_bounds_the_exact_evaluations():
