@@ -31,6 +31,7 @@ _PUBLIC = {
     "seed_key": "cognet_jax.api",
     "streams": "cognet_jax.algorithms.engine",
     "controller_step": "cognet_jax.controllers.step",
+    "register_policy_type": "cognet_jax.controllers.step",
     "portable_policy": "cognet_jax.controllers.encoded",
     "EncodedPolicy": "cognet_jax.controllers.encoded",
     "train": "cognet_jax.driver",

@@ -3,9 +3,13 @@ registered from a user's file with nothing in cognet_jax edited, runs through ev
 
 import json
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from cognet_jax.cli import main
+from cognet_jax.controllers.step import controller_step
+from cognet_jax.saved_runs import load_run
 
 THRESHOLD_SEARCH = '''
 """A user's search, one module: every agent plays ``low`` below its threshold on the
@@ -114,6 +118,11 @@ def build(config, env, env_params, memory):
 
 
 cognet_jax.register_algorithm("thresholds", ThresholdSection, build)
+cognet_jax.register_policy_type(
+    ThresholdPolicy,
+    lambda p: ThresholdController(p.thresholds.shape[0]),
+    lambda p: p.thresholds.shape[0],
+)
 '''
 
 
@@ -147,6 +156,19 @@ def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
     rows = json.loads((sweep / "runs.json").read_text())["rows"]
     assert len(rows) == 2 and rows[0]["final_value"]["mean"] == value  # seed 0 is train's
     assert np.isfinite(rows[1]["final_value"]["mean"])
+
+    # the saved policy runs in the user's own loop (controller_step), as the built-in ones do
+    policy = load_run(out).policy
+    agents = policy.thresholds.shape[0]
+    obs = jnp.stack([policy.thresholds - 1.0, policy.thresholds + 1.0])  # [2, agents]
+    for below_above, observation in enumerate(obs):
+        action, node = controller_step(
+            policy, jnp.zeros(agents, jnp.int32), observation, jax.random.key(0)
+        )
+        np.testing.assert_array_equal(np.asarray(node), np.full(agents, below_above))
+        np.testing.assert_array_equal(
+            np.asarray(action), np.asarray(policy.actions)[np.arange(agents), below_above]
+        )
 
 
 def test_an_error_in_a_plugin_algorithm_names_its_code(tmp_path, capsys):

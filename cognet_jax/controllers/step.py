@@ -4,9 +4,11 @@ A learned joint controller is a policy pytree (``NeuralPolicy``, ``EncodedPolicy
 ``DeterministicTabularPolicy``, ``TabularDistribution`` or ``DeterministicRegionPolicy``);
 ``controller_step`` needs nothing else -- the controller kind and its static facts (agents,
 nodes, hidden units) are read from the policy's array shapes, so it is a pure function of arrays
-that jits and vmaps. An encoded COGNet-DICE search's networks read a VAE encoding of the raw
-observation: ``portable_policy(algorithm, policy)`` bundles the encoder with the policy
-(``EncodedPolicy``), and ``controller_step`` then takes the raw observation. Observations whose
+that jits and vmaps. A plug-in algorithm's own policy type joins them with
+``register_policy_type`` (its controller, agents and observation size from the policy). An
+encoded COGNet-DICE search's networks read a VAE encoding of the raw observation:
+``portable_policy(algorithm, policy)`` bundles the encoder with the policy (``EncodedPolicy``),
+and ``controller_step`` then takes the raw observation. Observations whose
 shape does not match what the policy reads are refused (``ValueError``, at trace time).
 
 Order within one time step, from the agents' side (SPEC section 1, Moore controllers): every
@@ -26,6 +28,9 @@ first and the action second, so the same draws are grouped differently).
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 
@@ -40,58 +45,131 @@ from cognet_jax.controllers.tabular import (
 )
 
 
-def controller_for(policy):
-    """The controller kind (static facts) matching a policy pytree, from its shapes."""
-    if isinstance(policy, NeuralPolicy):
-        agents, nodes, actions = policy.action_probs.shape
-        dense0 = policy.net_params["params"]["Dense_0"]["kernel"]  # [agents, nodes, in, hidden]
-        return NeuralController(
-            num_agents=agents,
-            num_nodes=nodes,
-            num_actions=actions,
-            obs_shape=(dense0.shape[2],),
-            hidden=dense0.shape[3],
-        )
-    if isinstance(policy, DeterministicTabularPolicy):
-        agents, nodes, num_obs = policy.transitions.shape
-        return TabularController(num_agents=agents, num_nodes=nodes, num_actions=0, num_obs=num_obs)
-    if isinstance(policy, DeterministicRegionPolicy):
-        agents, nodes, regions = policy.transitions.shape
-        return RegionController(num_agents=agents, num_nodes=nodes, num_regions=regions)
-    if isinstance(policy, TabularDistribution):
-        return None  # sampled directly below
+@dataclasses.dataclass(frozen=True)
+class PolicyType:
+    """How ``controller_step`` runs one kind of policy pytree: ``controller(policy)`` gives an
+    object with ``act(u [agents], policy, nodes [agents]) -> actions [agents]`` and
+    ``next_node(u [agents], policy, nodes [agents], obs) -> nodes [agents]`` (the protocol of
+    every controller in ``cognet_jax.controllers``); ``agents(policy)`` the number of agents;
+    ``reads(policy)`` ``(numbers per agent, what they are, dtype)`` of one observation."""
+
+    controller: Callable
+    agents: Callable
+    reads: Callable
+
+
+_POLICY_TYPES: dict[type, PolicyType] = {}
+
+
+def register_policy_type(
+    cls: type, controller: Callable, agents: Callable, reads: Callable | None = None
+) -> None:
+    """Let ``controller_step`` run policies of ``cls`` (a plug-in algorithm's own policy type;
+    ``PolicyType`` gives the three functions). ``reads`` defaults to one float per agent."""
+    default = lambda policy: (1, "observation value", jnp.float32)  # noqa: E731
+    _POLICY_TYPES[cls] = PolicyType(controller, agents, reads or default)
+
+
+def policy_type(policy) -> PolicyType:
+    """The registered ``PolicyType`` of a policy pytree, or ``TypeError``."""
+    for cls in type(policy).__mro__:
+        if cls in _POLICY_TYPES:
+            return _POLICY_TYPES[cls]
+    names = ", ".join(sorted(c.__name__ for c in _POLICY_TYPES))
     raise TypeError(
-        f"controller_step: unsupported policy type {type(policy).__name__} (expected "
-        "NeuralPolicy, EncodedPolicy, DeterministicTabularPolicy, TabularDistribution or "
-        "DeterministicRegionPolicy)"
+        f"controller_step: unsupported policy type {type(policy).__name__} (expected one of "
+        f"{names}, or a type given to register_policy_type)"
     )
+
+
+def controller_for(policy):
+    """The controller (static facts) matching a policy pytree, from its shapes."""
+    return policy_type(policy).controller(policy)
+
+
+def _neural_controller(policy: NeuralPolicy) -> NeuralController:
+    agents, nodes, actions = policy.action_probs.shape
+    dense0 = policy.net_params["params"]["Dense_0"]["kernel"]  # [agents, nodes, in, hidden]
+    return NeuralController(
+        num_agents=agents,
+        num_nodes=nodes,
+        num_actions=actions,
+        obs_shape=(dense0.shape[2],),
+        hidden=dense0.shape[3],
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _SampledTabular:
+    """A ``TabularDistribution`` run as it is: nodes and actions drawn from its tables."""
+
+    num_agents: int
+
+    def act(self, u, policy: TabularDistribution, nodes):
+        return sample_categorical(u, policy.action_probs[jnp.arange(self.num_agents), nodes])
+
+    def next_node(self, u, policy: TabularDistribution, nodes, obs):
+        idx = jnp.arange(self.num_agents)
+        return sample_categorical(u, policy.transition_probs[idx, nodes, obs])
+
+
+def _tabular_controller(policy: DeterministicTabularPolicy) -> TabularController:
+    agents, nodes, num_obs = policy.transitions.shape
+    return TabularController(num_agents=agents, num_nodes=nodes, num_actions=0, num_obs=num_obs)
+
+
+def _region_controller(policy: DeterministicRegionPolicy) -> RegionController:
+    agents, nodes, regions = policy.transitions.shape
+    return RegionController(num_agents=agents, num_nodes=nodes, num_regions=regions)
+
+
+def _network_inputs(policy: NeuralPolicy):
+    size = policy.net_params["params"]["Dense_0"]["kernel"].shape[2]
+    return size, "network inputs", jnp.float32
+
+
+def _index(policy):
+    return 1, "observation index", jnp.int32
+
+
+register_policy_type(
+    NeuralPolicy, _neural_controller, lambda p: p.action_probs.shape[0], _network_inputs
+)
+register_policy_type(
+    DeterministicTabularPolicy, _tabular_controller, lambda p: p.transitions.shape[0], _index
+)
+register_policy_type(
+    TabularDistribution,
+    lambda p: _SampledTabular(p.action_probs.shape[0]),
+    lambda p: p.action_probs.shape[0],
+    _index,
+)
+register_policy_type(
+    DeterministicRegionPolicy,
+    _region_controller,
+    lambda p: p.transitions.shape[0],
+    lambda p: (1, "scalar observation", jnp.float32),
+)
 
 
 def _policy_agents(policy) -> int:
     if isinstance(policy, EncodedPolicy):
         return _policy_agents(policy.policy)
-    if isinstance(policy, NeuralPolicy | TabularDistribution):
-        return policy.action_probs.shape[0]
-    return policy.transitions.shape[0]
+    return policy_type(policy).agents(policy)
 
 
-def _per_agent_size(policy) -> tuple[int, str]:
-    """Numbers per agent the policy reads from one observation, and what they are."""
+def _per_agent_size(policy):
+    """Numbers per agent the policy reads from one observation, what they are, their dtype."""
     if isinstance(policy, EncodedPolicy):
-        return policy.raw_features, "raw observation values (the VAE encoder's input)"
-    if isinstance(policy, NeuralPolicy):
-        size = policy.net_params["params"]["Dense_0"]["kernel"].shape[2]
-        return size, "network inputs"
-    if isinstance(policy, DeterministicRegionPolicy):
-        return 1, "scalar observation"
-    return 1, "observation index"
+        return policy.raw_features, "raw observation values (the VAE encoder's input)", jnp.float32
+    return policy_type(policy).reads(policy)
 
 
 def _checked_observation(policy, observation, agents: int) -> jax.Array:
-    """``observation`` as ``[agents, per-agent size]`` (scalar kinds: ``[agents]``), or a
-    ``ValueError`` naming both shapes."""
+    """``observation`` as ``[agents, per-agent size]`` (one number each: ``[agents]``) in the
+    dtype the policy reads, or a ``ValueError`` naming both shapes."""
     obs = jnp.asarray(observation)
-    size, what = _per_agent_size(policy)
+    size, what, dtype = _per_agent_size(policy)
     if obs.ndim == 0 or obs.shape[0] != agents or obs.size != agents * size:
         hint = ""
         if isinstance(policy, NeuralPolicy) and obs.size == agents * 16 and size != 16:
@@ -104,9 +182,12 @@ def _checked_observation(policy, observation, agents: int) -> jax.Array:
             f"{agents} agents reading {size} {what} each (expected shape ({agents}, {size}) "
             f"or ({agents},) for one number){hint}"
         )
-    if isinstance(policy, NeuralPolicy | EncodedPolicy):
-        return obs.reshape(agents, size).astype(jnp.float32)
-    return obs.reshape(agents)
+    shape = (
+        (agents, size)
+        if size > 1 or isinstance(policy, NeuralPolicy | EncodedPolicy)
+        else (agents,)
+    )
+    return obs.reshape(shape).astype(dtype)
 
 
 def controller_step(policy, node: jax.Array, observation, key: jax.Array):
@@ -138,13 +219,6 @@ def controller_step(policy, node: jax.Array, observation, key: jax.Array):
     k_move, k_act = jax.random.split(key)
     u_move = jax.random.uniform(k_move, (agents,))
     u_act = jax.random.uniform(k_act, (agents,))
-    if isinstance(policy, TabularDistribution):
-        idx = jnp.arange(agents)
-        if observation is not None:
-            obs = _checked_observation(policy, observation, agents).astype(jnp.int32)
-            probs = policy.transition_probs[idx, node, obs]
-            node = sample_categorical(u_move, probs)
-        return sample_categorical(u_act, policy.action_probs[idx, node]), node
     if observation is not None:
         obs = _checked_observation(policy, observation, agents)
         if isinstance(policy, EncodedPolicy):
