@@ -372,7 +372,8 @@ class CognetWeights(Search):
             pool = race(pool, fresh[2:], candidate, value)
             best_policy = pool.member(pool.best())
             progress = progress.replace(best_value=pool.means()[pool.best()])
-        converged = self.converged(dist)
+        start = refine_start(s)
+        converged = self.converged(dist, progress.iteration > start)
         metrics = WeightsMetrics(
             value=value,
             best_value=progress.best_value,
@@ -386,7 +387,6 @@ class CognetWeights(Search):
             dist = select_tree(converged, self.init_distribution(), dist)
         if s.starts > 1:  # independent searches before the refine phase
             dist = select_tree(fresh_start(s, progress.iteration), self.init_distribution(), dist)
-        start = refine_start(s)
         if start < s.iterations:  # the last iterations search around the kept policy
             done = progress.iteration
             recentre = (done == start) | ((done > start) & converged)
@@ -423,12 +423,14 @@ class CognetWeights(Search):
             self._agents_can_tie,
         )
 
-    def converged(self, dist: WeightDistribution) -> jax.Array:
-        """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
-        spread (mean over agents, nodes and weights): only a restart explores again."""
+    def converged(self, dist: WeightDistribution, refining: jax.Array) -> jax.Array:
+        """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of the spread the
+        search started from (mean over agents, nodes and weights): the initial spread, or
+        ``refine_scale`` of it in the refine phase (``refining``, ``[]`` bool)."""
         s = self.settings
         initial = s.init_scale / math.sqrt(self.controller.in_features)
-        return jnp.mean(dist.w1_std) < s.restart_tol * initial
+        start = jnp.where(refining, s.refine_scale, 1.0) * initial
+        return jnp.mean(dist.w1_std) < s.restart_tol * start
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:
         """The neural policy's figures (``reporting.neural_plots``)."""
