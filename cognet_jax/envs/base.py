@@ -187,8 +187,8 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     was expected against what it returned: a function that raises, an observation of another
     shape or dtype than ``[agents, *obs_shape]`` (int32 ``[agents]`` for discrete ones), a
     reward that is not one number, a state whose arrays change shape or dtype in a step; with
-    ``values``, also NaN or infinite observations and rewards of one step (computed: about a
-    second of tracing and dispatch, spent on simulators outside the package only)."""
+    ``values``, also NaN or infinite observations and rewards (``_check_values``, computed: a
+    second or two of tracing and dispatch, spent on simulators outside the package only)."""
     owner = f"simulator {name!r} ({type(env).__module__}.{type(env).__name__})"
     u_reset = jax.ShapeDtypeStruct((env.reset_noise,), jnp.float32)
     u_step = jax.ShapeDtypeStruct((env.step_noise,), jnp.float32)
@@ -274,28 +274,56 @@ def _host_callbacks(jaxpr) -> list[str]:
     return sorted(found)
 
 
+#: episodes of random actions ``_check_values`` runs, and the longest it runs
+CHECK_EPISODES = 8
+CHECK_STEPS = 200
+
+
 def _check_values(env, env_params, owner: str) -> None:
-    """One reset, then one step for each action ``a`` with every agent taking ``a``, on fixed
-    uniforms: a NaN or infinite observation or reward is refused here rather than turned into
-    a search over NaN."""
-    u = np.random.default_rng(0).uniform(size=env.reset_noise + env.step_noise)
-    u = jnp.asarray(u, jnp.float32)
+    """On fixed uniforms: one reset, then one step for each action ``a`` with every agent
+    taking ``a``; then ``CHECK_EPISODES`` episodes of random actions over the first
+    ``CHECK_STEPS`` steps of the horizon. A NaN or infinite observation or reward is refused
+    here, naming the step, rather than turned into a search over NaN."""
+    rng = np.random.default_rng(0)
+    u = jnp.asarray(rng.uniform(size=env.reset_noise + env.step_noise), jnp.float32)
     state = env.reset(u[: env.reset_noise], env_params)
     actions = jnp.arange(min(env.action_counts), dtype=jnp.int32)[:, None]
     actions = jnp.broadcast_to(actions, (actions.shape[0], env.num_agents))
     step = jax.vmap(lambda a: env.step(u[env.reset_noise :], state, a, env_params)[1:])
+    steps = min(env.horizon, CHECK_STEPS)
+    shape = (CHECK_EPISODES, steps)
+    u_reset = jnp.asarray(rng.uniform(size=(CHECK_EPISODES, env.reset_noise)), jnp.float32)
+    u_steps = jnp.asarray(rng.uniform(size=(*shape, env.step_noise)), jnp.float32)
+    random_actions = rng.integers(0, np.asarray(env.action_counts), (*shape, env.num_agents))
+
+    def episode(u0, us, acts):
+        def body(s, x):
+            s, obs, reward = env.step(x[0], s, x[1], env_params)
+            return s, (obs, reward)
+
+        return jax.lax.scan(body, env.reset(u0, env_params), (us, acts))[1]
+
     try:  # under vmap, as every search runs it
-        obs, reward = step(actions)
+        first = step(actions)
+        episodes = jax.jit(jax.vmap(episode))(u_reset, u_steps, jnp.asarray(random_actions))
     except Exception as err:  # the simulator's own error
         raise SimulatorError(
             f"{owner}: step(u, state, actions, params) under jax.vmap raised "
             f"{type(err).__name__}: {err}"
         ) from err
-    for what, x in (("observation", obs), ("reward", reward)):
-        x = np.asarray(x)
-        if jnp.issubdtype(x.dtype, jnp.floating) and not np.isfinite(x).all():
+    for when, (obs, reward) in (("one step", first), ("random actions", episodes)):
+        for what, x in (("observation", obs), ("reward", reward)):
+            x = np.asarray(x)
+            if not jnp.issubdtype(x.dtype, jnp.floating) or np.isfinite(x).all():
+                continue
             kind = "NaN" if np.isnan(x).any() else "infinite"
-            raise SimulatorError(f"{owner}: step returned a {kind} {what} ({x.ravel()[:4]} ...)")
+            where = ""
+            if when == "random actions":  # [episodes, steps, ...]: the first step it happens
+                bad = ~np.isfinite(x.reshape(*shape, -1)).all(axis=(0, 2))
+                where = f" at step {int(np.argmax(bad)) + 1} of an episode of random actions"
+            raise SimulatorError(
+                f"{owner}: step returned a {kind} {what}{where} ({x[~np.isfinite(x)][:4]} ...)"
+            )
 
 
 def _shapes(tree) -> str:
