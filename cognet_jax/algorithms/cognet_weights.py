@@ -46,8 +46,9 @@ start (metrics ``injected`` marks the iterations that restarted).
 iterations searches around the kept policy: the distribution restarts centred on it (Gaussian
 means at its weights, spreads ``refine_scale`` of the initial ones, categoricals on its choices
 mixed with ``refine_scale`` of the uniform), and a converged distribution restarts there again,
-around the policy kept by then. Candidates close to the kept policy share most rollouts'
-trajectories under common random numbers, so small improvements of its thresholds show.
+around the policy kept by then (converged: below ``refine_tol`` of the spread it started
+from). Candidates close to the kept policy share most rollouts' trajectories under common
+random numbers, so small improvements of its thresholds show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
@@ -194,8 +195,8 @@ class CognetWeights(Search):
             m_mean=full((a, q, h), s.vote_mean),
             m_std=full((a, q, h), s.vote_std),
             default_probs=full((a, q, q), 1.0 / q),
-            bias_mean=full((a, q), s.vote_mean),
-            bias_std=full((a, q), s.vote_std),
+            bias_mean=full((a, q), s.vote_mean * s.default_vote_scale),
+            bias_std=full((a, q), s.vote_std * s.default_vote_scale),
             node_tie_probs=full((a, 2), 0.5 if s.tie_structure else 0.0)
             .at[:, 0]
             .set(0.5 if s.tie_structure else 1.0),
@@ -424,13 +425,14 @@ class CognetWeights(Search):
         )
 
     def converged(self, dist: WeightDistribution, refining: jax.Array) -> jax.Array:
-        """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of the spread the
-        search started from (mean over agents, nodes and weights): the initial spread, or
-        ``refine_scale`` of it in the refine phase (``refining``, ``[]`` bool)."""
+        """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
+        spread, or in the refine phase (``refining``, ``[]`` bool) below ``refine_tol`` of the
+        spread it started from (``refine_scale`` of the initial one); mean over agents, nodes
+        and weights."""
         s = self.settings
         initial = s.init_scale / math.sqrt(self.controller.in_features)
-        start = jnp.where(refining, s.refine_scale, 1.0) * initial
-        return jnp.mean(dist.w1_std) < s.restart_tol * start
+        tol = jnp.where(refining, s.refine_tol * s.refine_scale, s.restart_tol)
+        return jnp.mean(dist.w1_std) < tol * initial
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:
         """The neural policy's figures (``reporting.neural_plots``)."""

@@ -31,14 +31,15 @@ class CognetWeightsSection:
     every iteration; the winner and the distribution's mode are re-evaluated on
     ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
     hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
-    ``vote_std``: initial Gaussian of the output votes; ``standardize_inputs``: search over a
+    ``vote_std``: initial Gaussian of the output votes (the default vote's scaled by
+    ``default_vote_scale``); ``standardize_inputs``: search over a
     network that reads each input feature standardised by its mean and standard deviation under
     the random controller; ``paired_best``: the best policy so far is re-evaluated on the
     challengers' fresh rollouts and replaced only when a challenger beats it there;
     ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
-    ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale`` and ``starts``: tied
-    candidates, restarts, the refine phase and independent starts (``cognet_weights``). The
-    hidden width is ``network.hidden``."""
+    ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol`` and
+    ``starts``: tied candidates, restarts, the refine phase and independent starts
+    (``cognet_weights``). The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -54,6 +55,7 @@ class CognetWeightsSection:
     init_scale: float = 10.0
     vote_mean: float = 5.0
     vote_std: float = 5.0
+    default_vote_scale: float = 1.0
     standardize_inputs: bool = False
     paired_best: bool = False
     best_pool: int = 4
@@ -61,6 +63,7 @@ class CognetWeightsSection:
     restart_tol: float = 0.02
     refine: float = 0.25
     refine_scale: float = 0.1
+    refine_tol: float = 0.2
     starts: int = 1
 
     def rollouts_per_iteration(self) -> int:
@@ -75,7 +78,7 @@ class CognetWeightsSection:
             f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
         )
         require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
-        for name in ("init_scale", "vote_mean", "vote_std"):
+        for name in ("init_scale", "vote_mean", "vote_std", "default_vote_scale"):
             v = getattr(self, name)
             require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
@@ -89,6 +92,9 @@ class CognetWeightsSection:
         )
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        require(
+            0 <= self.refine_tol < 1, "algorithm.refine_tol", f"in [0, 1), got {self.refine_tol}"
+        )
         require_positive(self, "algorithm", "starts")
         defaults = NetworkSection()
         for name in ("train_steps", "optimizer", "learning_rate", "momentum"):
