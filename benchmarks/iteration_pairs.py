@@ -20,7 +20,9 @@ from benchmarks import jax_cases, paired, torch_cases
 
 #: the library's defaults on an experiment that pins the search its rows were measured with,
 #: as they were when benchmarks/README.md was measured: without the refine phase, which the
-#: torch reference leaves out (it recentres the distribution at a few iterations: no more work)
+#: torch reference leaves out (it recentres the distribution at a few iterations: no more work),
+#: and with the earlier restart threshold and default-vote scale (the pinned experiment's scale
+#: 1; a restart and a different initial Gaussian cost the same work)
 LIBRARY_DEFAULTS = [
     "algorithm.tie_structure=true",
     "algorithm.restart_tol=0.02",

@@ -418,3 +418,19 @@ def test_starts_split_the_search_before_the_refine_phase_into_fresh_searches():
         jax.tree.leaves(state.distribution), jax.tree.leaves(alg.init_distribution())
     ):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_the_default_vote_is_drawn_at_its_own_scale():
+    """``default_vote_scale`` scales the default vote's Gaussian (the output bias of the node
+    networks) and nothing else: drawn default votes spread about that many times wider."""
+    draws = {}
+    for scale in (1.0, 10.0):
+        alg, _ = small_algorithm(default_vote_scale=scale)
+        dist = alg.init_distribution()
+        assert np.allclose(np.asarray(dist.bias_mean), 5.0 * scale)
+        assert np.allclose(np.asarray(dist.m_mean), 5.0)  # the units' votes unchanged
+        policies = alg.to_policy(alg.draw(jax.random.key(3), dist, 256))
+        bias = np.asarray(policies.net_params["params"]["Dense_1"]["bias"])
+        draws[scale] = bias.sum(-1)  # one non-zero entry per network: the default vote B
+    ratio = draws[10.0].std() / draws[1.0].std()
+    assert 8.0 < ratio < 12.5

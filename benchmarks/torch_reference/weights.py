@@ -72,6 +72,7 @@ class WeightsSettings:
     init_scale: float = 10.0
     vote_mean: float = 5.0
     vote_std: float = 5.0
+    default_vote_scale: float = 1.0
     hidden: int = 10
     best_pool: int = 4
     tie_structure: bool = True
@@ -148,8 +149,8 @@ class TorchWeightsSearch:
             m_mean=torch.full((n, q, h), s.vote_mean),
             m_std=torch.full((n, q, h), s.vote_std),
             default=torch.full((n, q, q), 1.0 / q),
-            bias_mean=torch.full((n, q), s.vote_mean),
-            bias_std=torch.full((n, q), s.vote_std),
+            bias_mean=torch.full((n, q), s.vote_mean * s.default_vote_scale),
+            bias_std=torch.full((n, q), s.vote_std * s.default_vote_scale),
             node_tie=torch.tensor([[1.0 - tie_p, tie_p]]).expand(n, 2).clone(),
             agent_tie=torch.tensor([0.5, 0.5] if self.agents_can_tie else [1.0, 0.0]),
         )

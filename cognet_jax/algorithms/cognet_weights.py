@@ -21,11 +21,22 @@ Q nodes, F network inputs):
   ``W2[j, :] = m_j * onehot(k_j)``, ``b2 = B * onehot(d)``. ``unit_target_probs [agents, Q, H,
   Q]`` and ``default_probs [agents, Q, Q]`` are categorical; ``m_mean / m_std [agents, Q, H]`` and
   ``bias_mean / bias_std [agents, Q]`` Gaussian (initial mean and std ``vote_mean`` /
-  ``vote_std``). A threshold on the observation is one ReLU unit voting for a node, so the
-  reactive controllers of the tagging problem are a few draws away, and a node's role (which
-  next node an observation leads to) is a categorical choice the elites can agree on. A diagonal
-  Gaussian over a dense output layer averages the roles of different elites; in prototypes (not
-  kept) it stalled below the reactive controller on tagging n3.
+  ``vote_std``, the default vote's times ``default_vote_scale``). A threshold on the observation
+  is one ReLU unit voting for a node, so the reactive controllers of the tagging problem are a
+  few draws away, and a node's role (which next node an observation leads to) is a categorical
+  choice the elites can agree on. A diagonal Gaussian over a dense output layer averages the
+  roles of different elites; in prototypes (not kept) it stalled below the reactive controller
+  on tagging n3.
+
+**Default vote's scale** (``default_vote_scale``, **[choice]**, 1): a unit's vote is ``m_j``
+times its pre-activation, whose initial spread is about ``init_scale`` (10); a default vote of
+``vote_mean`` (5) loses to any unit a tenth of an observation unit past its threshold, so "do
+the default unless an observation is far enough out" -- stop near the beacon -- needs every
+unit's threshold moved at once. At 10 (the units' scale) every beacon seed found the
+hand-written controller's stop region (8 seeds: 27.96 against 26.50 at 1, with
+``restart_tol`` 0.1), but on tagging n3 more seeds ended near the reactive controller (16
+seeds: 21.55 against 22.55 under the defaults); 1 stays the default until a rule holds on both
+(experiments/README.md, suite).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
@@ -35,12 +46,14 @@ actions). Both are categoricals refit to the elites like the others; the Gaussia
 the weights the candidates ran, so a tied elite teaches every node. A problem that needs
 memory or asymmetric agents unties them (the Dec-Tiger counters do).
 
-**Restarts** (``restart_tol``, **[choice]**): once the hidden layer's Gaussians have shrunk
-below ``restart_tol`` of their initial spread the distribution has converged (the elites agree
-and the search draws nearly one controller); the next iteration starts from the initial
-distribution again, the anytime best kept. A larger budget then buys further independent
-searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets another
-start (metrics ``injected`` marks the iterations that restarted).
+**Restarts** (``restart_tol``, **[choice]**, 0.02): once the hidden layer's Gaussians have
+shrunk below ``restart_tol`` of their initial spread the distribution has converged (the
+elites agree and the search draws nearly one controller); the next iteration starts from the
+initial distribution again, the anytime best kept. A larger budget then buys further
+independent searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets
+another start (metrics ``injected`` marks the iterations that restarted). Shorter searches fit
+more of them before the refine phase: on beacon (8 seeds) 25.82 at 0.02, 26.50 at 0.1, 27.25 at
+0.2, but on tagging n3 0.1 lost (21.70 against 22.78).
 
 **Refine** (``refine``, ``refine_scale``, **[choice]**): the last ``refine`` share of the
 iterations searches around the kept policy: the distribution restarts centred on it (Gaussian
