@@ -421,6 +421,22 @@ EXTRA.update(
             "the library's defaults with shorter exploring searches only",
             None,
         ),
+        "tagging-thesis-n3-vote-alternate-16seeds": (
+            "tagging-thesis-n3",
+            [*NEW, "algorithm.default_vote_scale=10", "algorithm.vote_alternate=true"],
+            16,
+            "the library's defaults with exploring searches alternating the default vote's "
+            "scale between 1 and 10 (the first at 1)",
+            None,
+        ),
+        "beacon-vote-alternate": (
+            "beacon-n5",
+            ["algorithm.default_vote_scale=10", "algorithm.vote_alternate=true"],
+            SEEDS,
+            "the defaults with exploring searches alternating the default vote's scale between "
+            "1 and 10 (the first at 1)",
+            None,
+        ),
         "paper-budget-1of64-vote10": (
             "tagging-paper-auto",
             ["algorithm.budget=4.6875e9", "run.probe_seconds=10", *VOTE10],
@@ -654,6 +670,7 @@ REACH_SWEEPS = (
     "beacon-restart0.1",
     "beacon-restart0.2",
     "beacon-vote10",
+    "beacon-vote-alternate",
 )
 
 
@@ -690,8 +707,10 @@ before the refine phase ("beacon-starts2", "-starts3"), shorter exploring search
 searches ("beacon-vote10", `algorithm.default_vote_scale=10`). That last one is not the
 default: on tagging n3 it ended lower ("tagging-thesis-n3-vote10-16seeds" against
 "tagging-thesis-n3-defaults-16seeds" above), and each of its two changes alone lowered it there
-too ("tagging-thesis-n3-vote10-restart0.02", "tagging-thesis-n3-restart0.1"). The sweep of
-"beacon-starts2" shared the machine with the test suite, the 16-seed tagging sweeps with
+too ("tagging-thesis-n3-vote10-restart0.02", "tagging-thesis-n3-restart0.1"); alternating the
+two scales between exploring searches ("-vote-alternate") kept tagging n3 and helped beacon
+less. The sweep of "beacon-starts2" shared the machine with the test suite; the 16-seed
+tagging sweeps, "heatmap-2d-n4-vote10", "beacon-clean-vote10" and "beacon-vote-alternate" with
 another sweep: their wall times are not comparable."""
 
 

@@ -434,3 +434,29 @@ def test_the_default_vote_is_drawn_at_its_own_scale():
         draws[scale] = bias.sum(-1)  # one non-zero entry per network: the default vote B
     ratio = draws[10.0].std() / draws[1.0].std()
     assert 8.0 < ratio < 12.5
+
+
+def test_alternating_searches_switch_the_default_vote_scale_at_each_fresh_start():
+    """``vote_alternate``: search 0 starts at scale 1, the fresh start after iteration 2
+    (``starts = 3``) at ``default_vote_scale``, the one after iteration 4 at 1 again; the
+    counter of searches is in the state."""
+    alg, params = small_algorithm(
+        iterations=8,
+        refine=0.25,
+        starts=3,
+        restart_tol=0.0,
+        default_vote_scale=10.0,
+        vote_alternate=True,
+    )
+    step = jax.jit(alg.step)
+    state = alg.init(jax.random.key(0), params)
+    assert int(state.searches) == 0
+    assert np.allclose(np.asarray(state.distribution.bias_mean), 5.0)
+    means = []
+    for k in range(1, 5):
+        state, _ = step(jax.random.key(k), state, params)
+        means.append(float(np.asarray(state.distribution.bias_mean).mean()))
+    assert int(state.searches) == 2
+    assert means[1] == 50.0 and means[3] == 5.0  # fresh after iterations 2 and 4
+    plain, _ = small_algorithm(default_vote_scale=10.0)
+    assert plain.init(jax.random.key(0), params).searches is None

@@ -36,7 +36,9 @@ unit's threshold moved at once. At 10 (the units' scale) every beacon seed found
 hand-written controller's stop region (8 seeds: 27.96 against 26.50 at 1, with
 ``restart_tol`` 0.1), but on tagging n3 more seeds ended near the reactive controller (16
 seeds: 21.55 against 22.55 under the defaults); 1 stays the default until a rule holds on both
-(experiments/README.md, suite).
+(experiments/README.md, suite). ``vote_alternate`` alternates the exploring searches between
+scale 1 (the first) and ``default_vote_scale``: tagging n3 as the defaults (22.55), beacon
+26.51 (not adopted either).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
@@ -156,6 +158,7 @@ class WeightsState:
     best_policy: NeuralPolicy
     progress: Progress
     pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
+    searches: jax.Array | None = None  # [] int32 exploring searches begun (``vote_alternate``)
 
 
 @struct.dataclass
@@ -194,8 +197,11 @@ class CognetWeights(Search):
         self._set(settings=s, pipeline=pipeline, controller=controller)
 
     # ---------------------------------------------------------------- distribution
-    def init_distribution(self) -> WeightDistribution:
+    def init_distribution(self, vote_scale=None) -> WeightDistribution:
+        """The initial distribution; ``vote_scale`` (``[]``, default ``default_vote_scale``)
+        scales the default vote's Gaussian."""
         s, c = self.settings, self.controller
+        vote_scale = s.default_vote_scale if vote_scale is None else vote_scale
         a, q, h, f = c.num_agents, s.nodes, s.hidden, c.in_features
         full = lambda shape, v: jnp.full(shape, v, jnp.float32)  # noqa: E731
         return WeightDistribution(
@@ -208,8 +214,8 @@ class CognetWeights(Search):
             m_mean=full((a, q, h), s.vote_mean),
             m_std=full((a, q, h), s.vote_std),
             default_probs=full((a, q, q), 1.0 / q),
-            bias_mean=full((a, q), s.vote_mean * s.default_vote_scale),
-            bias_std=full((a, q), s.vote_std * s.default_vote_scale),
+            bias_mean=full((a, q), s.vote_mean) * vote_scale,
+            bias_std=full((a, q), s.vote_std) * vote_scale,
             node_tie_probs=full((a, 2), 0.5 if s.tie_structure else 0.0)
             .at[:, 0]
             .set(0.5 if s.tie_structure else 1.0),
@@ -310,7 +316,8 @@ class CognetWeights(Search):
     # ---------------------------------------------------------------- protocol
     def init(self, key: jax.Array, params: SearchParams) -> WeightsState:
         """Initial state; its ``best_policy`` is one draw of the initial distribution."""
-        dist = self.init_distribution()
+        searches = jnp.int32(0) if self.settings.vote_alternate else None
+        dist = self.search_distribution(searches)
         first = self.to_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
         size = pool_size(self.settings)
         return WeightsState(
@@ -318,7 +325,17 @@ class CognetWeights(Search):
             best_policy=first,
             progress=Progress.create(1),
             pool=BestPool.create(first, size) if size else None,
+            searches=searches,
         )
+
+    def search_distribution(self, searches) -> WeightDistribution:
+        """The initial distribution of exploring search number ``searches`` (``[]`` int32, or
+        ``None``): with ``vote_alternate`` the odd ones draw default votes at
+        ``default_vote_scale`` and the even ones at 1."""
+        if searches is None:
+            return self.init_distribution()
+        scale = jnp.where(searches % 2 == 1, self.settings.default_vote_scale, 1.0)
+        return self.init_distribution(scale)
 
     @property
     def rollouts_per_iteration(self) -> int:
@@ -397,15 +414,19 @@ class CognetWeights(Search):
             kept=jnp.int32(s.elites),
             injected=converged,
         )
-        if s.restart_tol > 0:  # the next iteration starts afresh; the anytime best stays
-            dist = select_tree(converged, self.init_distribution(), dist)
+        restart = converged if s.restart_tol > 0 else jnp.bool_(False)
         if s.starts > 1:  # independent searches before the refine phase
-            dist = select_tree(fresh_start(s, progress.iteration), self.init_distribution(), dist)
+            restart = restart | fresh_start(s, progress.iteration)
+        searches = state.searches
+        if searches is not None:
+            searches = searches + restart.astype(jnp.int32)
+        if s.restart_tol > 0 or s.starts > 1:  # afresh; the anytime best stays
+            dist = select_tree(restart, self.search_distribution(searches), dist)
         if start < s.iterations:  # the last iterations search around the kept policy
             done = progress.iteration
             recentre = (done == start) | ((done > start) & converged)
             dist = select_tree(recentre, self.centered_distribution(best_policy), dist)
-        state = WeightsState(dist, best_policy, progress, pool)
+        state = WeightsState(dist, best_policy, progress, pool, searches)
         return state, metrics
 
     def centered_distribution(self, policy: NeuralPolicy) -> WeightDistribution:

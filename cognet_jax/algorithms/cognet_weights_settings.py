@@ -32,7 +32,8 @@ class CognetWeightsSection:
     ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
     hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
     ``vote_std``: initial Gaussian of the output votes (the default vote's scaled by
-    ``default_vote_scale``); ``standardize_inputs``: search over a
+    ``default_vote_scale``; with ``vote_alternate`` in every other exploring search only,
+    the first at 1); ``standardize_inputs``: search over a
     network that reads each input feature standardised by its mean and standard deviation under
     the random controller; ``paired_best``: the best policy so far is re-evaluated on the
     challengers' fresh rollouts and replaced only when a challenger beats it there;
@@ -56,6 +57,7 @@ class CognetWeightsSection:
     vote_mean: float = 5.0
     vote_std: float = 5.0
     default_vote_scale: float = 1.0
+    vote_alternate: bool = False
     standardize_inputs: bool = False
     paired_best: bool = False
     best_pool: int = 4
