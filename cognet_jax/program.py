@@ -394,15 +394,15 @@ def honest_value(algorithm, config: Config, params: SearchParams, lanes: int = 1
             compiled[shapes] = compiled_program(
                 config, "the honest evaluation", returns, args, constants, identity
             )
-        return return_summary(compiled[shapes](*args))
+        return final_value_of(compiled[shapes](*args))
 
     return evaluate
 
 
-def return_summary(returns) -> dict:
-    """``{"mean", "stderr", "rollouts"}`` of a 1-D array of returns (in float64); an
-    ``InputError`` when a return is not finite (float32 overflowed: rewards too large for the
-    horizon)."""
+def final_value_of(returns) -> dict:
+    """The honest value (results.json's ``final_value``: ``{"mean", "stderr", "rollouts"}``)
+    of a 1-D array of returns (in float64); an ``InputError`` when a return is NaN or not
+    finite (float32 overflowed: rewards too large for the horizon)."""
     returns = np.asarray(returns, dtype=np.float64)
     if np.isnan(returns).any():
         raise InputError(

@@ -404,7 +404,7 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
     "stderrs", "replaced": {name: [mean, stderr]}}, "stds": [...], ...}``."""
     import jax
 
-    from cognet_jax.program import return_summary
+    from cognet_jax.program import final_value_of
     from cognet_jax.saved_runs import load_run
 
     out = {"stds": list(NOISE_STDS), "rollouts": rollouts, "eval_seed": eval_seed, "seed": seed}
@@ -419,7 +419,7 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
             key = jax.random.key(eval_seed, impl=run.config.run.prng_impl)
             batch = run.config.evaluation.batch
             returns = jax.jit(lambda k, p: run.algorithm.returns(k, p, rollouts, run.params, batch))
-            return return_summary(returns(key, run.policy))
+            return final_value_of(returns(key, run.policy))
 
         means, stderrs = [], []
         for std in NOISE_STDS:
