@@ -233,11 +233,11 @@ def _evaluate(args) -> int:
 
     if args.rollouts is not None and not 2 <= args.rollouts < 2**31:
         raise UsageError(f"--rollouts must be in 2 .. 2147483647, got {args.rollouts}")
-    if args.rollouts is not None and args.rollouts >= ANNOUNCED_ROLLOUTS:
-        print(f"evaluating {args.run_dir}: {args.rollouts} rollouts ...", file=sys.stderr)
+    big = args.rollouts is not None and args.rollouts >= ANNOUNCED_ROLLOUTS
+    announce = (lambda line: print(line, file=sys.stderr, flush=True)) if big else None
     # in a worker thread: a stop signal ends the command at once, not after the evaluation
     value = in_background(
-        lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides)
+        lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, announce)
     )
     print(
         f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "

@@ -18,6 +18,7 @@ from cognet_jax.api import (
     build,
     seed_key,
 )
+from cognet_jax.budget import FASTEST_RATE
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
     read_checkpoint,
@@ -99,15 +100,29 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     return LoadedRun(config, algorithm, params, policy, results)
 
 
-def evaluate_run(run_dir, rollouts: int | None = None, seed: int | None = None, overrides=()):
+def evaluate_run(
+    run_dir,
+    rollouts: int | None = None,
+    seed: int | None = None,
+    overrides=(),
+    announce=None,
+):
     """The honest value of the best policy in ``run_dir``: by default the run's own
     evaluation (its seed's evaluation key, ``evaluation.rollouts``), which reproduces its
     results.json ``final_value``; ``seed`` draws from that seed's evaluation key instead,
-    ``rollouts`` changes the number, ``overrides`` the setting. Returns the summary with
+    ``rollouts`` changes the number, ``overrides`` the setting. ``announce(line)``, when given,
+    hears the evaluation's size and its least time before it compiles. Returns the summary with
     ``seed``, ``overrides`` and ``wall_s``."""
     t0 = time.perf_counter()
     run = load_run(run_dir, list(overrides), rollouts)
     config = run.config
+    if announce is not None:
+        env = run.algorithm.env
+        steps = config.evaluation.rollouts * env.horizon * env.num_agents
+        announce(
+            f"evaluating {run_dir}: {config.evaluation.rollouts} rollouts, {steps:.3g} "
+            f"agent-steps, at least {steps / FASTEST_RATE:.3g} s ..."
+        )
     stored = run.results.get("seed", 0)
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")

@@ -78,6 +78,9 @@ def test_evaluate_checks_the_rollouts_it_was_given(counts, tmp_path, capsys):
     small = ["--set", "run.memory_gb=0.001"]  # 1e6 returns need 4 MB
     assert main(["evaluate", str(out), "--rollouts", "1000000", *small]) == 2
     assert "evaluation.rollouts" in capsys.readouterr().err
+    # a large evaluation says its size and least time before it compiles (h 3, 2 agents)
+    assert main(["evaluate", str(out), "--rollouts", "1000000"]) == 0
+    assert "1000000 rollouts, 6e+06 agent-steps, at least" in capsys.readouterr().err
 
 
 def test_every_public_name_resolves():
