@@ -158,7 +158,7 @@ class WeightsState:
     best_policy: NeuralPolicy
     progress: Progress
     pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
-    searches: jax.Array | None = None  # [] int32 exploring searches begun (``vote_alternate``)
+    searches: jax.Array | None = None  # [] int32 restarts so far (``vote_alternate``)
 
 
 @struct.dataclass
