@@ -18,7 +18,7 @@ from cognet_jax.api import (
     build,
     seed_key,
 )
-from cognet_jax.budget import FASTEST_RATE
+from cognet_jax.budget import FASTEST_RATE, simulated_agent_steps
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
     read_checkpoint,
@@ -117,8 +117,7 @@ def evaluate_run(
     run = load_run(run_dir, list(overrides), rollouts)
     config = run.config
     if announce is not None:
-        env = run.algorithm.env
-        steps = config.evaluation.rollouts * env.horizon * env.num_agents
+        steps = simulated_agent_steps(config, run.algorithm.env)[1]  # the evaluation's
         announce(
             f"evaluating {run_dir}: {config.evaluation.rollouts} rollouts, {steps:.3g} "
             f"agent-steps, at least {steps / FASTEST_RATE:.3g} s ..."
