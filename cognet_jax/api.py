@@ -15,7 +15,7 @@ pure functions to run them.
 Key layout for a seed: ``key -> (init_key, run_key, eval_key)`` (``split_seed_key``);
 iteration i uses ``fold_in(run_key, i)`` with i read from the state (``iteration_step``), so a
 resumed run continues the same random stream; ``eval_key`` is reserved for the honest final
-evaluation (``honest_returns``). The command line (``cognet_jax.driver``) runs these same
+evaluation (``final_returns``). The command line (``cognet_jax.driver``) runs these same
 functions.
 """
 
@@ -176,7 +176,7 @@ def iteration_step(algorithm):
     return step
 
 
-def honest_returns(algorithm, evaluation):
+def final_returns(algorithm, evaluation):
     """``returns(key, policy, params) -> [evaluation.rollouts]``: the returns of the honest
     evaluation of ``policy``, drawn from the seed key ``key``'s evaluation key (never used by
     the search); ``evaluation`` is the config's ``[evaluation]`` section. The one honest
@@ -244,12 +244,12 @@ def make_train(config: Config | Built):
 def make_evaluate(config: Config | Built):
     """A pure ``evaluate(key, policy, params=None) -> (mean, stderr)``: the honest value of
     ``policy``, the mean return of ``evaluation.rollouts`` fresh rollouts drawn from the seed
-    key's evaluation key (``honest_returns``), which the search never uses. ``results.json``'s
+    key's evaluation key (``final_returns``), which the search never uses. ``results.json``'s
     ``final_value`` sums the same returns in float64; this float32 mean agrees with it to
     float32 rounding. ``config`` may be the ``Built`` run of ``build(config)``."""
     built = _built(config)
     algorithm, default = built.algorithm, built.params
-    returns = honest_returns(algorithm, built.config.evaluation)
+    returns = final_returns(algorithm, built.config.evaluation)
 
     def evaluate(key, policy, params=None):
         return mean_and_stderr(returns(key, policy, default if params is None else params))
@@ -263,7 +263,7 @@ __all__ = [
     "build",
     "build_algorithm",
     "build_env",
-    "honest_returns",
+    "final_returns",
     "iteration_step",
     "make_algorithm",
     "make_env",

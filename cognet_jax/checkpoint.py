@@ -169,7 +169,8 @@ def read_policy(path: str | Path, template, fingerprint: dict | None = None):
 #: what each fingerprint key stands for, in the refusal
 FINGERPRINT_KEYS = {
     "config": (
-        "the config it was trained with (results.json's config was edited)",
+        "the config it was trained with (results.json's config was edited, or the policy "
+        "file comes from another run)",
         "--set evaluates it under another setting on purpose",
     ),
     "model": (

@@ -154,7 +154,7 @@ def _sweep(args) -> int:
 
     main_process = jax.process_index() == 0
     held = (
-        claim(out, resume=bool(args.resume), overwrite=args.overwrite)
+        claim(out, resume=bool(args.resume), overwrite=args.overwrite, kind="sweep")
         if main_process
         else contextlib.nullcontext()
     )

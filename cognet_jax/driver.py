@@ -223,7 +223,7 @@ class Probes:
         """Run ``r``'s probes with their honest values."""
         out = []
         for iteration, wall, best in self.kept:
-            value = self.program.honest_value(r, best[r])
+            value = self.program.final_value(r, best[r])
             out.append({"iteration": iteration, "wall_s": wall, "value": value["mean"]})
         return out
 
@@ -263,7 +263,7 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
         best = program.best_policies(finished)
         finals = []
         for r, run in enumerate(program.runs):
-            final = program.honest_value(r, best[r])
+            final = program.final_value(r, best[r])
             final.update(algorithm.exact_record(run.config, best[r]) or {})
             finals.append(final)
         probing = probes is not None and probes.seconds > 0

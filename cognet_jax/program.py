@@ -12,7 +12,7 @@ devices (``shard_map``, no collectives), the hyper-parameters data (stacked over
 and the env params too when the runs differ in them. Run r of a group uses exactly the keys of
 ``train --seed s`` (``api.split_seed_key``, iteration i with ``fold_in(run_key, i)``).
 
-Every run ends with the one honest evaluation (``honest_value``: ``api.honest_returns``,
+Every run ends with the one honest evaluation (``final_value``: ``api.final_returns``,
 ``evaluation.rollouts`` fresh rollouts of its best policy from the seed's evaluation key),
 compiled with the run's params as constants -- the function ``cognet-jax evaluate DIR`` runs to
 reproduce it.
@@ -37,7 +37,7 @@ from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
     Built,
     build,
-    honest_returns,
+    final_returns,
     iteration_step,
     params_of,
     seed_key,
@@ -363,25 +363,25 @@ class Program:
         best = jax.device_get(jax.vmap(self.algorithm.best_policy)(state))
         return [take(best, r) for r in range(len(self.runs))]
 
-    def honest_value(self, r: int, policy) -> dict:
-        """Run ``r``'s honest value (``honest_value``), compiled once per env params."""
+    def final_value(self, r: int, policy) -> dict:
+        """Run ``r``'s honest value (``final_value``), compiled once per env params."""
         params = self.run_params[r]
         found = [fn for env, fn in self._evaluations if same_tree(env, params.env)]
         if not found:
             config = self.runs[r].config
-            found = [honest_value(self.algorithm, config, params, self.lanes)]
+            found = [final_value(self.algorithm, config, params, self.lanes)]
             self._evaluations.append((params.env, found[0]))
         return found[0](self.seed_keys[r], policy)
 
 
-def honest_value(algorithm, config: Config, params: SearchParams, lanes: int = 1):
+def final_value(algorithm, config: Config, params: SearchParams, lanes: int = 1):
     """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
-    evaluation (``api.honest_returns`` with ``config.evaluation``), ``params`` constants of
+    evaluation (``api.final_returns`` with ``config.evaluation``), ``params`` constants of
     the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first
     traced, kept by ``traced.compile_kept``), the mean and standard error summed in float64 on
     the host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
     held, rebuild = hoist_large(params)
-    run = honest_returns(algorithm, config.evaluation)
+    run = final_returns(algorithm, config.evaluation)
     returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
     constants = baked_constants(params)
     identity = program_identity(config, lanes=lanes)

@@ -91,6 +91,19 @@ def current_meta(meta: dict, path) -> dict:
     return meta
 
 
+def _written_fields(meta: dict, stored: dict) -> dict:
+    """``meta`` without the config fields ``stored`` (a checkpoint's meta) did not write: fields
+    added to the library since, which a resumed config holds at their defaults, and a new
+    field's default keeps the search it was added to (the library's rule for new fields)."""
+    meta = json.loads(json.dumps(meta))
+    for new, old in zip(meta.get("configs", []), stored.get("configs", [])):
+        for section, fields in new.items():
+            if isinstance(fields, dict) and isinstance(old.get(section), dict):
+                for key in [k for k in fields if k not in old[section]]:
+                    del fields[key]
+    return meta
+
+
 def _first_difference(stored: dict, current: dict) -> str:
     """What differs first between a checkpoint's meta and this group's, as words: the seeds,
     or the first config field (``section.key: stored -> now``; a field an older version did
@@ -114,9 +127,22 @@ def restore_group(program: Program, state, path: Path):
     raw = read_checkpoint(path)
     raw["meta"] = current_meta(raw["meta"], path)
     stored_meta, meta = _without_run_section(raw["meta"]), _without_run_section(_meta(program.runs))
+    meta = _written_fields(meta, stored_meta)
     if stored_meta != meta:
         raise MismatchError(f"{path} was written by another {_first_difference(stored_meta, meta)}")
-    stored = restore_key(raw, "run", program.config.run.prng_impl)
+    impl = program.config.run.prng_impl
+    stored_impl = {
+        c.get("run", {}).get("prng_impl", "threefry2x32")
+        for c in raw["meta"].get("configs", [])
+        if isinstance(c, dict)
+    }
+    if stored_impl and stored_impl != {impl}:
+        raise MismatchError(
+            f"{path}: run.prng_impl {impl!r}, but the run was started with "
+            f"{', '.join(sorted(stored_impl))}; its keys continue only with that generator "
+            "(drop the --set run.prng_impl)"
+        )
+    stored = restore_key(raw, "run", impl)
     expected = jax.random.key_data(_run_keys(program))
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
         raise MismatchError(f"{path}: stored run keys do not match the seeds")
@@ -204,13 +230,15 @@ def numeric_settings() -> dict:
 
 def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
-    ``results.json``, the pipeline's VAE and, with ``plots``, the figures
-    (``reporting.write_plots``)."""
+    ``results.json`` (with the policy file's ``policy_sha256``), the pipeline's VAE and, with
+    ``plots``, the figures (``reporting.write_plots``)."""
     if run.folder is None:
         return
     run.folder.mkdir(parents=True, exist_ok=True)
     policy_file = policy_bytes(policy, fingerprint(run.config))
     atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
+    # the file's digest: ``evaluate`` refuses a policy file replaced since (another run's)
+    record = {**record, "policy_sha256": hashlib.sha256(policy_file).hexdigest()}
     vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
     if vae is not None:
         save_vae(run.folder / VAE_FILE, vae)

@@ -51,6 +51,7 @@ from cognet_jax.config import (
     read_experiment,
     section_from_dict,
 )
+from cognet_jax.envs.base import check_simulator
 
 #: built-in simulator name -> the module that registers it
 BUILTIN_ENVS = {
@@ -338,8 +339,10 @@ def config_from_dict(data: dict) -> Config:
     )
     validate(config)
     resolve = algorithm_entry(experiment.algorithm).resolve
-    if resolve is not None:
+    if resolve is not None:  # the simulator checked before a resolve runs it (noise pilot)
         env, env_params = build_env(config)
+        builtin = is_builtin(env_entry(env_name))
+        check_simulator(env, env_params, env_name, values=not builtin)
         config = dataclasses.replace(config, algorithm=resolve(config, env, env_params))
         validate(config)
     return config

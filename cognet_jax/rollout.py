@@ -207,7 +207,7 @@ class _TimeLoop:
             actions = steps.act(u_act, policy, nodes)
         states, obs, reward = steps.env_step(u_env, states, actions, self.env_params)
         next_nodes = steps.move(u_move, policy, nodes, obs)
-        ret = ret + disc * reward
+        ret = ret + disc * reward.astype(ret.dtype)  # float32, also from float64 rewards (x64)
         out = (nodes, actions, obs, next_nodes, reward) if self.record else None
         if k_next is None:
             return ret, out

@@ -22,6 +22,8 @@ from cognet_jax.errors import UsageError
 
 #: files whose presence means the folder holds a run (single run, sweep, or a stopped one)
 RUN_FILES = ("results.json", "runs.json", "checkpoint.msgpack", "sweep.json")
+#: of those, the files (and non-empty folders) of a sweep's folder; the others are a ``train``'s
+SWEEP_FILES = ("runs.json", "sweep.json", "runs", "sweep-state")
 LOCK_NAME = ".lock"
 
 
@@ -32,23 +34,34 @@ def check_out(out: str | None) -> None:
 
 
 def held_run(out: Path) -> str | None:
-    """The first of ``RUN_FILES`` present in ``out``, or None."""
-    return next((name for name in RUN_FILES if (out / name).exists()), None)
+    """The first of ``RUN_FILES`` present in ``out`` as a file, or a sweep's folder
+    (``sweep-state/`` not empty, ``runs/`` holding ``setting*`` run folders); None when there
+    is none."""
+    found = next((n for n in RUN_FILES if (out / n).is_file()), None)
+    if found is None:
+        found = next(
+            (n for n in SWEEP_FILES if (out / n).is_dir() and any((out / n).iterdir())), None
+        )
+    return found
 
 
 @contextlib.contextmanager
-def claim(out: Path, *, resume: bool = False, overwrite: bool = False):
-    """Hold ``out`` for this process while the block runs (see the module docstring)."""
+def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str = "train"):
+    """Hold ``out`` for this process while the block runs (see the module docstring);
+    ``kind``: the command that writes it, ``"train"`` or ``"sweep"`` (a folder of the other
+    kind cannot be continued by it)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out}: exists and is not a folder")
     found = held_run(out) if out.is_dir() else None
-    found = found if found is None or (out / found).is_file() else None
     if found and not resume and not overwrite:
-        raise UsageError(
-            f"{out} already holds a run ({found}); continue it with --resume {out}, "
-            f"or replace it with --overwrite"
-        )
+        other = "sweep" if found in SWEEP_FILES else "train"
+        if other == kind:
+            advice = f"continue it with --resume {out}, or replace it with --overwrite"
+        else:
+            advice = f"`{kind}` cannot continue it: give another --out, or "
+            advice += "replace it with --overwrite"
+        raise UsageError(f"{out} already holds a run of `{other}` ({found}); {advice}")
     for name in (*RUN_FILES, "policy.msgpack"):
         if (out / name).is_dir():
             raise UsageError(f"{out / name} is a folder; the run writes a file of that name")

@@ -5,6 +5,7 @@ a finished run's config, search and best policy (``load_run``) and its honest va
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -27,7 +28,7 @@ from cognet_jax.checkpoint import (
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
 from cognet_jax.observations import VAE_FILE
-from cognet_jax.program import honest_value
+from cognet_jax.program import final_value
 from cognet_jax.records import current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,
@@ -96,8 +97,23 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
+    _check_policy_digest(run_dir / "policy.msgpack", results.get("policy_sha256"))
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
+
+
+def _check_policy_digest(path: Path, digest) -> None:
+    """Refuse a policy file other than the one its run wrote (``results.json``'s
+    ``policy_sha256``; runs saved before it have none): a file copied from another run would
+    give that run's number under this one's name."""
+    if digest is None or not path.is_file():
+        return  # read_policy names a missing file
+    if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
+        raise MismatchError(
+            f"{path}: not the policy this run wrote (its sha256 differs from results.json's "
+            "policy_sha256): it was replaced, or copied from another run; evaluate the run "
+            "folder the policy came from"
+        )
 
 
 def evaluate_run(
@@ -126,7 +142,7 @@ def evaluate_run(
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")
     seed = stored if seed is None else seed
-    evaluate = honest_value(run.algorithm, config, run.params)
+    evaluate = final_value(run.algorithm, config, run.params)
     value = evaluate(seed_key(config, seed), run.policy)
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
     return value

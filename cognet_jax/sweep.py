@@ -11,7 +11,7 @@ settings that differ in one form separate *groups*, compiled and run one after a
 Each group is run by the one driver (``driver.run_group``, which ``train`` runs with a group of
 one): run r uses exactly the keys of ``train --seed s`` (``seed -> (init, run, eval)``,
 iteration i with ``fold_in(run_key, i)``), and its honest final value is the one honest
-evaluation (``api.honest_returns``) of its best policy with its own params, compiled as
+evaluation (``api.final_returns``) of its best policy with its own params, compiled as
 ``train`` compiles it (one run after another, so ``eval_s`` grows with the runs). The search
 itself runs ``vmap``-ed, its hyper-parameters as data: the same operations on the same keys as
 the single run, which batching may round differently (equal to the last bit on tagging,

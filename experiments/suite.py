@@ -367,6 +367,26 @@ VOTE10 = [
     "algorithm.refine_tol=0.1",
     "algorithm.default_vote_scale=10",
 ]
+#: a portfolio of exploring searches: the first and every other one with the default vote at
+#: the units' scale, converging at 0.2 of the initial spread, the others as the defaults
+PORTFOLIO = [
+    "algorithm.default_vote_scale=10",
+    "algorithm.vote_alternate=true",
+    "algorithm.vote_first=true",
+    "algorithm.vote_restart_tol=0.2",
+]
+
+
+def replaced(overrides: list[str], changes: list[str]) -> list[str]:
+    """``overrides`` with the fields that ``changes`` sets replaced by them."""
+    fields = {c.split("=")[0] for c in changes}
+    return [o for o in overrides if o.split("=")[0] not in fields] + changes
+
+
+PORTFOLIO_WHAT = (
+    "candidate: exploring searches alternate, the first and every other one short with the "
+    "default vote at the units' scale"
+)
 #: the defaults' other fields on the experiments that pin the search (tagging, heatmap)
 TAG_BASE = ["algorithm.tie_structure=true", "algorithm.best_pool=4", "algorithm.refine=0.25"]
 VOTE10_WHAT = "candidate defaults: default vote at the units' scale, shorter exploring searches"
@@ -444,6 +464,61 @@ EXTRA.update(
             f"1/64 of the paper's 3e11 agent-steps, {VOTE10_WHAT}",
             None,
         ),
+        **{
+            f"tagging-thesis-n3-vote10-{label}-16seeds": (
+                "tagging-thesis-n3",
+                [*TAG_BASE, *replaced(VOTE10, changes)],
+                16,
+                f"{VOTE10_WHAT}, {what}",
+                None,
+            )
+            for label, changes, what in (
+                (
+                    "refinetol0.2",
+                    ["algorithm.refine_tol=0.2"],
+                    "the refine phase converging at the default 0.2 of its own spread",
+                ),
+                (
+                    "refinetol0.4",
+                    ["algorithm.refine_tol=0.4"],
+                    "the refine phase converging at 0.4 of its own spread",
+                ),
+                (
+                    "refine0.4",
+                    ["algorithm.refine_tol=0.2", "algorithm.refine=0.4"],
+                    "a refine phase of 0.4 of the iterations converging at 0.2 of its spread",
+                ),
+            )
+        },
+        **{
+            name: (
+                experiment,
+                [*base, *replaced(PORTFOLIO, extra)],
+                seeds,
+                PORTFOLIO_WHAT + what,
+                None,
+            )
+            for name, experiment, base, extra, seeds, what in (
+                ("tagging-thesis-n3-portfolio-16seeds", "tagging-thesis-n3", NEW, [], 16, ""),
+                (
+                    "tagging-thesis-n3-portfolio-v0.1-16seeds",
+                    "tagging-thesis-n3",
+                    NEW,
+                    ["algorithm.vote_restart_tol=0.1"],
+                    16,
+                    ", those searches until 0.1",
+                ),
+                (
+                    "tagging-thesis-n3-portfolio-late-16seeds",
+                    "tagging-thesis-n3",
+                    NEW,
+                    ["algorithm.vote_first=false"],
+                    16,
+                    ", the first search at scale 1",
+                ),
+                ("beacon-portfolio", "beacon-n5", [], [], SEEDS, ""),
+            )
+        },
         **{
             f"{row}-restart{tol}": (
                 experiment,

@@ -197,3 +197,20 @@ def test_a_checkpoint_of_another_config_names_the_field_that_differs():
     new = {"runs": [[0, 1]], "configs": [{"algorithm": {"nodes": 3, "best_pool": 4}}]}
     assert _first_difference(old, new) == "config (algorithm.best_pool: not written there, 4 now)"
     assert _first_difference({**old, "runs": [[0, 2]]}, new) == "group of seeds and settings"
+
+
+def test_a_field_added_since_the_checkpoint_does_not_block_its_resume():
+    """A field the checkpoint's config did not write (added to the library since; the resumed
+    config holds its default) is not a difference; a field it wrote with another value is."""
+    from cognet_jax.records import _first_difference, _written_fields
+
+    old = {"runs": [[0, 1]], "configs": [{"algorithm": {"nodes": 3}, "env": {"noise": 0.1}}]}
+    new = {
+        "runs": [[0, 1]],
+        "configs": [{"algorithm": {"nodes": 3, "tied_vote_scale": 1.0}, "env": {"noise": 0.1}}],
+    }
+    assert _written_fields(new, old) == old
+    changed = {"runs": [[0, 1]], "configs": [{"algorithm": {"nodes": 4}, "env": {"noise": 0.1}}]}
+    kept = _written_fields(changed, old)
+    assert kept != old
+    assert _first_difference(old, kept) == "config (algorithm.nodes: 3 there, 4 now)"

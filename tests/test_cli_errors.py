@@ -1,6 +1,7 @@
 """Bad input through the CLI: every case prints one line ``error: ...`` naming the field or the
 file, exits with status 2, and shows no traceback (``--debug`` shows it)."""
 
+import json
 import shutil
 
 import pytest
@@ -212,4 +213,7 @@ def test_policy_file_checksum_version_and_old_format(capsys, run_dir, tmp_path):
     policy.write_bytes(serialization.msgpack_serialize({**raw, "version": 9}))
     one_line_error(capsys, ["evaluate", str(copy)], "version 9")
     policy.write_bytes(raw["policy"])  # written before the header existed: still read
+    results = json.loads((copy / "results.json").read_text())
+    del results["policy_sha256"]  # nor did its results.json hold the file's digest
+    (copy / "results.json").write_text(json.dumps(results))
     assert main(["evaluate", str(copy), "--rollouts", "100"]) == 0

@@ -351,12 +351,14 @@ def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it
     assert config_from_dict(data).algorithm.paired_best
 
 
-@pytest.mark.parametrize("standardize", [False, True])
+@pytest.mark.parametrize("standardize", [False, True, "tied-votes"])
 def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standardize):
     """The refine phase's distribution around a policy (``centered_distribution``): its mode
     runs exactly the policy (tied and untied draws, raw and standardised inputs), and its
     spreads are ``refine_scale`` of the initial ones."""
-    if standardize:
+    if standardize == "tied-votes":  # tied candidates' default votes x 10
+        alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0)
+    elif standardize:
         alg = heatmap_algorithm(standardize_inputs=True, hidden=5, refine_scale=0.2)
     else:
         alg, _ = small_algorithm(refine_scale=0.2)
@@ -460,3 +462,39 @@ def test_alternating_searches_switch_the_default_vote_scale_at_each_fresh_start(
     assert means[1] == 50.0 and means[3] == 5.0  # fresh after iterations 2 and 4
     plain, _ = small_algorithm(default_vote_scale=10.0)
     assert plain.init(jax.random.key(0), params).searches is None
+
+
+def test_vote_first_and_the_voting_searches_own_restart_tolerance():
+    """``vote_first``: search 0 draws at ``default_vote_scale``; ``vote_restart_tol``: a
+    distribution shrunk to 0.3 of its spread has converged in a search at that scale (0.5) and
+    not in one at scale 1 (``restart_tol`` 0.1)."""
+    alg, params = small_algorithm(
+        default_vote_scale=10.0,
+        vote_alternate=True,
+        vote_first=True,
+        restart_tol=0.1,
+        vote_restart_tol=0.5,
+    )
+    state = alg.init(jax.random.key(0), params)
+    assert np.allclose(np.asarray(state.distribution.bias_mean), 50.0)
+    shrunk = alg.init_distribution().replace(w1_std=alg.init_distribution().w1_std * 0.3)
+    refining = jnp.bool_(False)
+    assert bool(alg.converged(shrunk, refining, jnp.int32(0)))  # search 0: at scale 10
+    assert not bool(alg.converged(shrunk, refining, jnp.int32(1)))  # search 1: at scale 1
+    step = jax.jit(alg.step)
+    after, metrics = step(jax.random.key(1), state.replace(distribution=shrunk), params)
+    assert bool(metrics.injected) and int(after.searches) == 1
+    assert np.allclose(np.asarray(after.distribution.bias_mean), 5.0)  # search 1 at scale 1
+
+
+def test_tied_candidates_default_votes_are_scaled_and_the_others_not():
+    """``tied_vote_scale``: a candidate agent whose nodes are tied runs its default vote times
+    the factor; an untied one runs the drawn vote."""
+    alg, _ = small_algorithm(tied_vote_scale=10.0)
+    samples = alg.draw(jax.random.key(5), alg.init_distribution(), 64)
+    policies = alg.to_policy(samples)
+    votes = np.asarray(policies.net_params["params"]["Dense_1"]["bias"]).sum(-1)  # [C, agents, Q]
+    tied = np.asarray(samples.node_tie)[..., None] == 1
+    factor = np.where(tied, 10.0, 1.0)
+    np.testing.assert_allclose(votes, np.asarray(samples.bias) * factor, rtol=1e-6)
+    assert tied.any() and (~tied).any()

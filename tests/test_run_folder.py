@@ -237,3 +237,39 @@ def test_a_broken_user_step_is_the_simulators_error(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "internal error" not in err[0], err
     assert "broken-beacon-test" in err[0] and expected in err[0], err[0]
+
+
+def test_a_folder_of_the_other_command_is_refused_with_advice_that_works(tmp_path):
+    """``train`` into a sweep's folder (or a sweep into a ``train``'s) is not told to
+    ``--resume`` it, which the other command cannot; a sweep's ``runs/`` alone holds runs."""
+    sweep = tmp_path / "sweep"
+    (sweep / "runs" / "setting0-seed0").mkdir(parents=True)
+    (sweep / "runs" / "setting0-seed0" / "results.json").write_text("{}")
+    with pytest.raises(UsageError, match="run of `sweep` \\(runs\\); `train` cannot continue"):
+        with claim(sweep):
+            pass
+    with pytest.raises(UsageError, match="continue it with --resume"):
+        with claim(sweep, kind="sweep"):
+            pass
+    single = tmp_path / "single"
+    single.mkdir()
+    (single / "results.json").write_text("{}")
+    with pytest.raises(UsageError, match="`sweep` cannot continue it"):
+        with claim(single, kind="sweep"):
+            pass
+    (tmp_path / "plain" / "runs").mkdir(parents=True)  # a folder merely named runs: free
+    with claim(tmp_path / "plain"):
+        pass
+
+
+def test_a_policy_copied_from_another_run_is_refused(tmp_path, capsys):
+    """Two seeds of the same config: the second's policy file copied into the first's folder
+    must not be evaluated as the first's (results.json's ``policy_sha256``)."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert cli.main(["train", "--out", str(a), *TINY_TRAIN]) == 0
+    assert cli.main(["train", "--out", str(b), "--seed", "1", *TINY_TRAIN]) == 0
+    assert json.loads((a / "results.json").read_text())["policy_sha256"]
+    (a / "policy.msgpack").write_bytes((b / "policy.msgpack").read_bytes())
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(a)]) == 2
+    assert "not the policy this run wrote" in capsys.readouterr().err

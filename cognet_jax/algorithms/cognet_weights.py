@@ -286,7 +286,10 @@ class CognetWeights(Search):
             b1 = b1 - jnp.sum(shift * w1, axis=-2)
             w1 = w1 / scale
         w2 = sample.m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
-        b2 = sample.bias[..., None] * jax.nn.one_hot(sample.default, q, dtype=jnp.float32)
+        bias = sample.bias
+        if self.settings.tied_vote_scale != 1.0:  # else the same numbers as without the field
+            bias = bias * self.tied_scale(sample.node_tie)
+        b2 = bias[..., None] * jax.nn.one_hot(sample.default, q, dtype=jnp.float32)
         params = {
             "params": {
                 "Dense_0": {"kernel": w1, "bias": b1},
@@ -297,6 +300,12 @@ class CognetWeights(Search):
             action_probs=jax.nn.one_hot(sample.actions, na, dtype=jnp.float32),
             net_params=params,
         )
+
+    def tied_scale(self, node_tie: jax.Array) -> jax.Array:
+        """``[..., agents, 1]``: the factor of each agent's default votes, ``tied_vote_scale``
+        where its nodes are tied (``node_tie [..., agents]`` 1), else 1."""
+        s = jnp.float32(self.settings.tied_vote_scale)
+        return jnp.where(node_tie == 1, s, jnp.float32(1.0))[..., None]
 
     def update_distribution(
         self, dist: WeightDistribution, elites: WeightSample, hyper: WeightsHyper
@@ -330,12 +339,18 @@ class CognetWeights(Search):
 
     def search_distribution(self, searches) -> WeightDistribution:
         """The initial distribution of exploring search number ``searches`` (``[]`` int32, or
-        ``None``): with ``vote_alternate`` the odd ones draw default votes at
-        ``default_vote_scale`` and the even ones at 1."""
+        ``None``): with ``vote_alternate`` every other one draws default votes at
+        ``default_vote_scale`` (``voting_search``) and the others at 1."""
         if searches is None:
             return self.init_distribution()
-        scale = jnp.where(searches % 2 == 1, self.settings.default_vote_scale, 1.0)
+        scale = jnp.where(self.voting_search(searches), self.settings.default_vote_scale, 1.0)
         return self.init_distribution(scale)
+
+    def voting_search(self, searches) -> jax.Array:
+        """Whether exploring search number ``searches`` (``[]`` int32) draws its default votes
+        at ``default_vote_scale`` (``vote_alternate``): the odd ones, or the even ones with
+        ``vote_first``."""
+        return (searches % 2 == 1) != self.settings.vote_first
 
     @property
     def rollouts_per_iteration(self) -> int:
@@ -404,7 +419,7 @@ class CognetWeights(Search):
             best_policy = pool.member(pool.best())
             progress = progress.replace(best_value=pool.means()[pool.best()])
         start = refine_start(s)
-        converged = self.converged(dist, progress.iteration > start)
+        converged = self.converged(dist, progress.iteration > start, state.searches)
         metrics = WeightsMetrics(
             value=value,
             best_value=progress.best_value,
@@ -449,6 +464,8 @@ class CognetWeights(Search):
             layers["Dense_1"]["bias"],
             policy.action_probs,
         )
+        if s.tied_vote_scale != 1.0:  # the draws of its default votes, before the factor
+            sample = sample.replace(bias=sample.bias / self.tied_scale(sample.node_tie))
         return centered(
             sample,
             self.init_distribution(),
@@ -458,14 +475,18 @@ class CognetWeights(Search):
             self._agents_can_tie,
         )
 
-    def converged(self, dist: WeightDistribution, refining: jax.Array) -> jax.Array:
+    def converged(self, dist: WeightDistribution, refining: jax.Array, searches=None):
         """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
-        spread, or in the refine phase (``refining``, ``[]`` bool) below ``refine_tol`` of the
-        spread it started from (``refine_scale`` of the initial one); mean over agents, nodes
-        and weights."""
+        spread (``vote_restart_tol`` in a search at ``default_vote_scale`` when set; the
+        search's number ``searches``, ``[]`` int32, or ``None``), or in the refine phase
+        (``refining``, ``[]`` bool) below ``refine_tol`` of the spread it started from
+        (``refine_scale`` of the initial one); mean over agents, nodes and weights."""
         s = self.settings
         initial = s.init_scale / math.sqrt(self.controller.in_features)
-        tol = jnp.where(refining, s.refine_tol * s.refine_scale, s.restart_tol)
+        tol = jnp.float32(s.restart_tol)
+        if searches is not None and s.vote_restart_tol > 0:
+            tol = jnp.where(self.voting_search(searches), s.vote_restart_tol, tol)
+        tol = jnp.where(refining, s.refine_tol * s.refine_scale, tol)
         return jnp.mean(dist.w1_std) < tol * initial
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:

@@ -32,10 +32,12 @@ class CognetWeightsSection:
     ``best_rollouts`` fresh rollouts for the anytime best. ``init_scale``: initial std of the
     hidden layer (``init_scale / sqrt(inputs)`` for the weights); ``vote_mean`` /
     ``vote_std``: initial Gaussian of the output votes (the default vote's scaled by
-    ``default_vote_scale``; with ``vote_alternate`` in every other exploring search only,
-    the first at 1); ``standardize_inputs``: search over a
-    network that reads each input feature standardised by its mean and standard deviation under
-    the random controller; ``paired_best``: the best policy so far is re-evaluated on the
+    ``default_vote_scale``; with ``vote_alternate`` in every other exploring search only, the
+    first at 1, or at ``default_vote_scale`` with ``vote_first``; those searches converge at
+    ``vote_restart_tol``, 0: ``restart_tol``); ``tied_vote_scale`` multiplies the default vote
+    of candidates whose nodes are tied (reactive controllers); ``standardize_inputs``: search
+    over a network that reads each input feature standardised by its mean and standard deviation
+    under the random controller; ``paired_best``: the best policy so far is re-evaluated on the
     challengers' fresh rollouts and replaced only when a challenger beats it there;
     ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
     ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol`` and
@@ -58,6 +60,9 @@ class CognetWeightsSection:
     vote_std: float = 5.0
     default_vote_scale: float = 1.0
     vote_alternate: bool = False
+    vote_first: bool = False
+    vote_restart_tol: float = 0.0
+    tied_vote_scale: float = 1.0
     standardize_inputs: bool = False
     paired_best: bool = False
     best_pool: int = 4
@@ -80,7 +85,13 @@ class CognetWeightsSection:
             f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
         )
         require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
-        for name in ("init_scale", "vote_mean", "vote_std", "default_vote_scale"):
+        for name in (
+            "init_scale",
+            "vote_mean",
+            "vote_std",
+            "default_vote_scale",
+            "tied_vote_scale",
+        ):
             v = getattr(self, name)
             require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
@@ -94,6 +105,11 @@ class CognetWeightsSection:
         )
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        require(
+            0 <= self.vote_restart_tol < 1,
+            "algorithm.vote_restart_tol",
+            f"in [0, 1) (0: restart_tol), got {self.vote_restart_tol}",
+        )
         require(
             0 <= self.refine_tol < 1, "algorithm.refine_tol", f"in [0, 1), got {self.refine_tol}"
         )

@@ -35,7 +35,7 @@ selected on.
   fresh rollouts (the anytime best; the thesis COGNet-DICE falls back to ``eval_rollouts`` when
   it is 0); ``tell(..., fresh_value=fn)`` replaces it by your ``fn(key, policy)``;
 * ``returns(key, policy, num, params, batch) -> [num]``: the returns of ``num`` rollouts of
-  one policy (the honest evaluation, ``api.honest_returns``, draws these from the seed's
+  one policy (the honest evaluation, ``api.final_returns``, draws these from the seed's
   evaluation key).
 
 **The threshold engine** (``ThresholdSearch``, G-DICE and COG-DICE): ``tell`` keeps the elites

@@ -26,7 +26,10 @@ from cognet_jax.envs.base import UNROLLED_CATEGORIES, categorical_from_columns
 
 #: Node nets with at most this many inputs and hidden units are evaluated as unrolled scalar
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
-UNROLL_MAX_IN = 8
+#: Written out, the plume's 9-input networks ran a search iteration 3x faster than with ``dot``
+#: and the heatmap's 16-input ones 2x (benchmarks/NOTES.md, "Written-out networks up to 12
+#: inputs"); 12 keeps the heatmap's committed rows, made with ``dot``, bit for bit.
+UNROLL_MAX_IN = 12
 UNROLL_MAX_HIDDEN = 32
 #: Small node nets of controllers with at least this many nodes are applied in one fused loop
 #: (``NeuralController.unrolled_agent_logits``); fewer nodes use a ``lax.scan`` over the nodes.

@@ -110,13 +110,14 @@ def scaled_normal(scale: jax.Array | float, u: jax.Array) -> jax.Array:
     Otherwise ``lax.cond`` on the scalar ``scale``: with an unbatched ``scale`` only one branch
     runs; under ``vmap`` over a batched ``scale`` both run and the result is selected. The value is
     the same every way (``0 * x = 0`` for the finite ``x`` this returns)."""
+    dtype = jnp.result_type(jnp.float32, u.dtype)  # float32, or float64 uniforms under x64
     if not isinstance(scale, jax.core.Tracer) and not np.any(scale):  # a constant zero
-        return jnp.zeros(u.shape, jnp.float32)
+        return jnp.zeros(u.shape, dtype)
     scale = jnp.asarray(scale, jnp.float32)
     return jax.lax.cond(
         scale == 0.0,
-        lambda: jnp.zeros(u.shape, jnp.float32),
-        lambda: scale * normal_from_uniform(u),
+        lambda: jnp.zeros(u.shape, dtype),
+        lambda: (scale * normal_from_uniform(u)).astype(dtype),
     )
 
 
@@ -189,7 +190,11 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     reward that is not one number, a state whose arrays change shape or dtype in a step; with
     ``values``, also NaN or infinite observations and rewards (``_check_values``, computed: a
     second or two of tracing and dispatch, spent on simulators outside the package only)."""
+    key = (id(env), id(env_params), values)
+    if key in _CHECKED:  # the same objects, checked already (a config's load, then its build)
+        return
     owner = f"simulator {name!r} ({type(env).__module__}.{type(env).__name__})"
+    _check_sizes(env, owner)
     u_reset = jax.ShapeDtypeStruct((env.reset_noise,), jnp.float32)
     u_step = jax.ShapeDtypeStruct((env.step_noise,), jnp.float32)
     actions = jax.ShapeDtypeStruct((env.num_agents,), jnp.int32)
@@ -249,6 +254,37 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
         )
     if values:
         _check_values(env, env_params, owner)
+    _CHECKED[key] = (env, env_params)  # held, so the ids stay theirs
+
+
+#: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
+_CHECKED: dict = {}
+#: the longest horizon a simulator may declare: beyond it one rollout is already millions of
+#: steps, and the search's first measurement (``noise_pilot``) alone would run for hours
+MAX_HORIZON = 1_000_000
+
+
+def _check_sizes(env, owner: str) -> None:
+    """Refuse declared sizes no search can run with: a horizon that is not an integer in
+    ``1 .. MAX_HORIZON``, action counts that are not one positive integer per agent, or a
+    ``num_actions`` other than the largest of them (the policies' action tables are that wide:
+    a larger count would never be drawn)."""
+    horizon = env.horizon
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
+        raise SimulatorError(f"{owner}: horizon must be an integer, got {horizon!r}")
+    if not 1 <= horizon <= MAX_HORIZON:
+        raise SimulatorError(f"{owner}: horizon must be in 1 .. {MAX_HORIZON}, got {horizon}")
+    counts = tuple(env.action_counts)
+    if len(counts) != env.num_agents or any(int(c) < 1 for c in counts):
+        raise SimulatorError(
+            f"{owner}: action_counts {counts} must give a positive count for each of the "
+            f"{env.num_agents} agents"
+        )
+    if env.num_actions != max(counts):
+        raise SimulatorError(
+            f"{owner}: num_actions is {env.num_actions} but action_counts {counts} allow up to "
+            f"{max(counts)}; num_actions must be the largest action count"
+        )
 
 
 #: primitives that call Python from inside a compiled program; the first two only for output
