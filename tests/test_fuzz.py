@@ -26,6 +26,7 @@ COUNTS = {
     "folders": 48,
     "check-train": 100,
     "modules": 60,
+    "simulators": 9,
     "cache": 30,
     "writers": 8,
 }
@@ -343,6 +344,45 @@ def test_failing_user_modules(capsys, tmp_path, monkeypatch):
             assert module.name in err[0], (err, fault)
             refused += 1
     assert refused >= COUNTS["modules"] // 2, refused
+
+
+# ------------------------------------------------------------------------------- user simulators
+#: edits of the README's simulator (experiments/readme_seek.py) that break what it declares or
+#: returns: ``(text, replacement, what the refusal names)``
+SIMULATOR_FAULTS = [
+    ("horizon: int = 20", "horizon: int = 0", "horizon"),
+    ("horizon: int = 20", "horizon: int = -5", "horizon"),
+    ("horizon: int = 20", "horizon: int = 20.5", "horizon"),
+    ("horizon: int = 20", "horizon: int = 10**9", "horizon"),
+    ("num_actions: int = 3", "num_actions: int = 2", "num_actions"),
+    ("action_counts: tuple = (3, 3)", "action_counts: tuple = (3,)", "action_counts"),
+    ("return state.at[:2].set(pos), obs, reward", "return state.at[:2].set(pos), obs", "return"),
+    (
+        "return state.at[:2].set(pos), obs, reward",
+        "return state.at[:2].set(pos), obs, obs",
+        "reward",
+    ),
+    ("obs_shape: tuple = ()", "obs_shape: tuple = (2,)", "observation"),
+]
+
+
+def test_broken_user_simulators_are_named_before_anything_runs(capsys, tmp_path):
+    """``check`` with the defaults (whose noise pilot runs the simulator to size the search)
+    on simulators whose sizes or returns are wrong: one line naming the simulator and what is
+    wrong, exit 2, before the pilot runs it."""
+    source = (Path(__file__).parents[1] / "experiments" / "readme_seek.py").read_text()
+    for k in range(COUNTS["simulators"]):
+        old, new, named = SIMULATOR_FAULTS[k % len(SIMULATOR_FAULTS)]
+        assert old in source
+        module = tmp_path / f"user_sim_{k}.py"
+        text = source.replace(old, new).replace('register_env("seek"', f'register_env("seek{k}"')
+        module.write_text(text)
+        toml = tmp_path / f"seek{k}.toml"
+        toml.write_text(f'[experiment]\nalgorithm = "cognet-dice"\n[env]\nname = "seek{k}"\n')
+        argv = ["--import", str(module), "check", str(toml)]
+        code, err = _outcome(capsys, argv)
+        _clean(code, err, argv)
+        assert code == 2 and f"seek{k}" in err[0] and named in err[0], (new, err)
 
 
 # ------------------------------------------------------------------------------- kept programs

@@ -109,3 +109,23 @@ def test_a_loaded_config_is_sized_from_one_pilot_whatever_the_budget(monkeypatch
     assert isinstance(first.eval_rollouts, int) and isinstance(second.eval_rollouts, int)
     load_config("hearing-tiger-noisy-n7")
     assert len(calls) == 2  # another simulator: measured again
+
+
+def test_a_budget_in_minutes_becomes_agent_steps_at_the_measured_rate(monkeypatch):
+    """``budget_minutes``: the resolved config holds the agent-steps the minutes are at the
+    pilot's rate (so a saved run repeats its sizes), twice the minutes twice the budget; with
+    ``budget`` also set it is refused, naming the field."""
+    from cognet_jax.algorithms import noise_pilot
+    from cognet_jax.config import ConfigError
+    from cognet_jax.registry import load_config
+
+    monkeypatch.setattr(noise_pilot, "_MEASURED", {})
+    one = load_config("hearing-tiger-n7", ["algorithm.budget_minutes=0.5"]).algorithm
+    rate = next(iter(noise_pilot._MEASURED.values())).rate
+    assert one.budget_minutes == 0.0 and one.budget == pytest.approx(rate * 30.0, rel=0.01)
+    two = load_config("hearing-tiger-n7", ["algorithm.budget_minutes=1"]).algorithm
+    assert two.budget == pytest.approx(2 * one.budget, rel=0.01)
+    assert isinstance(one.iterations, int) and isinstance(one.eval_rollouts, int)
+    with pytest.raises(ConfigError) as err:
+        load_config("hearing-tiger-n7", ["algorithm.budget_minutes=1", "algorithm.budget=1e9"])
+    assert err.value.field == "algorithm.budget_minutes"

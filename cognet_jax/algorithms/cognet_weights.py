@@ -38,7 +38,12 @@ hand-written controller's stop region (8 seeds: 27.96 against 26.50 at 1, with
 seeds: 21.55 against 22.55 under the defaults); 1 stays the default until a rule holds on both
 (experiments/README.md, suite). ``vote_alternate`` alternates the exploring searches between
 scale 1 (the first) and ``default_vote_scale``: tagging n3 as the defaults (22.55), beacon
-26.51 (not adopted either).
+26.51 (not adopted either). ``vote_first`` starts with a search at ``default_vote_scale`` and
+``vote_restart_tol`` ends those searches at their own tolerance (a portfolio of short searches
+at the units' scale and long ones at 1: tagging n3 22.36 over 16 seeds, beacon 26.55, not
+adopted); ``tied_vote_scale`` scales the default vote of tied (reactive) candidates only: a
+reactive controller's "none of the units fires strongly" region is the one a stop needs, while
+routing between nodes with memory keeps scale 1 (experiments/README.md, suite: every row).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
@@ -515,19 +520,39 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     """``config.algorithm`` with its "auto" sizes filled in (``sizing.sized``). When
     ``eval_rollouts`` is "auto", the sizes read the simulator's noise under the initial
     distribution (``noise_pilot``, measured once per simulator and distribution in a process),
-    so rollouts per candidate follow what tells candidates apart on this simulator."""
+    so rollouts per candidate follow what tells candidates apart on this simulator. With
+    ``budget_minutes`` the budget is those minutes at the pilot's measured rate
+    (``minutes_to_budget``)."""
     section = config.algorithm
-    if section.eval_rollouts != "auto":
+    minutes = section.budget_minutes > 0
+    if section.eval_rollouts != "auto" and not minutes:
         return sized(section, env)
     shown = {
-        k: v for k, v in dataclasses.asdict(section).items() if k not in (*SIZE_FIELDS, "budget")
+        k: v
+        for k, v in dataclasses.asdict(section).items()
+        if k not in (*SIZE_FIELDS, "budget", "budget_minutes")
     }
     network = dataclasses.asdict(config.network) if config.network is not None else None
     noise = measure_noise_cached(
         [env_description(config), shown, network],
         lambda: (build(config, env, env_params), env_params),
     )
-    return sized(section, env, noise)
+    if minutes:
+        section = minutes_to_budget(section, noise)
+    return sized(section, env, noise if section.eval_rollouts == "auto" else None)
+
+
+def minutes_to_budget(section, noise) -> CognetWeightsSection:
+    """``section`` with ``budget_minutes`` turned into ``budget`` agent-steps at the noise
+    pilot's measured rate (``Noise.rate``, a lower bound on a search's: the search's larger
+    batches run faster, while its compile, the fresh evaluations of the anytime best and the
+    final evaluation are not counted), and ``budget_minutes`` 0. **[choice]** The resolved
+    config then holds agent-steps, so results.json, ``evaluate`` and ``--resume`` repeat the
+    same sizes; the same minutes on another machine, or under load, give other sizes."""
+    if not math.isfinite(noise.rate) or noise.rate <= 0:
+        raise ValueError(f"the noise pilot measured no rate ({noise.rate})")
+    budget = float(f"{noise.rate * 60.0 * section.budget_minutes:.3g}")
+    return dataclasses.replace(section, budget=max(1.0, budget), budget_minutes=0.0)
 
 
 def hyper(config) -> WeightsHyper:

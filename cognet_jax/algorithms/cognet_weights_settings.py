@@ -50,6 +50,7 @@ class CognetWeightsSection:
     eval_rollouts: int | Literal["auto"] = "auto"
     elites: int | Literal["auto"] = "auto"
     budget: float | Literal["auto"] = "auto"
+    budget_minutes: float = 0.0
     alpha: float = 0.3
     action_floor: float = 0.02
     category_floor: float = 0.02
@@ -83,6 +84,16 @@ class CognetWeightsSection:
             self.budget == "auto" or 1 <= self.budget <= 1e16,
             "algorithm.budget",
             f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
+        )
+        require(
+            0 <= self.budget_minutes <= 1e5,
+            "algorithm.budget_minutes",
+            f"wall minutes of search, in 0 (off) .. 1e5, got {self.budget_minutes}",
+        )
+        require(
+            self.budget_minutes == 0 or self.budget == "auto",
+            "algorithm.budget_minutes",
+            "give the budget in agent-steps (algorithm.budget) or in minutes, not both",
         )
         require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
         for name in (

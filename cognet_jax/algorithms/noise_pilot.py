@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import time
 
 import jax
 import numpy as np
@@ -38,6 +39,9 @@ class Noise:
 
     within: float
     between: float
+    #: agent-steps per second of the pilot's rollouts (a second, timed call of its compiled
+    #: program): a lower bound on a search's rate, whose iterations roll out larger batches
+    rate: float = math.nan
 
     def rollouts_to_resolve(self, resolution: float) -> float:
         """Rollouts that make a candidate's standard error ``between / resolution``:
@@ -75,7 +79,13 @@ def measure_noise(algorithm, env_params) -> Noise:
             algorithm.env, algorithm.controller, rollout_key, PILOT_ROLLOUTS, env_params, policy
         )
 
-    return noise_of_returns(np.asarray(jax.jit(jax.vmap(returns))(policies)))
+    program = jax.jit(jax.vmap(returns))
+    measured = noise_of_returns(np.asarray(program(policies)))
+    start = time.perf_counter()
+    jax.block_until_ready(program(policies))
+    steps = PILOT_CANDIDATES * PILOT_ROLLOUTS * algorithm.env.horizon * algorithm.env.num_agents
+    rate = steps / max(time.perf_counter() - start, 1e-9)
+    return dataclasses.replace(measured, rate=rate)
 
 
 #: called with one line before a measurement: the command line prints it (a measurement with
