@@ -23,6 +23,7 @@ from flax import struct
 
 from cognet_jax.controllers.base import sample_categorical, uniform_distribution
 from cognet_jax.envs.base import UNROLLED_CATEGORIES, categorical_from_columns
+from cognet_jax.errors import SimulatorError
 
 #: Node nets with at most this many inputs and hidden units are evaluated as unrolled scalar
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
@@ -154,11 +155,13 @@ class NeuralController:
         return _written_out_mlp(member_params["params"], obs)
 
     def check_inputs(self, obs: jax.Array) -> None:
-        """Refuse an observation with another number of inputs than the networks read."""
+        """Refuse an observation with another number of inputs than the networks read (a
+        simulator whose observations change shape between steps: ``SimulatorError``)."""
         if math.prod(obs.shape) != self.in_features:
-            raise ValueError(
-                f"node network reads {self.in_features} inputs, got an observation of shape "
-                f"{tuple(obs.shape)}"
+            raise SimulatorError(
+                f"the simulator's observation has shape {tuple(obs.shape)} per agent at a step "
+                f"where the node networks read {self.in_features} inputs (its obs_shape "
+                f"{self.obs_shape}): a step must return the same shapes every time"
             )
 
     def node_logits(self, net_params: dict, nodes: jax.Array, obs: jax.Array) -> jax.Array:

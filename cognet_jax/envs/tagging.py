@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.config import require_discount, require_nonnegative, require_positive
+from cognet_jax.config import require, require_discount, require_nonnegative, require_positive
 from cognet_jax.envs.base import scaled_normal, sum_last
 from cognet_jax.registry import algorithm_entry, register_env
 
@@ -224,6 +224,12 @@ class TaggingSection:
         require_positive(self, "env", "horizon")
         require_discount(self.discount, "env.discount")
         require_nonnegative(self, "env", "motion_noise", "obs_noise", "obs_division")
+        require(
+            self.obs_division > 0 or not algorithm_entry(config.experiment.algorithm).discrete,
+            "env.obs_division",
+            f"{config.experiment.algorithm} needs discrete observations: give the division "
+            "(> 0) that cuts the signed distance into intervals",
+        )
 
 
 def build_from_section(section: TaggingSection, config) -> tuple[Tagging, TaggingParams]:
