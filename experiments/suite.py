@@ -387,6 +387,10 @@ PORTFOLIO_WHAT = (
     "candidate: exploring searches alternate, the first and every other one short with the "
     "default vote at the units' scale"
 )
+TIED_WHAT = (
+    "candidate: the default vote of tied (reactive) candidates at the units' scale "
+    "(tied_vote_scale 10), the others' at 1"
+)
 #: the defaults' other fields on the experiments that pin the search (tagging, heatmap)
 TAG_BASE = ["algorithm.tie_structure=true", "algorithm.best_pool=4", "algorithm.refine=0.25"]
 VOTE10_WHAT = "candidate defaults: default vote at the units' scale, shorter exploring searches"
@@ -517,6 +521,36 @@ EXTRA.update(
                     ", the first search at scale 1",
                 ),
                 ("beacon-portfolio", "beacon-n5", [], [], SEEDS, ""),
+            )
+        },
+        **{
+            name: (experiment, [*base, "algorithm.tied_vote_scale=10", *extra], seeds, what, None)
+            for name, experiment, base, extra, seeds, what in (
+                (
+                    "tagging-thesis-n3-tiedvote10-16seeds",
+                    "tagging-thesis-n3",
+                    NEW,
+                    [],
+                    16,
+                    TIED_WHAT,
+                ),
+                (
+                    "tagging-thesis-n3-tiedvote10-restart0.1-16seeds",
+                    "tagging-thesis-n3",
+                    TAG_BASE,
+                    ["algorithm.restart_tol=0.1"],
+                    16,
+                    f"{TIED_WHAT}, exploring searches until 0.1 of the initial spread",
+                ),
+                ("beacon-tiedvote10", "beacon-n5", [], [], SEEDS, TIED_WHAT),
+                (
+                    "beacon-tiedvote10-restart0.1",
+                    "beacon-n5",
+                    [],
+                    ["algorithm.restart_tol=0.1"],
+                    SEEDS,
+                    f"{TIED_WHAT}, exploring searches until 0.1 of the initial spread",
+                ),
             )
         },
         **{

@@ -12,6 +12,7 @@ from cognet_jax.algorithms.cognet_weights import (
     WeightsHyper,
     WeightsSettings,
     input_statistics,
+    narrow_inputs,
 )
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.algorithms.weight_space import WeightSample
@@ -20,12 +21,13 @@ from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
 from cognet_jax.registry import load_config
 
+SMALL_SIZES = {"iterations": 2, "candidates": 8, "eval_rollouts": 16, "elites": 4}
+
 
 def small_algorithm(**kw):
     """``(algorithm, params)``: the weight search on thesis tagging with small sizes."""
     env, env_params = make_tagging("thesis")
-    sizes = {"nodes": 3, "iterations": 2, "candidates": 8, "eval_rollouts": 16, "elites": 4}
-    settings = WeightsSettings(**{**sizes, **kw})
+    settings = WeightsSettings(**{"nodes": 3, **SMALL_SIZES, **kw})
     return CognetWeights(env, settings), SearchParams(env_params, WeightsHyper())
 
 
@@ -498,3 +500,15 @@ def test_tied_candidates_default_votes_are_scaled_and_the_others_not():
     factor = np.where(tied, 10.0, 1.0)
     np.testing.assert_allclose(votes, np.asarray(samples.bias) * factor, rtol=1e-6)
     assert tied.any() and (~tied).any()
+
+
+def test_auto_standardisation_turns_on_for_narrow_inputs_only():
+    """``standardize_inputs = "auto"``: the plume's 3 x 3 patch (pixels spread about 0.25)
+    is standardised, tagging's signed distance (spread about 5) is not; the resolved config
+    holds the decision."""
+    sizes = [f"algorithm.{k}={v}" for k, v in SMALL_SIZES.items()]
+    auto = ['algorithm.standardize_inputs="auto"', *sizes]
+    assert load_config("plume-n5", auto).algorithm.standardize_inputs is True
+    assert load_config("tagging-thesis-n3", auto).algorithm.standardize_inputs is False
+    mean, scale = jnp.zeros((2, 9)), jnp.full((2, 9), 0.25)
+    assert narrow_inputs((mean, scale)) and not narrow_inputs((mean, scale * 10))

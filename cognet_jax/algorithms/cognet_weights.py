@@ -72,7 +72,8 @@ random numbers, so small improvements of its thresholds show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
-**Input standardisation** (``standardize_inputs``, **[choice]**, off by default): the Gaussians
+**Input standardisation** (``standardize_inputs``, **[choice]**, off by default; "auto":
+on where the inputs are narrow, ``narrow_inputs``): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
 ``scale [agents, F]`` are the features' mean and standard deviation over the observations of
 ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (fixed key, so every seed of a
@@ -511,9 +512,44 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
         env, settings.nodes, settings.hidden, build_pipeline(config, env)
     )
     stats = None
-    if settings.standardize_inputs:
+    if settings.standardize_inputs:  # True, or "auto" not resolved (a config made in code)
         stats = input_statistics(env, controller, pipeline, env_params, memory)
+        if settings.standardize_inputs == "auto":
+            settings = dataclasses.replace(settings, standardize_inputs=narrow_inputs(stats))
+            stats = stats if settings.standardize_inputs else None
     return CognetWeights(env, settings, memory, pipeline, stats)
+
+
+#: ``standardize_inputs = "auto"`` standardises when the input features' spread is below this
+#: share of the spread of the initial units' thresholds along them (``narrow_inputs``)
+NARROW_INPUTS = 0.3
+
+
+def narrow_inputs(stats) -> bool:
+    """Whether inputs of statistics ``stats`` (``(mean, scale) [agents, F]``,
+    ``input_statistics``) are narrow: the median feature's standard deviation below
+    ``NARROW_INPUTS`` x ``sqrt(F)``, the scale of an initial unit's threshold ``-b / w`` along a
+    feature (``b ~ N(0, s)``, ``w ~ N(0, s / sqrt(F))``: a ratio of spread ``sqrt(F)``).
+    **[choice]** Measured spreads of the suite (random controller): 1.05 (Dec-Tiger hearing,
+    F 1) to 6.8 (paper tagging) on the scalar problems, 4.2 per coordinate on beacon (F 2),
+    0.25 on the plume's 3 x 3 patch (F 9, against 3) and 0.3 on the heatmap's 4 x 4 (F 16,
+    against 4): the rule splits the patches from the rest with a margin of 3 on both sides."""
+    _, scale = stats
+    f = scale.shape[-1]
+    return bool(float(jnp.median(scale)) < NARROW_INPUTS * math.sqrt(f))
+
+
+def resolve_standardize(config, env, env_params) -> CognetWeightsSection:
+    """``config.algorithm`` with ``standardize_inputs = "auto"`` decided (``narrow_inputs`` on
+    the input statistics of ``env_params``); unchanged otherwise."""
+    section = config.algorithm
+    if section.standardize_inputs != "auto":
+        return section
+    pipeline, controller = neural_controller(
+        env, section.nodes, config.network.hidden, build_pipeline(config, env)
+    )
+    stats = input_statistics(env, controller, pipeline, env_params)
+    return dataclasses.replace(section, standardize_inputs=narrow_inputs(stats))
 
 
 def resolve(config, env, env_params) -> CognetWeightsSection:
@@ -523,7 +559,8 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     so rollouts per candidate follow what tells candidates apart on this simulator. With
     ``budget_minutes`` the budget is those minutes at the pilot's measured rate
     (``minutes_to_budget``)."""
-    section = config.algorithm
+    section = resolve_standardize(config, env, env_params)
+    config = dataclasses.replace(config, algorithm=section)
     minutes = section.budget_minutes > 0
     if section.eval_rollouts != "auto" and not minutes:
         return sized(section, env)
