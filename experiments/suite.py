@@ -543,14 +543,7 @@ EXTRA.update(
                     f"{TIED_WHAT}, exploring searches until 0.1 of the initial spread",
                 ),
                 ("beacon-tiedvote10", "beacon-n5", [], [], SEEDS, TIED_WHAT),
-                (
-                    "beacon-tiedvote10-restart0.1",
-                    "beacon-n5",
-                    [],
-                    ["algorithm.restart_tol=0.1"],
-                    SEEDS,
-                    f"{TIED_WHAT}, exploring searches until 0.1 of the initial spread",
-                ),
+                ("bearing-chase-tiedvote10", "bearing-chase-n5", [], [], SEEDS, TIED_WHAT),
             )
         },
         **{

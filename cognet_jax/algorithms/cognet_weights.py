@@ -43,7 +43,8 @@ scale 1 (the first) and ``default_vote_scale``: tagging n3 as the defaults (22.5
 at the units' scale and long ones at 1: tagging n3 22.36 over 16 seeds, beacon 26.55, not
 adopted); ``tied_vote_scale`` scales the default vote of tied (reactive) candidates only: a
 reactive controller's "none of the units fires strongly" region is the one a stop needs, while
-routing between nodes with memory keeps scale 1 (experiments/README.md, suite: every row).
+routing between nodes with memory keeps scale 1 (tagging n3 22.32 over 16 seeds, beacon 26.92:
+not adopted either; experiments/README.md, suite: every row).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
