@@ -512,18 +512,22 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     pipeline, controller = neural_controller(
         env, settings.nodes, settings.hidden, build_pipeline(config, env)
     )
+    if settings.standardize_inputs == "auto":  # not resolved: a config made in code
+        decided = resolve_standardize(config, env, env_params).standardize_inputs
+        settings = dataclasses.replace(settings, standardize_inputs=decided)
     stats = None
-    if settings.standardize_inputs:  # True, or "auto" not resolved (a config made in code)
+    if settings.standardize_inputs:
         stats = input_statistics(env, controller, pipeline, env_params, memory)
-        if settings.standardize_inputs == "auto":
-            settings = dataclasses.replace(settings, standardize_inputs=narrow_inputs(stats))
-            stats = stats if settings.standardize_inputs else None
     return CognetWeights(env, settings, memory, pipeline, stats)
 
 
 #: ``standardize_inputs = "auto"`` standardises when the input features' spread is below this
 #: share of the spread of the initial units' thresholds along them (``narrow_inputs``)
 NARROW_INPUTS = 0.3
+#: ... and only inputs of at least this many features are measured (image patches, sensor
+#: arrays): the statistics' recorded rollouts cost a few seconds of compile, which scalar and
+#: planar observations (every other problem of the suite: spreads 1 - 7) would pay for nothing
+NARROW_MIN_FEATURES = 4
 
 
 def narrow_inputs(stats) -> bool:
@@ -541,14 +545,17 @@ def narrow_inputs(stats) -> bool:
 
 
 def resolve_standardize(config, env, env_params) -> CognetWeightsSection:
-    """``config.algorithm`` with ``standardize_inputs = "auto"`` decided (``narrow_inputs`` on
-    the input statistics of ``env_params``); unchanged otherwise."""
+    """``config.algorithm`` with ``standardize_inputs = "auto"`` decided: ``narrow_inputs`` on
+    the input statistics of ``env_params``, off without measuring below
+    ``NARROW_MIN_FEATURES`` features; unchanged otherwise."""
     section = config.algorithm
     if section.standardize_inputs != "auto":
         return section
     pipeline, controller = neural_controller(
         env, section.nodes, config.network.hidden, build_pipeline(config, env)
     )
+    if controller.in_features < NARROW_MIN_FEATURES:
+        return dataclasses.replace(section, standardize_inputs=False)
     stats = input_statistics(env, controller, pipeline, env_params)
     return dataclasses.replace(section, standardize_inputs=narrow_inputs(stats))
 
