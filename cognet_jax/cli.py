@@ -47,7 +47,7 @@ from tqdm.auto import tqdm
 from cognet_jax.algorithms import noise_pilot
 from cognet_jax.cli_parser import DEFAULT_EXPERIMENT, merge_common, parser
 from cognet_jax.compile_cache import use_compile_cache
-from cognet_jax.config import ConfigError, builtin_experiments, read_experiment
+from cognet_jax.config import ConfigError, builtin_experiments, parse_override, read_experiment
 from cognet_jax.errors import InputError, SimulatorWarning, UsageError
 from cognet_jax.hosts import init_distributed, set_cpu_devices
 from cognet_jax.io.dpomdp import parse_dpomdp
@@ -74,7 +74,7 @@ def _removed_on_failure(out: Path):
     try:
         yield
     except BaseException:
-        keep = ("results.json", "checkpoint.msgpack")
+        keep = ("results.json", "checkpoint.msgpack", "runs.json", "sweep-state", "runs")
         if not existed and out.is_dir() and not any((out / k).exists() for k in keep):
             shutil.rmtree(out, ignore_errors=True)
         raise
@@ -141,6 +141,12 @@ def _sweep(args) -> int:
         grid = parse_grid(args.grid, args.overrides)
         overrides = args.overrides
         first = 0 if args.first_seed is None else args.first_seed
+        if not 0 <= first <= first + n - 1 < 2**31:
+            raise ConfigError(
+                "first-seed",
+                f"--first-seed {first} with --seeds {n}: seeds must be in 0 .. "
+                f"2147483647, got {first} .. {first + n - 1}",
+            )
         seeds = list(range(first, first + n))
         check_out(args.out)
         out = Path(args.out or f"runs/sweep-{Path(experiment).stem}")
@@ -158,8 +164,9 @@ def _sweep(args) -> int:
         if main_process
         else contextlib.nullcontext()
     )
+    removed = _removed_on_failure(out) if main_process else contextlib.nullcontext()
     try:
-        with held:
+        with removed, held:
             return _sweep_claimed(
                 args, experiment, seeds, grid, overrides, out, run_sets, main_process
             )
@@ -233,6 +240,10 @@ def _evaluate(args) -> int:
 
     if args.rollouts is not None and not 2 <= args.rollouts < 2**31:
         raise UsageError(f"--rollouts must be in 2 .. 2147483647, got {args.rollouts}")
+    if args.rollouts is not None and any(
+        parse_override(o)[0] == ["evaluation", "rollouts"] for o in args.overrides
+    ):
+        raise UsageError("--rollouts and --set evaluation.rollouts both set the rollouts; give one")
     big = args.rollouts is not None and args.rollouts >= ANNOUNCED_ROLLOUTS
     announce = (lambda line: print(line, file=sys.stderr, flush=True)) if big else None
     # in a worker thread: a stop signal ends the command at once, not after the evaluation

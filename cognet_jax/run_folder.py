@@ -38,10 +38,10 @@ def held_run(out: Path) -> str | None:
     (``sweep-state/`` not empty, ``runs/`` holding ``setting*`` run folders); None when there
     is none."""
     found = next((n for n in RUN_FILES if (out / n).is_file()), None)
-    if found is None:
-        found = next(
-            (n for n in SWEEP_FILES if (out / n).is_dir() and any((out / n).iterdir())), None
-        )
+    if found is None and (out / "sweep-state").is_dir() and any((out / "sweep-state").iterdir()):
+        found = "sweep-state"
+    if found is None and (out / "runs").is_dir() and any((out / "runs").glob("setting*")):
+        found = "runs"  # a sweep's run folders (``runs/settingS-seedN``)
     return found
 
 
@@ -56,11 +56,14 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
     found = held_run(out) if out.is_dir() else None
     if found and not resume and not overwrite:
         other = "sweep" if found in SWEEP_FILES else "train"
-        if other == kind:
+        if other == kind and found != "runs":
             advice = f"continue it with --resume {out}, or replace it with --overwrite"
         else:
             advice = f"`{kind}` cannot continue it: give another --out, or "
             advice += "replace it with --overwrite"
+            if other == kind:  # run folders without a sweep's state: nothing to resume
+                advice = "no sweep state to resume: give another --out, or replace it with "
+                advice += "--overwrite"
         raise UsageError(f"{out} already holds a run of `{other}` ({found}); {advice}")
     for name in (*RUN_FILES, "policy.msgpack"):
         if (out / name).is_dir():

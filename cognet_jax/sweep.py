@@ -82,6 +82,10 @@ def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
             raise ConfigError(name, "appears twice in the grid")
         if name in fixed:
             raise ConfigError(name, "is set by both --grid and --set; give it in one of them")
+        if name == "run.prng_impl" and len(set(parts)) > 1:
+            raise ConfigError(
+                name, "cannot vary within a sweep (its runs share one program of one key type)"
+            )
         grid[name] = [parse_override(f"{name}={v}")[1] for v in parts]
     return grid
 

@@ -543,7 +543,6 @@ EXTRA.update(
                     f"{TIED_WHAT}, exploring searches until 0.1 of the initial spread",
                 ),
                 ("beacon-tiedvote10", "beacon-n5", [], [], SEEDS, TIED_WHAT),
-                ("bearing-chase-tiedvote10", "bearing-chase-n5", [], [], SEEDS, TIED_WHAT),
             )
         },
         **{

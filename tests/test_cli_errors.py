@@ -217,3 +217,29 @@ def test_policy_file_checksum_version_and_old_format(capsys, run_dir, tmp_path):
     del results["policy_sha256"]  # nor did its results.json hold the file's digest
     (copy / "results.json").write_text(json.dumps(results))
     assert main(["evaluate", str(copy), "--rollouts", "100"]) == 0
+
+
+def test_second_hostile_round_refusals(capsys, tmp_path):
+    """Inputs of the second hostile round: each one line naming what to fix, and a sweep
+    refused after claiming its folder leaves no folder behind."""
+    one_line_error(
+        capsys,
+        ["check", "tagging-thesis-n3", "--set", "algorithm.vote_first=true"],
+        "algorithm.vote_first",
+        "vote_alternate",
+    )
+    one_line_error(
+        capsys,
+        ["check", "tagging-thesis-n3", "--set", "algorithm.budget_minutes=0.5"],
+        "algorithm.budget_minutes",
+        "every size is given",
+    )
+    grid = ["--grid", "run.prng_impl=threefry2x32,rbg"]
+    one_line_error(
+        capsys, ["sweep", "tagging-thesis-n3", *grid, "--out", str(tmp_path / "g")], "run.prng_impl"
+    )
+    one_line_error(capsys, ["sweep", "tagging-thesis-n3", "--first-seed", "-1"], "--first-seed")
+    out = tmp_path / "alpha"
+    bad = ["--grid", "algorithm.alpha=0.1,2.0", "--out", str(out)]
+    one_line_error(capsys, ["sweep", "tagging-thesis-n3", *bad], "algorithm.alpha")
+    assert not out.exists()

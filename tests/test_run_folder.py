@@ -248,6 +248,11 @@ def test_a_folder_of_the_other_command_is_refused_with_advice_that_works(tmp_pat
     with pytest.raises(UsageError, match="run of `sweep` \\(runs\\); `train` cannot continue"):
         with claim(sweep):
             pass
+    with pytest.raises(UsageError, match="no sweep state to resume"):
+        with claim(sweep, kind="sweep"):  # run folders alone: a sweep's --resume would fail
+            pass
+    (sweep / "sweep-state").mkdir()
+    (sweep / "sweep-state" / "sweep.json").write_text("{}")
     with pytest.raises(UsageError, match="continue it with --resume"):
         with claim(sweep, kind="sweep"):
             pass

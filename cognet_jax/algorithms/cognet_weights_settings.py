@@ -95,6 +95,18 @@ class CognetWeightsSection:
             "algorithm.budget_minutes",
             "give the budget in agent-steps (algorithm.budget) or in minutes, not both",
         )
+        for name in ("vote_first", "vote_restart_tol"):
+            require(
+                not getattr(self, name) or self.vote_alternate,
+                f"algorithm.{name}",
+                "acts on alternating searches only: set algorithm.vote_alternate = true",
+            )
+        require(
+            self.budget_minutes == 0 or any(getattr(self, f) == "auto" for f in SIZE_FIELDS),
+            "algorithm.budget_minutes",
+            "every size is given (iterations, candidates, eval_rollouts, elites): a budget "
+            "sizes nothing; leave one of them 'auto'",
+        )
         require_probability(self, "algorithm", "alpha", "action_floor", "category_floor")
         for name in (
             "init_scale",
