@@ -523,6 +523,13 @@ EXTRA.update(
                 ("beacon-portfolio", "beacon-n5", [], [], SEEDS, ""),
             )
         },
+        "cognet-plume-raw": (
+            "plume-n5",
+            ["algorithm.standardize_inputs=false"],
+            SEEDS,
+            "the defaults before standardize_inputs = 'auto' (raw patch pixels)",
+            None,
+        ),
         **{
             name: (experiment, [*base, "algorithm.tied_vote_scale=10", *extra], seeds, what, None)
             for name, experiment, base, extra, seeds, what in (
@@ -707,7 +714,9 @@ policy); "before the refine phase" gives the 8-seed mean of the same sweep witho
 "-before-refine" of the next table; on beacon, chase and the README simulator those ran the
 pool's first version, notes below the next table). Wall times of the sweeps with the refine
 phase were measured one sweep at a time, at times beside lighter work on the same 2 cores.
-"not run" marks a simulator not yet swept under the defaults."""
+"not run" marks a simulator not yet swept under the defaults. The plume's row was swept with
+`--set algorithm.standardize_inputs=true`, what the default "auto" resolves to on its 3 x 3
+patch (`narrow_inputs`; row cognet-plume-raw of the next table: the same sweep without)."""
 
 
 EXTRA_NOTES = """\

@@ -73,8 +73,8 @@ random numbers, so small improvements of its thresholds show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
-**Input standardisation** (``standardize_inputs``, **[choice]**, off by default; "auto":
-on where the inputs are narrow, ``narrow_inputs``): the Gaussians
+**Input standardisation** (``standardize_inputs``, **[choice]**, "auto" by default: on where
+the inputs are narrow, ``narrow_inputs``; plume, 8 seeds: 16.35 against 14.37 raw): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
 ``scale [agents, F]`` are the features' mean and standard deviation over the observations of
 ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (fixed key, so every seed of a

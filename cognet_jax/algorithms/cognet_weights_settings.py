@@ -64,7 +64,7 @@ class CognetWeightsSection:
     vote_first: bool = False
     vote_restart_tol: float = 0.0
     tied_vote_scale: float = 1.0
-    standardize_inputs: bool | Literal["auto"] = False
+    standardize_inputs: bool | Literal["auto"] = "auto"
     paired_best: bool = False
     best_pool: int = 4
     tie_structure: bool = True
