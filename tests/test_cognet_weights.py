@@ -163,7 +163,7 @@ def heatmap_algorithm(**kw):
     env, env_params = make_heatmap("default")
     settings = WeightsSettings(**{"nodes": 3, "candidates": 4, "eval_rollouts": 16, **kw})
     stats = None
-    if settings.standardize_inputs:
+    if settings.standardize_inputs is True:  # "auto" (the default) made in code: as no stats
         controller = CognetWeights(env, settings.__class__(**{**kw, "standardize_inputs": False}))
         stats = input_statistics(env, controller.controller, controller.pipeline, env_params)
     return CognetWeights(env, settings, input_stats=stats)

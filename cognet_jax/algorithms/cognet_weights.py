@@ -198,6 +198,8 @@ class CognetWeights(Search):
 
     def __post_init__(self):
         s = sized(self.settings, self.env)  # "auto" sizes of settings made in code
+        if s.standardize_inputs == "auto":  # made in code without a decision: as the stats say
+            s = dataclasses.replace(s, standardize_inputs=self.input_stats is not None)
         pipeline, controller = neural_controller(self.env, s.nodes, s.hidden, self.pipeline)
         if s.standardize_inputs and self.input_stats is None:
             raise ValueError("standardize_inputs needs input_stats (input_statistics)")
