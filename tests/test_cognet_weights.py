@@ -12,8 +12,8 @@ from cognet_jax.algorithms.cognet_weights import (
     WeightsHyper,
     WeightsSettings,
     input_statistics,
-    narrow_inputs,
 )
+from cognet_jax.algorithms.cognet_weights_settings import narrow_inputs
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.algorithms.weight_space import WeightSample
 from cognet_jax.api import build_algorithm, make_train, split_seed_key

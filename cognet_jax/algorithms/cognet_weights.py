@@ -130,8 +130,10 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     WeightsHyper,
     WeightsSettings,
     fresh_start,
+    minutes_to_budget,
     pool_size,
     refine_start,
+    resolve_standardize,
     rollouts_per_iteration,
 )
 from cognet_jax.algorithms.cross_entropy import Progress, select_tree
@@ -523,45 +525,6 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     return CognetWeights(env, settings, memory, pipeline, stats)
 
 
-#: ``standardize_inputs = "auto"`` standardises when the input features' spread is below this
-#: share of the spread of the initial units' thresholds along them (``narrow_inputs``)
-NARROW_INPUTS = 0.3
-#: ... and only inputs of at least this many features are measured (image patches, sensor
-#: arrays): the statistics' recorded rollouts cost a few seconds of compile, which scalar and
-#: planar observations (every other problem of the suite: spreads 1 - 7) would pay for nothing
-NARROW_MIN_FEATURES = 4
-
-
-def narrow_inputs(stats) -> bool:
-    """Whether inputs of statistics ``stats`` (``(mean, scale) [agents, F]``,
-    ``input_statistics``) are narrow: the median feature's standard deviation below
-    ``NARROW_INPUTS`` x ``sqrt(F)``, the scale of an initial unit's threshold ``-b / w`` along a
-    feature (``b ~ N(0, s)``, ``w ~ N(0, s / sqrt(F))``: a ratio of spread ``sqrt(F)``).
-    **[choice]** Measured spreads of the suite (random controller): 1.05 (Dec-Tiger hearing,
-    F 1) to 6.8 (paper tagging) on the scalar problems, 4.2 per coordinate on beacon (F 2),
-    0.25 on the plume's 3 x 3 patch (F 9, against 3) and 0.3 on the heatmap's 4 x 4 (F 16,
-    against 4): the rule splits the patches from the rest with a margin of 3 on both sides."""
-    _, scale = stats
-    f = scale.shape[-1]
-    return bool(float(jnp.median(scale)) < NARROW_INPUTS * math.sqrt(f))
-
-
-def resolve_standardize(config, env, env_params) -> CognetWeightsSection:
-    """``config.algorithm`` with ``standardize_inputs = "auto"`` decided: ``narrow_inputs`` on
-    the input statistics of ``env_params``, off without measuring below
-    ``NARROW_MIN_FEATURES`` features; unchanged otherwise."""
-    section = config.algorithm
-    if section.standardize_inputs != "auto":
-        return section
-    pipeline, controller = neural_controller(
-        env, section.nodes, config.network.hidden, build_pipeline(config, env)
-    )
-    if controller.in_features < NARROW_MIN_FEATURES:
-        return dataclasses.replace(section, standardize_inputs=False)
-    stats = input_statistics(env, controller, pipeline, env_params)
-    return dataclasses.replace(section, standardize_inputs=narrow_inputs(stats))
-
-
 def resolve(config, env, env_params) -> CognetWeightsSection:
     """``config.algorithm`` with its "auto" sizes filled in (``sizing.sized``). When
     ``eval_rollouts`` is "auto", the sizes read the simulator's noise under the initial
@@ -587,19 +550,6 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     if minutes:
         section = minutes_to_budget(section, noise)
     return sized(section, env, noise if section.eval_rollouts == "auto" else None)
-
-
-def minutes_to_budget(section, noise) -> CognetWeightsSection:
-    """``section`` with ``budget_minutes`` turned into ``budget`` agent-steps at the noise
-    pilot's measured rate (``Noise.rate``, a lower bound on a search's: the search's larger
-    batches run faster, while its compile, the fresh evaluations of the anytime best and the
-    final evaluation are not counted), and ``budget_minutes`` 0. **[choice]** The resolved
-    config then holds agent-steps, so results.json, ``evaluate`` and ``--resume`` repeat the
-    same sizes; the same minutes on another machine, or under load, give other sizes."""
-    if not math.isfinite(noise.rate) or noise.rate <= 0:
-        raise ValueError(f"the noise pilot measured no rate ({noise.rate})")
-    budget = float(f"{noise.rate * 60.0 * section.budget_minutes:.3g}")
-    return dataclasses.replace(section, budget=max(1.0, budget), budget_minutes=0.0)
 
 
 def hyper(config) -> WeightsHyper:
