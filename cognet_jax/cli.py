@@ -454,6 +454,10 @@ def main(argv: list[str] | None = None) -> int:
     noise_pilot.announce = lambda line: print(line, file=sys.stderr, flush=True)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = argparse.Namespace(debug="--debug" in argv)
+    if sys.stdout is None:  # started with its standard output closed (``>&-``)
+        if sys.stderr is not None:
+            print("error: standard output is closed: results could not be shown", file=sys.stderr)
+        return 2
     try:
         args = merge_common(parser().parse_args(argv))
         for name in args.imports:

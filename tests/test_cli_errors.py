@@ -243,3 +243,20 @@ def test_second_hostile_round_refusals(capsys, tmp_path):
     bad = ["--grid", "algorithm.alpha=0.1,2.0", "--out", str(out)]
     one_line_error(capsys, ["sweep", "tagging-thesis-n3", *bad], "algorithm.alpha")
     assert not out.exists()
+
+
+def test_a_closed_standard_output_is_an_error_not_silence():
+    """``cognet-jax list >&-``: nothing can be shown, so exit 2 with one line on stderr."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        f"{sys.executable} -m cognet_jax list >&-",
+        shell=True,
+        capture_output=False,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip() == "error: standard output is closed: results could not be shown"
