@@ -196,18 +196,37 @@ def build_pipeline(config, env) -> ObservationPipeline:
 STATS_ROLLOUTS = 4096
 
 
+#: statistics of raw observations computed in this process: ``(id(env), id(env_params),
+#: controller shape) -> (env, env_params, stats)`` (the objects held, so the ids stay theirs);
+#: a config's load decides ``standardize_inputs = "auto"`` with them, then its noise pilot and
+#: its build need them again
+_RAW_STATS: dict = {}
+
+
 def input_statistics(env, controller, pipeline, env_params, memory=None):
     """``(mean, scale) [agents, F]`` of the networks' input features over the observations
     of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
     ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
-    ``memory`` bytes (``memory.trace_checked``)."""
+    ``memory`` bytes (``memory.trace_checked``). Raw observations' statistics are computed
+    once per simulator, params and controller shape in a process (``_RAW_STATS``)."""
     template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
     uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
     record = jax.jit(
         lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
     )
     what = f"the input statistics ({STATS_ROLLOUTS} recorded rollouts)"
-    trace_checked(record, (jax.random.key(0),), memory, what)
+    trace_checked(record, (jax.random.key(0),), memory, what)  # traced only: no rollout
+    if pipeline.kind != "raw":
+        return _statistics(record, pipeline)
+    shape = (controller.num_agents, controller.num_nodes, controller.num_actions)
+    key = (id(env), id(env_params), shape, controller.hidden)
+    if key not in _RAW_STATS:
+        _RAW_STATS[key] = (env, env_params, _statistics(record, pipeline))
+    return _RAW_STATS[key][2]
+
+
+def _statistics(record, pipeline):
+    """``input_statistics`` of the trajectories ``record(key)`` records."""
     traj = record(jax.random.key(0))
     feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
     feats = feats.reshape(feats.shape[:3] + (-1,))
