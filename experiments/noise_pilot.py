@@ -23,6 +23,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "results" / "suite" / "noise-pilot.json"
 PILOT = ROLLOUTS = 64
+#: the initial default vote the saved measurements drew with: before the horizon rule
+#: (``resolve_search``) set it to 10 where the horizon exceeds the nodes
+VOTE_BEFORE_RULE = ["algorithm.default_vote_scale=1"]
 #: experiment -> overrides (the pinned tagging experiment with the library's defaults)
 EXPERIMENTS = {
     "tagging-thesis-n3": [
@@ -30,13 +33,18 @@ EXPERIMENTS = {
         "algorithm.restart_tol=0.02",
         "algorithm.best_pool=4",
     ],
-    "tagging-paper-auto": [],
-    "hearing-tiger-n7": [],
-    "hearing-tiger-noisy-n7": [],
-    "beacon-n5": [],
-    "bearing-chase-n5": [],
-    "box-push-n3": [],
-    str(HERE / "readme-seek-n3.toml"): [],
+    **{
+        experiment: VOTE_BEFORE_RULE
+        for experiment in (
+            "tagging-paper-auto",
+            "hearing-tiger-n7",
+            "hearing-tiger-noisy-n7",
+            "beacon-n5",
+            "bearing-chase-n5",
+            "box-push-n3",
+            str(HERE / "readme-seek-n3.toml"),
+        )
+    },
 }
 
 

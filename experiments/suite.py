@@ -138,6 +138,14 @@ BEFORE_PILOT_PAPER = {
     ],
     "full": [],
 }
+#: the exploring searches' fields as they were before the horizon rule decided them
+#: (``cognet_weights_settings.resolve_search``): every row on an experiment that does not pin
+#: the search, measured before the rule, pins them (``before_rule``)
+BEFORE_RULE = [
+    "algorithm.default_vote_scale=1",
+    "algorithm.restart_tol=0.02",
+    "algorithm.refine_tol=0.2",
+]
 #: the defaults without the pool (the search of the rows measured before it)
 NO_POOL = ["algorithm.best_pool=0", *BEFORE_PILOT]
 #: further sweeps: folder -> (experiment, overrides, seeds, what it tests, earlier sweep to
@@ -149,6 +157,17 @@ EXTRA = {
             NO_POOL,
             SEEDS,
             "ablation: the defaults without the pool of best policies (the defaults before it)",
+            None,
+        )
+        for row, (experiment, _) in ROWS.items()
+    },
+    **{
+        f"cognet-{row}-before-rule": (
+            experiment,
+            [],
+            SEEDS,
+            "the defaults before the horizon rule: the default vote at 1, exploring searches "
+            "until 0.02 of the initial spread, the refine phase's until 0.2 of its own",
             None,
         )
         for row, (experiment, _) in ROWS.items()
@@ -398,15 +417,7 @@ EXTRA.update(
     {
         **{
             f"{row}-vote10": (experiment, VOTE10, SEEDS, VOTE10_WHAT, None)
-            for row, experiment in (
-                ("hearing-tiger", "hearing-tiger-n7"),
-                ("hearing-tiger-noisy", "hearing-tiger-noisy-n7"),
-                ("beacon", "beacon-n5"),
-                ("beacon-clean", "beacon-clean-n5"),
-                ("bearing-chase", "bearing-chase-n5"),
-                ("box-push", "box-push-n3"),
-                ("readme-seek", str(HERE / "readme-seek-n3.toml")),
-            )
+            for row, experiment in (("bearing-chase", "bearing-chase-n5"),)
         },
         **{
             f"{experiment}-vote10{'-16seeds' if seeds == 16 else ''}": (
@@ -571,6 +582,27 @@ EXTRA.update(
 )
 
 
+#: experiments whose TOML pins the exploring search (tagging, heatmap): their rows are as before
+PINNED = ("tagging-thesis-n3", "tagging-thesis-n6", "heatmap-2d-n4", "tagging-paper-cognet")
+#: rows run under the horizon rule, or setting all its fields
+AFTER_RULE = ()
+
+
+def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
+    """``overrides`` of row ``name`` with the fields of ``BEFORE_RULE`` it does not set, on an
+    experiment that leaves the search to the defaults: the command that reproduces a row
+    measured before the horizon rule."""
+    if experiment in PINNED or name in AFTER_RULE:
+        return overrides
+    return replaced(BEFORE_RULE, overrides)
+
+
+EXTRA = {
+    name: (experiment, before_rule(name, experiment, overrides), *rest)
+    for name, (experiment, overrides, *rest) in EXTRA.items()
+}
+
+
 def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path, imports=()) -> None:
     cmd = ["cognet-jax", *imports, "sweep", experiment, "--seeds", str(seeds), "--no-progress"]
     for o in ["run.plots=false", *overrides]:
@@ -606,8 +638,8 @@ def _search_cell(path: Path, hand: float | None) -> str:
     if hand is not None:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
         verdict = " (holds)" if ok else " (**below**)"
-    before = _values(path.parent.parent / f"{path.parent.name}-before-refine" / "runs.json")
-    before_cell = f"; before the refine phase {sum(before) / len(before):.3f}" if before else ""
+    before = _values(path.parent.parent / f"{path.parent.name}-before-rule" / "runs.json")
+    before_cell = f"; before the horizon rule {sum(before) / len(before):.3f}" if before else ""
     return (
         f"{mean:.3f}{verdict}, min {min(values):.3f}; {data['wall_s'] / len(values):.0f} s per "
         f"seed ({len(values)} seeds in one sweep); {_agent_steps(data['config']):.2g} "
@@ -708,15 +740,20 @@ The encoded variant needs a VAE trained on the simulator's patches; only the hea
 built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The
 defaults size the search from a noise pilot (cognet_jax/algorithms/sizing.py): on Dec-Tiger,
 its noisy variant and box pushing it moves the budget from rollouts to candidates; on beacon,
-chase and the README simulator it keeps the sizes of before. The defaults end with a refine
-phase (`algorithm.refine`, the last quarter of the iterations searching around the kept
-policy); "before the refine phase" gives the 8-seed mean of the same sweep without it (rows
-"-before-refine" of the next table; on beacon, chase and the README simulator those ran the
-pool's first version, notes below the next table). Wall times of the sweeps with the refine
-phase were measured one sweep at a time, at times beside lighter work on the same 2 cores.
-"not run" marks a simulator not yet swept under the defaults. The plume's row was swept with
-`--set algorithm.standardize_inputs=true`, what the default "auto" resolves to on its 3 x 3
-patch (`narrow_inputs`; row cognet-plume-raw of the next table: the same sweep without)."""
+chase and the README simulator it keeps the sizes of before. They end with a refine phase
+(`algorithm.refine`, the last quarter of the iterations searching around the kept policy).
+The horizon rule (`resolve_search` in cognet_jax/algorithms/cognet_weights_settings.py): where
+the horizon is longer than the controller has nodes -- every row of this table -- the default
+vote starts at the units' scale and the exploring searches are short (`default_vote_scale` 10,
+`restart_tol` and `refine_tol` 0.1); "before the horizon rule" gives the 8-seed mean of the
+same sweep with the values of before (1, 0.02, 0.2; rows "-before-rule" of the next table).
+The sweeps of noisy Dec-Tiger, both beacons, box pushing and the README simulator ran before
+the rule with its three values set by `--set` (their runs.json record those overrides); the
+Dec-Tiger sweep ran again under the rule and gave the same values seed for seed. Wall times
+were measured one sweep at a time, at times beside lighter work on the same 2 cores. "not
+run" marks a simulator not yet swept under the defaults. `standardize_inputs` "auto"
+standardises the plume's 3 x 3 patch only (`narrow_inputs`; row cognet-plume-raw of the next
+table: a sweep without)."""
 
 
 EXTRA_NOTES = """\
@@ -754,7 +791,7 @@ def refine_trace(row: str) -> list[str]:
     """Per seed of ``row``'s sweep with and without the refine phase: the kept policy's in-loop
     estimate (``best_per_iteration``, the pool's mean) after the iterations of ``TRACE_AT``,
     and the honest value; empty when either sweep is missing."""
-    paths = [RESULTS / f"cognet-{row}-before-refine", RESULTS / f"cognet-{row}"]
+    paths = [RESULTS / f"cognet-{row}-before-refine", RESULTS / f"cognet-{row}-before-rule"]
     if not all((p / "runs.json").is_file() for p in paths):
         return []
     steps = " | ".join(f"after {i}" for i in TRACE_AT)
@@ -774,13 +811,15 @@ def refine_trace(row: str) -> list[str]:
 #: beacon sweeps ``reaching_hand`` counts seeds of: the search changes tried against its plateau
 REACH_SWEEPS = (
     "cognet-beacon-before-refine",
-    "cognet-beacon",
+    "cognet-beacon-before-rule",
     "beacon-starts2",
     "beacon-starts3",
     "beacon-restart0.1",
     "beacon-restart0.2",
-    "beacon-vote10",
     "beacon-vote-alternate",
+    "beacon-portfolio",
+    "beacon-tiedvote10",
+    "cognet-beacon",
 )
 
 
@@ -814,12 +853,14 @@ threshold and a stop region needs all four units' thresholds moved at once. The 
 counts, per sweep, the seeds that reached the hand-written controller: independent searches
 before the refine phase ("beacon-starts2", "-starts3"), shorter exploring searches
 ("beacon-restart0.1", "-restart0.2") and the default vote at the units' scale with shorter
-searches ("beacon-vote10", `algorithm.default_vote_scale=10`). That last one is not the
-default: on tagging n3 it ended lower ("tagging-thesis-n3-vote10-16seeds" against
-"tagging-thesis-n3-defaults-16seeds" above), and each of its two changes alone lowered it there
-too ("tagging-thesis-n3-vote10-restart0.02", "tagging-thesis-n3-restart0.1"); alternating the
-two scales between exploring searches ("-vote-alternate") kept tagging n3 and helped beacon
-less. The sweep of "beacon-starts2" shared the machine with the test suite; the 16-seed
+searches ("cognet-beacon", the defaults under the horizon rule). On tagging n3 (horizon 3, 3
+nodes) those values ended lower ("tagging-thesis-n3-vote10-16seeds" against
+"tagging-thesis-n3-defaults-16seeds" above), and each of their two changes alone lowered it
+there too ("tagging-thesis-n3-vote10-restart0.02", "tagging-thesis-n3-restart0.1"); alternating
+the two scales between exploring searches ("-vote-alternate"), a portfolio of both kinds
+("-portfolio") and the large vote for tied candidates only ("-tiedvote10") kept tagging n3 and
+helped beacon less: the rule gives them to problems whose horizon exceeds the nodes. The sweep
+of "beacon-starts2" shared the machine with the test suite; the 16-seed
 tagging sweeps, "heatmap-2d-n4-vote10", "beacon-clean-vote10" and "beacon-vote-alternate" with
 another sweep: their wall times are not comparable."""
 
@@ -889,7 +930,7 @@ def write_table() -> None:
         "",
         EXTRA_NOTES,
         "",
-        "### The refine phase seed by seed: beacon",
+        "### The refine phase seed by seed: beacon, before the horizon rule",
         "",
         *refine_trace("beacon"),
         "",

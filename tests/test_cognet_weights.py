@@ -13,7 +13,11 @@ from cognet_jax.algorithms.cognet_weights import (
     WeightsSettings,
     input_statistics,
 )
-from cognet_jax.algorithms.cognet_weights_settings import narrow_inputs
+from cognet_jax.algorithms.cognet_weights_settings import (
+    SEARCH_LONG_HORIZON,
+    SEARCH_SHORT_HORIZON,
+    narrow_inputs,
+)
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.algorithms.weight_space import WeightSample
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
@@ -512,3 +516,23 @@ def test_auto_standardisation_turns_on_for_narrow_inputs_only():
     assert load_config("tagging-thesis-n3", auto).algorithm.standardize_inputs is False
     mean, scale = jnp.zeros((2, 9)), jnp.full((2, 9), 0.25)
     assert narrow_inputs((mean, scale)) and not narrow_inputs((mean, scale * 10))
+
+
+def test_auto_search_fields_follow_the_horizon_against_the_nodes():
+    """``default_vote_scale``, ``restart_tol`` and ``refine_tol`` "auto": the long-horizon
+    values where the horizon exceeds the nodes (beacon, h 30, 5 nodes), the short-horizon ones
+    where it does not (tagging thesis, h 3, 3 nodes); numbers given are kept, the resolved
+    config holds numbers, and settings made in code resolve the same way."""
+    sizes = [f"algorithm.{k}={v}" for k, v in SMALL_SIZES.items()]
+    auto = [f'algorithm.{f}="auto"' for f in SEARCH_LONG_HORIZON]
+    beacon = load_config("beacon-n5", sizes).algorithm
+    tagging = load_config("tagging-thesis-n3", [*auto, *sizes]).algorithm
+    for field, value in SEARCH_LONG_HORIZON.items():
+        assert getattr(beacon, field) == value
+        assert getattr(tagging, field) == SEARCH_SHORT_HORIZON[field]
+    kept = load_config("beacon-n5", [*sizes, "algorithm.restart_tol=0.3"]).algorithm
+    assert kept.restart_tol == 0.3 and kept.default_vote_scale == 10.0
+    alg, _ = small_algorithm(nodes=2)  # tagging thesis: h 3 > 2 nodes
+    assert alg.settings.default_vote_scale == 10.0 and alg.settings.refine_tol == 0.1
+    alg, _ = small_algorithm()
+    assert alg.settings.default_vote_scale == 1.0 and alg.settings.restart_tol == 0.02

@@ -28,23 +28,21 @@ Q nodes, F network inputs):
   roles of different elites; in prototypes (not kept) it stalled below the reactive controller
   on tagging n3.
 
-**Default vote's scale** (``default_vote_scale``, **[choice]**, 1): a unit's vote is ``m_j``
-times its pre-activation, whose initial spread is about ``init_scale`` (10); a default vote of
+**Default vote's scale** (``default_vote_scale``, **[choice]**, "auto": 10 where the horizon
+is longer than the nodes, 1 otherwise, ``resolve_search``): a unit's vote is ``m_j`` times its
+pre-activation, whose initial spread is about ``init_scale`` (10); a default vote of
 ``vote_mean`` (5) loses to any unit a tenth of an observation unit past its threshold, so "do
 the default unless an observation is far enough out" -- stop near the beacon -- needs every
 unit's threshold moved at once. At 10 (the units' scale) every beacon seed found the
-hand-written controller's stop region (8 seeds: 27.96 against 26.50 at 1, with
-``restart_tol`` 0.1), but on tagging n3 more seeds ended near the reactive controller (16
-seeds: 21.55 against 22.55 under the defaults); 1 stays the default until a rule holds on both
-(experiments/README.md, suite). ``vote_alternate`` alternates the exploring searches between
-scale 1 (the first) and ``default_vote_scale``: tagging n3 as the defaults (22.55), beacon
-26.51 (not adopted either). ``vote_first`` starts with a search at ``default_vote_scale`` and
-``vote_restart_tol`` ends those searches at their own tolerance (a portfolio of short searches
-at the units' scale and long ones at 1: tagging n3 22.36 over 16 seeds, beacon 26.55, not
-adopted); ``tied_vote_scale`` scales the default vote of tied (reactive) candidates only: a
-reactive controller's "none of the units fires strongly" region is the one a stop needs, while
-routing between nodes with memory keeps scale 1 (tagging n3 22.32 over 16 seeds, beacon 26.92:
-not adopted either; experiments/README.md, suite: every row).
+hand-written controller's stop region (8 seeds: 27.96 against 25.82 at 1), but on tagging n3
+(horizon 3) more seeds ended near the reactive controller (16 seeds: 21.55 against 22.55).
+``vote_alternate`` alternates the exploring searches between scale 1 (the first) and
+``default_vote_scale``: tagging n3 as at 1 (22.55), beacon 26.51. ``vote_first`` starts with a
+search at ``default_vote_scale`` and ``vote_restart_tol`` ends those searches at their own
+tolerance (a portfolio of short searches at the units' scale and long ones at 1: tagging n3
+22.36 over 16 seeds, beacon 26.55); ``tied_vote_scale`` scales the default vote of tied
+(reactive) candidates only (tagging n3 22.32 over 16 seeds, beacon 26.92). None of the three
+held on both, so the horizon decides instead (experiments/README.md, suite: every row).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
@@ -54,22 +52,24 @@ actions). Both are categoricals refit to the elites like the others; the Gaussia
 the weights the candidates ran, so a tied elite teaches every node. A problem that needs
 memory or asymmetric agents unties them (the Dec-Tiger counters do).
 
-**Restarts** (``restart_tol``, **[choice]**, 0.02): once the hidden layer's Gaussians have
-shrunk below ``restart_tol`` of their initial spread the distribution has converged (the
+**Restarts** (``restart_tol``, **[choice]**, "auto": 0.1 where the horizon is longer than
+the nodes, 0.02 otherwise, with ``default_vote_scale``): once the hidden layer's Gaussians
+have shrunk below ``restart_tol`` of their initial spread the distribution has converged (the
 elites agree and the search draws nearly one controller); the next iteration starts from the
 initial distribution again, the anytime best kept. A larger budget then buys further
 independent searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets
 another start (metrics ``injected`` marks the iterations that restarted). Shorter searches fit
-more of them before the refine phase: on beacon (8 seeds) 25.82 at 0.02, 26.50 at 0.1, 27.25 at
-0.2, but on tagging n3 0.1 lost (21.70 against 22.78).
+more of them before the refine phase: on beacon (8 seeds, default vote at 1) 25.82 at 0.02,
+26.50 at 0.1, 27.25 at 0.2, but on tagging n3 0.1 lost (21.70 against 22.78).
 
 **Refine** (``refine``, ``refine_scale``, **[choice]**): the last ``refine`` share of the
 iterations searches around the kept policy: the distribution restarts centred on it (Gaussian
 means at its weights, spreads ``refine_scale`` of the initial ones, categoricals on its choices
 mixed with ``refine_scale`` of the uniform), and a converged distribution restarts there again,
 around the policy kept by then (converged: below ``refine_tol`` of the spread it started
-from). Candidates close to the kept policy share most rollouts' trajectories under common
-random numbers, so small improvements of its thresholds show.
+from; "auto" as ``restart_tol``: 0.1 or 0.2). Candidates close to the kept policy share most
+rollouts' trajectories under common random numbers, so small improvements of its thresholds
+show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
@@ -133,6 +133,7 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     minutes_to_budget,
     pool_size,
     refine_start,
+    resolve_search,
     resolve_standardize,
     rollouts_per_iteration,
 )
@@ -199,7 +200,7 @@ class CognetWeights(Search):
     input_stats: tuple | None = None
 
     def __post_init__(self):
-        s = sized(self.settings, self.env)  # "auto" sizes of settings made in code
+        s = resolve_search(sized(self.settings, self.env), self.env)  # settings made in code
         if s.standardize_inputs == "auto":  # made in code without a decision: as the stats say
             s = dataclasses.replace(s, standardize_inputs=self.input_stats is not None)
         pipeline, controller = neural_controller(self.env, s.nodes, s.hidden, self.pipeline)
@@ -532,6 +533,7 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     so rollouts per candidate follow what tells candidates apart on this simulator. With
     ``budget_minutes`` the budget is those minutes at the pilot's measured rate
     (``minutes_to_budget``)."""
+    config = dataclasses.replace(config, algorithm=resolve_search(config.algorithm, env))
     section = resolve_standardize(config, env, env_params)
     config = dataclasses.replace(config, algorithm=section)
     minutes = section.budget_minutes > 0

@@ -2,7 +2,8 @@
 section with the checks of each field, the dynamic hyper-parameters, the static settings a
 compiled search reads, and the counts that follow from them (the pool's size, the first
 iteration of the refine phase, rollouts per iteration), and the rules that decide its
-``standardize_inputs = "auto"`` and ``budget_minutes`` from the problem."""
+``standardize_inputs``, ``default_vote_scale``, ``restart_tol`` and ``refine_tol`` "auto" and
+its ``budget_minutes`` from the problem."""
 
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ class CognetWeightsSection:
     init_scale: float = 10.0
     vote_mean: float = 5.0
     vote_std: float = 5.0
-    default_vote_scale: float = 1.0
+    default_vote_scale: float | Literal["auto"] = "auto"
     vote_alternate: bool = False
     vote_first: bool = False
     vote_restart_tol: float = 0.0
@@ -76,10 +77,10 @@ class CognetWeightsSection:
     paired_best: bool = False
     best_pool: int = 4
     tie_structure: bool = True
-    restart_tol: float = 0.02
+    restart_tol: float | Literal["auto"] = "auto"
     refine: float = 0.25
     refine_scale: float = 0.1
-    refine_tol: float = 0.2
+    refine_tol: float | Literal["auto"] = "auto"
     starts: int = 1
 
     def rollouts_per_iteration(self) -> int:
@@ -124,25 +125,22 @@ class CognetWeightsSection:
             "tied_vote_scale",
         ):
             v = getattr(self, name)
-            require(v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
+            require(v == "auto" or v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
         require(
             self.best_pool == 0 or 2 <= self.best_pool <= 64,
             "algorithm.best_pool",
             f"0 (no pool) or 2 .. 64, got {self.best_pool}",
         )
-        require(
-            0 <= self.restart_tol < 1, "algorithm.restart_tol", f"in [0, 1), got {self.restart_tol}"
-        )
+        for name in ("restart_tol", "refine_tol"):
+            v = getattr(self, name)
+            require(v == "auto" or 0 <= v < 1, f"algorithm.{name}", f"in [0, 1) or 'auto', got {v}")
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
         require(
             0 <= self.vote_restart_tol < 1,
             "algorithm.vote_restart_tol",
             f"in [0, 1) (0: restart_tol), got {self.vote_restart_tol}",
-        )
-        require(
-            0 <= self.refine_tol < 1, "algorithm.refine_tol", f"in [0, 1), got {self.refine_tol}"
         )
         require_positive(self, "algorithm", "starts")
         defaults = NetworkSection()
@@ -215,6 +213,40 @@ WeightsSettings = settings_class(
     exclude=("alpha", "action_floor", "category_floor"),
     extra=((NetworkSection, "hidden"),),
 )
+
+
+#: the exploring searches' fields that "auto" decides by the horizon (``resolve_search``):
+#: values when the horizon is longer than the controller has nodes, and when it is not
+SEARCH_LONG_HORIZON = {"default_vote_scale": 10.0, "restart_tol": 0.1, "refine_tol": 0.1}
+SEARCH_SHORT_HORIZON = {"default_vote_scale": 1.0, "restart_tol": 0.02, "refine_tol": 0.2}
+
+
+def loops_back(horizon: int, nodes: int) -> bool:
+    """Whether a controller of ``nodes`` nodes must come back to a node within ``horizon``
+    steps (``horizon > nodes``): then a node that repeats its action until an observation is
+    far enough out -- its default vote winning over its units -- is the loop the episode needs
+    (walk until near the beacon, listen until the count is clear), and the search starts with
+    the default vote at the units' scale, in short exploring searches."""
+    return horizon > nodes
+
+
+def resolve_search(section, env):
+    """``section`` (config section or ``WeightsSettings``) with ``default_vote_scale``,
+    ``restart_tol`` and ``refine_tol`` "auto" decided by ``loops_back`` on ``env.horizon``:
+    ``SEARCH_LONG_HORIZON`` or ``SEARCH_SHORT_HORIZON``; numbers given are kept.
+    **[choice]** Measured over 8 seeds (16 on tagging n3; experiments/README.md, suite): the
+    long-horizon values gave beacon (h 30, 5 nodes) 27.96 against 25.82, the bearing chase
+    (h 50) 14.12 against 13.33, Dec-Tiger with hearing (h 10, 7 nodes) 12.27 against 12.16 and
+    -19.24 against -19.45 with the noise dominating, box pushing (h 100) 3.03 against 3.09,
+    the README simulator (h 20) and beacon without noise within 0.01; on tagging's thesis
+    setting (h 3, 3 nodes, where every step can run a node of its own and the next node is
+    the observation's to decide) they lost 1.0 (21.55 against 22.55), at 6 nodes 0.24, on
+    the heatmap (h 4, 4 nodes) 0.05: the short-horizon values there."""
+    auto = [f for f in SEARCH_LONG_HORIZON if getattr(section, f) == "auto"]
+    if not auto:
+        return section
+    values = SEARCH_LONG_HORIZON if loops_back(env.horizon, section.nodes) else SEARCH_SHORT_HORIZON
+    return dataclasses.replace(section, **{f: values[f] for f in auto})
 
 
 #: ``standardize_inputs = "auto"`` standardises when the input features' spread is below this
