@@ -5,6 +5,7 @@ seeds; writes the ``suite`` block of experiments/README.md from the saved result
     python experiments/suite.py                  # hand-written controllers, then every sweep
     python experiments/suite.py hand             # only the grid searches
     python experiments/suite.py cognet ROW ...   # only these COGNet-DICE sweeps
+    python experiments/suite.py reactive         # the paper setting's reactive controller
     python experiments/suite.py --table-only     # rebuild the table from saved results
 
 The hand-written controller of a row is the simulator's ``hand_controller`` with the
@@ -865,6 +866,62 @@ tagging sweeps, "heatmap-2d-n4-vote10", "beacon-clean-vote10" and "beacon-vote-a
 another sweep: their wall times are not comparable."""
 
 
+#: thresholds ``t`` of the reactive tagging controller (regions ``(-inf, -t]``, ``(-t, t]``,
+#: ``(t, inf)``) that ``run_reactive`` evaluates on the paper setting
+REACTIVE_THRESHOLDS = (0.9, 0.99, 0.999, 1.0, 1.001, 1.01, 1.1)
+
+
+def run_reactive() -> None:
+    """The reactive controller of SPEC section 8 on the paper setting with its two division
+    points moved to ``-t`` and ``t``: 20,000 rollouts of one key per ``t`` (common random
+    numbers), written to results/suite/reactive-paper.json."""
+    import jax
+    import jax.numpy as jnp
+
+    from cognet_jax.baselines import hand_returns
+    from cognet_jax.controllers.regions import reactive_tagging_policy
+    from cognet_jax.envs.tagging import make_tagging
+
+    env, params = make_tagging("cogdice-paper")
+    controller, policy = reactive_tagging_policy()
+    values = []
+    for t in REACTIVE_THRESHOLDS:
+        points = jnp.tile(jnp.array([-t, t], jnp.float32), (2, 3, 1))
+        r = hand_returns(
+            env, params, controller, policy.replace(points=points), jax.random.key(5), 20_000
+        )
+        values.append([t, float(r.mean()), float(r.std() / len(r) ** 0.5)])
+        print(f"t = {t}: {values[-1][1]:.3f}", flush=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "reactive-paper.json").write_text(json.dumps({"values": values}, indent=1))
+
+
+def reactive_table() -> list[str]:
+    """The saved ``run_reactive`` values as one table row; empty when not run."""
+    path = RESULTS / "reactive-paper.json"
+    if not path.is_file():
+        return []
+    values = json.loads(path.read_text())["values"]
+    return [
+        "| division points | " + " | ".join(f"+-{t:g}" for t, _, _ in values) + " |",
+        "|---|" + "---|" * len(values),
+        "| value (20,000 rollouts) | "
+        + " | ".join(f"{v:.2f} +- {se:.2f}" for _, v, se in values)
+        + " |",
+    ]
+
+
+REACTIVE_NOTES = """\
+What the tied (reactive) searches' plateau near 106.6 on the paper setting matches: the
+reactive controller's 108.0 needs its division points within a few thousandths of -1 and 1. Taggers and
+evader stop at the walls (0 and 10) and then move by whole steps, so distances of exactly 1
+recur: points a hundredth away on both sides cost about 1.5 (106.5 - 106.6, the tied searches'
+plateau), a thousandth 0.15 - 0.5. A unit's threshold is `-b / w` of two Gaussian draws, and
+telling 106.6 from 108.0 is a difference of 1.3% of a value whose rollouts spread about 50, so
+the 108.0 of SPEC's reactive controller is a bar of exact arithmetic; controllers with memory
+can pass it instead (`tagging-paper-cognet`'s seed 0, untied, 115.0)."""
+
+
 #: bearings (radians) at which ``chase_map`` reads both controllers: 5-degree steps
 MAP_BEARINGS = [(-180 + 5 * i) * 3.141592653589793 / 180 for i in range(73)]
 #: letters of the chase's actions (``envs.base.MOVES5``): stay, x+1, x-1, y+1, y-1
@@ -938,6 +995,12 @@ def write_table() -> None:
         "",
         *reaching_hand("beacon", REACH_SWEEPS),
         "",
+        "### The paper setting's reactive controller, its division points moved",
+        "",
+        *reactive_table(),
+        "",
+        REACTIVE_NOTES,
+        "",
         "### The chase's first move by bearing",
         "",
         *moves,
@@ -951,7 +1014,7 @@ def write_table() -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("what", nargs="?", choices=["hand", "cognet", "extra"], default=None)
+    p.add_argument("what", nargs="?", choices=["hand", "cognet", "extra", "reactive"], default=None)
     p.add_argument("rows", nargs="*", help=f"default: all of {', '.join(ROWS)}")
     p.add_argument("--table-only", action="store_true")
     args = p.parse_args(argv)
@@ -966,6 +1029,8 @@ def main(argv=None) -> int:
             run_cognet(rows)
         if args.what in (None, "extra"):
             run_extra(list(EXTRA))
+        if args.what in (None, "reactive"):
+            run_reactive()
     write_table()
     return 0
 
