@@ -92,3 +92,19 @@ def _int_fields(config: Config):
         if isinstance(getattr(config.algorithm, f.name), int)
         and not isinstance(getattr(config.algorithm, f.name), bool)
     ]
+
+
+#: an honest evaluation of this many rollouts or more is announced before it runs
+ANNOUNCED_ROLLOUTS = 1_000_000
+
+
+def evaluation_line(config: Config, env, what: str) -> str | None:
+    """The line announcing ``what``'s honest evaluation (its rollouts, agent-steps and least
+    time at ``FASTEST_RATE``) when it has ``ANNOUNCED_ROLLOUTS`` or more; ``None`` below."""
+    if config.evaluation.rollouts < ANNOUNCED_ROLLOUTS:
+        return None
+    steps = simulated_agent_steps(config, env)[1]
+    return (
+        f"evaluating {what}: {config.evaluation.rollouts} rollouts, {steps:.3g} agent-steps, "
+        f"at least {steps / FASTEST_RATE:.3g} s ..."
+    )

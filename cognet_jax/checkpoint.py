@@ -192,6 +192,9 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
     except (TypeError, ValueError):
         raise CorruptFileError(path, "the fingerprint is not valid JSON") from None
     for key, (what, remedy) in FINGERPRINT_KEYS.items():
+        if key in stored and key in expected and isinstance(stored[key], dict):
+            # a setting recorded since the policy was written is not a difference
+            expected = dict(expected, **{key: _known(stored[key], expected[key])})
         if key in stored and key in expected and stored[key] != expected[key]:
             differ = ""
             if isinstance(stored[key], dict) and isinstance(expected[key], dict):
@@ -206,6 +209,14 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
                 f"{path}: this policy does not belong to {what}{differ}; evaluating it would "
                 f"give a number of another policy ({remedy})"
             )
+
+
+def _known(stored: dict, expected) -> dict:
+    """``expected`` (a dict) without the names ``stored`` lacks, except ``imported`` (modules
+    imported now and not at training are a difference)."""
+    if not isinstance(expected, dict):
+        return expected
+    return {k: v for k, v in expected.items() if k in stored or k == "imported"}
 
 
 def _shape(x) -> tuple:

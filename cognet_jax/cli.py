@@ -31,6 +31,7 @@ import argparse
 import contextlib
 import gc
 import json
+import logging
 import math
 import os
 import select
@@ -48,13 +49,24 @@ from cognet_jax.algorithms import noise_pilot
 from cognet_jax.cli_parser import DEFAULT_EXPERIMENT, merge_common, parser
 from cognet_jax.compile_cache import use_compile_cache
 from cognet_jax.config import ConfigError, builtin_experiments, parse_override, read_experiment
-from cognet_jax.errors import InputError, SimulatorWarning, UsageError
-from cognet_jax.hosts import init_distributed, set_cpu_devices
+from cognet_jax.errors import InputError, OneLineWarning, UsageError, callback_failure
+from cognet_jax.hosts import (
+    backend_error,
+    check_jax_settings,
+    init_distributed,
+    set_cpu_devices,
+)
 from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line, user_code_error
 from cognet_jax.registry import load_config
-from cognet_jax.run_folder import check_out, claim
-from cognet_jax.signals import Stopped, exit_on_stop, in_background, install_stop_handlers
+from cognet_jax.run_folder import check_out, claim, held_run
+from cognet_jax.signals import (
+    Stopped,
+    exit_on_stop,
+    in_background,
+    install_stop_handlers,
+    restore_stop_handlers,
+)
 
 
 def _run_overrides(args) -> list[str]:
@@ -74,10 +86,21 @@ def _removed_on_failure(out: Path):
     try:
         yield
     except BaseException:
-        keep = ("results.json", "checkpoint.msgpack", "runs.json", "sweep-state", "runs")
-        if not existed and out.is_dir() and not any((out / k).exists() for k in keep):
+        if not existed and out.is_dir() and not _worth_keeping(out):
             shutil.rmtree(out, ignore_errors=True)
         raise
+
+
+def _worth_keeping(out: Path) -> bool:
+    """Whether a failed command left something in ``out`` to continue or read: results, a
+    checkpoint, a sweep's group checkpoint, finished group or run (a sweep's spec alone,
+    written before it compiles, is not)."""
+    if any((out / k).exists() for k in ("results.json", "checkpoint.msgpack", "runs.json")):
+        return True
+    state = out / "sweep-state"
+    if any(state.glob("*.checkpoint.msgpack")) or any(state.glob("*.rows.json")):
+        return True
+    return any((out / "runs").glob("setting*/results.json"))
 
 
 def _refuse_with_resume(args, flags: dict) -> None:
@@ -231,10 +254,6 @@ def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main
     return 0
 
 
-#: ``evaluate --rollouts`` from this many on says so before it starts (it may take a while)
-ANNOUNCED_ROLLOUTS = 1_000_000
-
-
 def _evaluate(args) -> int:
     from cognet_jax.saved_runs import evaluate_run
 
@@ -244,8 +263,7 @@ def _evaluate(args) -> int:
         parse_override(o)[0] == ["evaluation", "rollouts"] for o in args.overrides
     ):
         raise UsageError("--rollouts and --set evaluation.rollouts both set the rollouts; give one")
-    big = args.rollouts is not None and args.rollouts >= ANNOUNCED_ROLLOUTS
-    announce = (lambda line: print(line, file=sys.stderr, flush=True)) if big else None
+    announce = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     # in a worker thread: a stop signal ends the command at once, not after the evaluation
     value = in_background(
         lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, announce)
@@ -255,26 +273,50 @@ def _evaluate(args) -> int:
         f"seed {value['seed']}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
     )
     log = Path(args.run_dir) / "evaluations.jsonl"
-    with log.open("a") as f:
-        f.write(json.dumps(value) + "\n")
+    try:
+        with log.open("a") as f:
+            f.write(json.dumps(value) + "\n")
+    except OSError as err:  # the value stands; only its log could not be kept
+        print(f"warning: not appended to {log}: {err.strerror}", file=sys.stderr)
+        return 0
     print(f"appended to {log}")
     return 0
 
 
+#: ``vae train``'s largest ``--epochs`` (an epoch is one pass over 1,872 patches: milliseconds)
+VAE_MAX_EPOCHS = 100_000
+#: ... and ``--latent``: a code no wider than the 4 x 4 patch it encodes
+VAE_MAX_LATENT = 16
+
+
 def _vae(args) -> int:
+    if not 1 <= args.epochs <= VAE_MAX_EPOCHS:
+        raise UsageError(f"--epochs must be in 1 .. {VAE_MAX_EPOCHS}, got {args.epochs}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if not 1 <= args.latent <= VAE_MAX_LATENT:
+        raise UsageError(
+            f"--latent must be in 1 .. {VAE_MAX_LATENT} (a patch has 16 pixels), got {args.latent}"
+        )
+    if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
+        raise UsageError("--kl-weight must be a finite number > 0")
+    check_out(args.out)
+    out = Path(args.out)
+    held = held_run(out) if out.is_dir() else None
+    if held:
+        raise UsageError(
+            f"{out} holds a run ({held}); its vae.msgpack belongs to that run: give another --out"
+        )
+    if (out / "vae.msgpack").exists() and not args.overwrite:
+        raise UsageError(f"{out} already holds a VAE (vae.msgpack); replace it with --overwrite")
+    with claim(out, resume=True):  # the lock and the write check; no run to refuse here
+        return _train_vae(args, out)
+
+
+def _train_vae(args, out: Path) -> int:
     from cognet_jax.reporting import plot_vae_mu
     from cognet_jax.vae import diagnostics, save_vae, train_vae
 
-    if args.epochs < 1:
-        raise UsageError("--epochs must be >= 1")
-    if args.seed < 0:
-        raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    if args.latent < 1:
-        raise UsageError("--latent must be >= 1")
-    if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
-        raise UsageError("--kl-weight must be a finite number > 0")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with tqdm(total=args.epochs, disable=args.no_progress, desc="vae", unit="epoch") as bar:
 
@@ -390,10 +432,11 @@ def set_up_process() -> None:
 
 def run() -> None:
     """The ``cognet-jax`` executable: ``main`` with the process's arguments, in a process set
-    up by ``set_up_process``. After a stop signal, or with a non-daemon thread still running
-    (one an ``--import`` module started), the process ends with ``os._exit`` (the output
-    flushed first): the interpreter's shutdown would otherwise wait for that thread, or tear
-    down under a computation still running in XLA (a segmentation fault)."""
+    up by ``set_up_process``. After a stop signal, with a non-daemon thread still running (one
+    an ``--import`` module started), or after any ``--import`` (whose ``atexit`` handlers may
+    block), the process ends with ``os._exit`` (the output flushed first): the interpreter's
+    shutdown would otherwise wait for that thread or handler, or tear down under a computation
+    still running in XLA (a segmentation fault)."""
     set_up_process()
     code = main()
     exit_on_stop()  # the work is done: a late stop signal ends the process without a traceback
@@ -405,7 +448,7 @@ def run() -> None:
     if lingering:  # e.g. started by an --import module: the command is done, do not wait
         names = ", ".join(sorted({t.name for t in lingering}))
         print(f"warning: not waiting for thread(s) still running: {names}", file=sys.stderr)
-    if _STOPPED["signum"] is not None or lingering:
+    if _STOPPED["signum"] is not None or lingering or _IMPORTED:
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
@@ -432,20 +475,41 @@ def _stdout_gone() -> bool:
 
 
 def _one_line_warnings() -> None:
-    """A ``SimulatorWarning`` is printed as one ``warning:`` line (not Python's two-line form
-    naming this package's source)."""
+    """A ``OneLineWarning`` (simulator, config) is printed as one ``warning:`` line (not
+    Python's two-line form naming this package's source)."""
     shown = warnings.showwarning
     if getattr(shown, "one_line", False):
         return
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, SimulatorWarning):
+        if issubclass(category, OneLineWarning):
             print(f"warning: {one_line(message)}", file=sys.stderr)
             return None
         return shown(message, category, filename, lineno, file, line)
 
     show.one_line = True
     warnings.showwarning = show
+
+
+def _after_imports(names: list[str]) -> None:
+    """What ``--import`` modules may have changed in the process, put back or refused: the
+    stop signals' handlers (restored, with a warning), a closed standard output (refused).
+    Their ``atexit`` handlers are not run (``run`` ends the process with ``os._exit``)."""
+    modules = ", ".join(names)
+    changed = restore_stop_handlers()
+    if changed:
+        print(
+            f"warning: --import {modules} replaced the handling of {', '.join(changed)}; "
+            "cognet-jax's stop handling is back in place",
+            file=sys.stderr,
+        )
+    if sys.stdout is None or sys.stdout.closed:
+        raise UsageError(f"--import {modules} closed the standard output")
+    _IMPORTED.extend(names)
+
+
+#: the ``--import`` modules of this command (``run`` then ends without their exit handlers)
+_IMPORTED: list[str] = []
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -460,8 +524,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         args = merge_common(parser().parse_args(argv))
+        if not args.debug:  # a callback's error is reported in one line (``callback_failure``)
+            logging.getLogger("jax._src.callback").setLevel(logging.CRITICAL)
         for name in args.imports:
             import_plugin(name)
+        if args.imports:
+            _after_imports(args.imports)
+        if args.command not in ("list", "inspect"):
+            check_jax_settings()
         if args.command in ("train", "sweep", "evaluate"):
             use_compile_cache(args)
         return {
@@ -493,8 +563,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
         if args.debug:
             raise
-        mine = user_code_error(err)
-        if mine is not None:  # raised in a user's --import module: theirs to fix
+        failed = callback_failure(err)
+        mine = user_code_error(err) or backend_error()
+        if mine is None and failed:
+            mine = f"a Python callback raised at {failed}"
+        if mine is not None:  # a user's --import module (theirs to fix), or no JAX backend
             print(f"error: {mine}", file=sys.stderr)
             return 2
         print(

@@ -184,6 +184,7 @@ def _add_vae(sub) -> None:
     )
     vt.add_argument("--no-noise", action="store_true", help="train on the 144 clean patches only")
     vt.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    vt.add_argument("--overwrite", action="store_true", help="replace a VAE already in --out")
 
 
 class _ArgumentParser(argparse.ArgumentParser):

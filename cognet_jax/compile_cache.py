@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -54,12 +55,21 @@ def use_compile_cache(args) -> None:
 def repair_cache_folder(folder: Path) -> None:
     """Make ``folder`` one JAX's size-bounded cache can use: every ``NAME-cache`` entry gets the
     ``NAME-atime`` file JAX's eviction reads (time 0: evicted first), and access-time files
-    without an entry are removed. A folder filled by runs without the bound lacks them, and
-    JAX then warns at every write and never stores a new entry."""
+    without an entry are removed, as are entries that are not regular files. A folder filled by
+    runs without the bound lacks them, and JAX then warns at every write and never stores a
+    new entry."""
     try:
         names = {p.name for p in folder.iterdir()}
     except OSError:  # not there yet, or unreadable: JAX reports what it cannot do
         return
+    for name in sorted(names):  # an entry that is not a regular file is unusable: removed
+        path = folder / name
+        if name.endswith(("-cache", "-atime")) and not path.is_file():
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+            names.discard(name)
     for name in names:
         try:
             if name.endswith("-cache") and name[: -len("-cache")] + "-atime" not in names:

@@ -25,13 +25,13 @@ from typing import Any
 import jax
 from tqdm.auto import tqdm
 
-from cognet_jax.budget import FASTEST_RATE, LONG_SECONDS
+from cognet_jax.budget import FASTEST_RATE, LONG_SECONDS, evaluation_line
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
     stack_history,
 )
 from cognet_jax.config import Config
-from cognet_jax.loop import Checkpointing, iterate
+from cognet_jax.loop import STOP_GRACE_S, Checkpointing, iterate
 from cognet_jax.memory import peak_rss_bytes
 from cognet_jax.program import Program, Run, rollout_mesh, same_tree, take
 from cognet_jax.records import (
@@ -46,16 +46,25 @@ from cognet_jax.signals import Stopped, deferred_stop, in_background
 
 
 class Interrupted(Exception):
-    """A group stopped by a signal after writing its checkpoint and every run's best policy;
-    ``signum`` is the signal (the CLI exits with ``128 + signum``)."""
+    """A group stopped by a signal after writing its checkpoint and every run's best policy, or
+    (``busy``) with an iteration still computing, which any read of the state would wait for:
+    then nothing is written. ``signum`` is the signal (the CLI exits with ``128 + signum``)."""
 
-    def __init__(self, out_dir: Path, iteration: int, iterations: int, signum: int = 2):
+    def __init__(self, out_dir: Path, iteration: int, iterations: int, signum: int = 2, busy=False):
         self.out_dir, self.iteration, self.signum = Path(out_dir), iteration, int(signum)
         name = signal.Signals(self.signum).name
-        super().__init__(
-            f"interrupted at iteration {iteration}/{iterations} ({name}): best policy and "
-            f"checkpoint written to {out_dir}; continue with --resume {out_dir}"
-        )
+        if busy:  # an iteration still computing: any read of the state would wait for it
+            message = (
+                f"interrupted during iteration {iteration + 1}/{iterations} ({name}), still "
+                f"computing {STOP_GRACE_S:g} s after the signal: nothing new written to "
+                f"{out_dir} (an earlier checkpoint there continues with --resume {out_dir})"
+            )
+        else:
+            message = (
+                f"interrupted at iteration {iteration}/{iterations} ({name}): best policy and "
+                f"checkpoint written to {out_dir}; continue with --resume {out_dir}"
+            )
+        super().__init__(message)
 
 
 @dataclasses.dataclass
@@ -83,8 +92,12 @@ def _stop(program: Program, state, iteration: int, opts: GroupOptions, signum):
         for r, run in enumerate(program.runs):
             record = run_record(run, program, status="interrupted", iteration=iteration)
             write_run(run, dict(record, final_value=None), best[r], program.algorithm)
-    out = opts.resume_dir or (opts.checkpoint.parent if opts.checkpoint else Path("."))
-    raise Interrupted(out, iteration, program.config.algorithm.iterations, signum)
+    raise Interrupted(_stop_dir(opts), iteration, program.config.algorithm.iterations, signum)
+
+
+def _stop_dir(opts: GroupOptions) -> Path:
+    """The folder a stopped group names for ``--resume``."""
+    return opts.resume_dir or (opts.checkpoint.parent if opts.checkpoint else Path("."))
 
 
 def run_group(runs: list[Run], opts: GroupOptions | None = None) -> tuple[list[dict], dict]:
@@ -178,7 +191,7 @@ def _search(runs, opts: GroupOptions, t_start: float):
 
     t_loop = time.perf_counter()
     probes = Probes(program, run.probe_seconds, t_start)
-    state, signum = iterate(
+    state, signum, in_flight = iterate(
         step,
         state,
         start=start,
@@ -191,6 +204,8 @@ def _search(runs, opts: GroupOptions, t_start: float):
         probe=probes if run.probe_seconds > 0 else None,
     )
     t_searched = time.perf_counter()
+    if signum is not None and in_flight:
+        raise Interrupted(_stop_dir(opts), len(history), config.algorithm.iterations, signum, True)
     if opts.checkpoint is not None:
         with deferred_stop():  # a signal now stops the group once this is written
             save(len(history), state, history)
@@ -261,6 +276,10 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
         infos = [take(info, r) if program.batched and info is not None else info for r in runs]
         records = [algorithm.finish_record(i, seconds) for i in infos]
         best = program.best_policies(finished)
+        what = "the best policy" if len(best) == 1 else f"{len(best)} best policies"
+        big = evaluation_line(program.config, program.built.env, what)
+        if big is not None:
+            print(big, file=sys.stderr, flush=True)
         finals = []
         for r, run in enumerate(program.runs):
             final = program.final_value(r, best[r])

@@ -9,6 +9,7 @@ standard library, so the ``.dpomdp`` parser (``cognet_jax.io.dpomdp``) stays fre
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 
@@ -38,7 +39,15 @@ class SimulatorError(InputError):
     its declared sizes (``envs.base.check_simulator``): the simulator's code, not this library."""
 
 
-class SimulatorWarning(UserWarning):
+class OneLineWarning(UserWarning):
+    """A warning the command line prints as one ``warning:`` line."""
+
+
+class ConfigWarning(OneLineWarning):
+    """A setting that has no effect as given (the run goes on)."""
+
+
+class SimulatorWarning(OneLineWarning):
     """A simulator that works but will make a search slow or noisy (``check_simulator``); the
     command line prints it as one ``warning:`` line."""
 
@@ -62,3 +71,22 @@ def read_json(path: str | Path, required: tuple[str, ...] = ()) -> dict:
     if missing:
         raise CorruptFileError(path, f"missing {', '.join(missing)}")
     return data
+
+
+#: a frame of a Python traceback as XLA quotes it in a failed callback's error message
+_FRAME = re.compile(r'File "([^"]+)", line (\d+), in ([\w<>.]+)')
+
+
+def callback_failure(err: BaseException) -> str | None:
+    """``FILE:LINE in FUNCTION(): ERROR`` of the innermost frame quoted in ``err``'s message,
+    when ``err`` is XLA's report of a Python callback (``jax.pure_callback``, ...) that raised;
+    ``None`` otherwise."""
+    text = " ".join(str(err).split())
+    if "callback" not in text.lower():
+        return None
+    frames = list(_FRAME.finditer(text))
+    if not frames:
+        return None
+    last = frames[-1]
+    error = text[last.end() :].strip() or "an error"
+    return f"{last.group(1)}:{last.group(2)} in {last.group(3)}(): {error}"

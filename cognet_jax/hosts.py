@@ -102,3 +102,35 @@ def set_cpu_devices(requested: int | None, runs: int) -> None:
         jax.config.update("jax_num_cpu_devices", n)
     except RuntimeError:  # backends already started (e.g. called from a running program)
         pass
+
+
+def check_jax_settings() -> None:
+    """``UsageError`` for a JAX setting the package's programs cannot run under, read from
+    JAX's configuration (the environment's ``JAX_*`` variables) without starting a backend:
+    programs are compiled ahead of time (no ``JAX_DISABLE_JIT``) and broadcast ranks
+    implicitly (``JAX_NUMPY_RANK_PROMOTION`` "allow" or "warn")."""
+    import jax
+
+    if jax.config.jax_disable_jit:
+        raise UsageError(
+            "JAX_DISABLE_JIT is set: cognet-jax compiles its programs ahead of time; unset it"
+        )
+    if jax.config.jax_numpy_rank_promotion not in ("allow", "warn"):
+        raise UsageError(
+            f"JAX_NUMPY_RANK_PROMOTION={jax.config.jax_numpy_rank_promotion}: cognet-jax "
+            "broadcasts arrays of different ranks; unset it (or set 'allow')"
+        )
+
+
+def backend_error() -> str | None:
+    """One line when JAX cannot start a backend for its platforms (``JAX_PLATFORMS`` naming
+    one this machine lacks), else ``None``."""
+    import jax
+
+    try:
+        jax.devices()
+    except Exception as err:  # JAX raises AssertionError or RuntimeError here
+        platforms = jax.config.jax_platforms or "(default)"
+        detail = f": {err}" if str(err) else ""
+        return f"JAX could not start a backend for JAX_PLATFORMS={platforms}{detail}"
+    return None

@@ -83,9 +83,11 @@ def iterate(
     step, state, *, start, iterations, history, checkpointing, save, progress, desc, probe=None
 ):
     """``state, metrics = step(state)`` from iteration ``start`` to ``iterations``, each
-    finished iteration's metrics appended to ``history``; returns ``(state, signum)``: the state
-    after the last finished iteration (``len(history)``) and the stop signal that came during
-    the loop (``None`` when none did).
+    finished iteration's metrics appended to ``history``; returns ``(state, signum,
+    in_flight)``: the state after the last finished iteration (``len(history)``), the stop
+    signal that came during the loop (``None`` when none did), and whether an iteration was
+    still computing ``STOP_GRACE_S`` after it (then reading any array waits for that
+    iteration: nothing more can be written promptly).
 
     Iterations are dispatched ahead of the one waited for (``Ahead``: about 0.1 s of them, at
     least 2); the loop waits on an event (``wait_ready``), so a stop signal is seen at once.
@@ -108,6 +110,7 @@ def iterate(
                 break
             state, metrics = flight.pop(0)
             if not wait_ready(metrics, flag) and not wait_ready(metrics, timeout=STOP_GRACE_S):
+                flag["in_flight"] = True  # XLA still runs it: reading any state waits for it
                 break
             ahead.finished()
             done = state
@@ -123,7 +126,7 @@ def iterate(
             if progress and (i % 10 == 0 or i == iterations):
                 bar.set_postfix(**_postfix(jax.device_get(metrics)))
                 bar.update(i - bar.n)
-    return done, flag["signum"]
+    return done, flag["signum"], bool(flag.get("in_flight"))
 
 
 def _postfix(metrics) -> dict:

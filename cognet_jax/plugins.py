@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import importlib.util
+import math
 import os
 import signal
 import sys
@@ -50,11 +51,28 @@ class _ImportEnded(BaseException):
     Exception`` does not swallow it."""
 
 
+def _import_timeout() -> float:
+    """``COGNET_JAX_IMPORT_TIMEOUT`` (seconds, > 0), or ``IMPORT_TIMEOUT_S``; ``UsageError``
+    naming the variable for any other value."""
+    text = os.environ.get("COGNET_JAX_IMPORT_TIMEOUT")
+    if text is None:
+        return IMPORT_TIMEOUT_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and 0 < value <= 1e6):
+        raise UsageError(
+            f"COGNET_JAX_IMPORT_TIMEOUT={text!r}: seconds an --import may take, in (0, 1e6]"
+        )
+    return value
+
+
 @contextlib.contextmanager
 def _guarded_import(name: str):
     """While a module imports: ``os._exit(n)`` raises instead of ending the process, and an
     alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
-    timeout = float(os.environ.get("COGNET_JAX_IMPORT_TIMEOUT", IMPORT_TIMEOUT_S))
+    timeout = _import_timeout()
     real_exit, pid, importer = os._exit, os.getpid(), threading.current_thread()
 
     def exit_instead(code=0):
@@ -97,9 +115,12 @@ def import_plugin(name: str) -> None:
                 raise UsageError(f"--import {name}: no module of that name")
             origin = spec.origin
             path = Path(origin or name)
+        before = set(sys.modules)
         with _guarded_import(name):
             _import(name, path, origin if name.endswith(".py") else None)
         note_foreign_code(name, origin)
+        for helper, file in _user_modules(set(sys.modules) - before, origin):
+            note_foreign_code(helper, file)  # its helpers change its numbers too
         if origin:
             _ORIGINS[str(Path(origin).resolve())] = name
     except UsageError:
@@ -142,9 +163,42 @@ def _import(name: str, path: Path, origin: str | None) -> None:
     if origin is not None:
         if not path.is_file():
             raise UsageError(f"--import {name}: no such file")
-        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module_name = _module_name(path)
+        spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
-        sys.modules[path.stem] = module
+        sys.modules[module_name] = module
         spec.loader.exec_module(module)
     else:
         importlib.import_module(name)
+
+
+def _module_name(path: Path) -> str:
+    """The name a ``.py`` file is imported under: its stem, unless that names another module
+    (a standard-library one such as ``json``, or one already imported from elsewhere), which
+    the file must not replace for the rest of the process: then ``cognet_import_<stem>``."""
+    stem = path.stem
+    other = sys.modules.get(stem)
+    if other is not None and Path(getattr(other, "__file__", "") or "").resolve() == path.resolve():
+        return stem  # the same file again
+    if other is not None or stem in sys.stdlib_module_names:
+        return f"cognet_import_{stem}"
+    return stem
+
+
+def _user_modules(names, origin: str | None) -> list[tuple[str, str]]:
+    """``(name, file)`` of the modules of ``names`` loaded from a ``.py`` file outside the
+    Python installation and this package (a user's helper modules), ``origin`` aside."""
+    installed = {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    package = Path(__file__).resolve().parent
+    skip = Path(origin).resolve() if origin else None
+    found = []
+    for name in sorted(names):
+        file = getattr(sys.modules.get(name), "__file__", None)
+        if not file or not file.endswith(".py"):
+            continue
+        path = Path(file).resolve()
+        inside = [package, *installed]
+        if path == skip or any(path.is_relative_to(root) for root in inside):
+            continue
+        found.append((name, str(path)))
+    return found

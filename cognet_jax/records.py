@@ -219,11 +219,13 @@ def fingerprint(config: Config, written: dict | None = None) -> dict:
 
 
 def numeric_settings() -> dict:
-    """What besides the config changes a policy's numbers: JAX's 64-bit mode and default PRNG,
-    and the modules imported from outside the package (``--import``) with their digests."""
+    """What besides the config changes a policy's numbers: JAX's 64-bit mode, default PRNG and
+    threefry layout, and the modules imported from outside the package (``--import`` and the
+    modules it imported) with their digests."""
     return {
         "x64": bool(jax.config.jax_enable_x64),
         "prng": str(jax.config.jax_default_prng_impl),
+        "threefry_partitionable": bool(jax.config.jax_threefry_partitionable),
         "imported": foreign_code(),
     }
 

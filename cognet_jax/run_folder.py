@@ -4,27 +4,34 @@
 they write ``out``:
 
 * ``out`` must name a folder (``--out ''`` is refused: it would write into the working folder);
-* a folder that already holds a run (``results.json``, ``runs.json`` or a checkpoint) is
-  refused unless the command continues it (``--resume``) or replaces it (``--overwrite``);
+* a folder that already holds a run (``results.json``, ``runs.json``, a checkpoint or a
+  policy) is refused unless the command continues it (``--resume``) or replaces it
+  (``--overwrite``, which removes the files of the run it replaces that the new run might not
+  write again: ``STALE_FILES``, and a sweep's earlier run folders);
 * an exclusive lock (``flock`` on ``out/.lock``, released by the kernel when the process ends,
   however it ends) makes a second writer of the same folder fail at once, naming the process
   that holds it;
-* creating the lock file checks that the folder can be written before the search starts.
+* the lock file is a regular file of the folder (never followed through a link), and a probe
+  file created and removed there checks that the folder can be written before the search
+  starts.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 from pathlib import Path
 
 from cognet_jax.errors import UsageError
 
 #: files whose presence means the folder holds a run (single run, sweep, or a stopped one)
-RUN_FILES = ("results.json", "runs.json", "checkpoint.msgpack", "sweep.json")
+RUN_FILES = ("results.json", "runs.json", "checkpoint.msgpack", "sweep.json", "policy.msgpack")
 #: of those, the files (and non-empty folders) of a sweep's folder; the others are a ``train``'s
 SWEEP_FILES = ("runs.json", "sweep.json", "runs", "sweep-state")
 LOCK_NAME = ".lock"
+#: files of a replaced run (``--overwrite``) that describe it and that a new run may not write
+STALE_FILES = ("evaluations.jsonl", "results.json", "runs.json", "runs.csv", "summary.md")
 
 
 def check_out(out: str | None) -> None:
@@ -56,30 +63,60 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
     found = held_run(out) if out.is_dir() else None
     if found and not resume and not overwrite:
         other = "sweep" if found in SWEEP_FILES else "train"
-        if other == kind and found != "runs":
+        if other == kind and found not in ("runs", "policy.msgpack"):
             advice = f"continue it with --resume {out}, or replace it with --overwrite"
         else:
             advice = f"`{kind}` cannot continue it: give another --out, or "
             advice += "replace it with --overwrite"
-            if other == kind:  # run folders without a sweep's state: nothing to resume
-                advice = "no sweep state to resume: give another --out, or replace it with "
+            if other == kind:  # run folders without a sweep's state, a lone policy
+                missing = "sweep state" if found == "runs" else "checkpoint"
+                advice = f"no {missing} to resume: give another --out, or replace it with "
                 advice += "--overwrite"
         raise UsageError(f"{out} already holds a run of `{other}` ({found}); {advice}")
-    for name in (*RUN_FILES, "policy.msgpack"):
+    for name in RUN_FILES:
         if (out / name).is_dir():
             raise UsageError(f"{out / name} is a folder; the run writes a file of that name")
+    lock = out / LOCK_NAME
+    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
+        raise UsageError(f"{lock}: not a regular file (the run's lock); remove it")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
     except OSError as err:
         raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
     try:
         _lock(fd, out)
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
+        _check_writable(out)
+        if found and overwrite:
+            _remove_replaced(out, kind)
         yield out
     finally:
         os.close(fd)  # releases the lock
+
+
+def _check_writable(out: Path) -> None:
+    """``UsageError`` unless a file can be created and removed in ``out`` (the run's files are
+    written as new files renamed into place)."""
+    probe = out / f".write-check-{os.getpid()}"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
+
+
+def _remove_replaced(out: Path, kind: str) -> None:
+    """Remove what describes the run ``--overwrite`` replaces: ``STALE_FILES`` and, for a
+    sweep, its earlier run folders (``runs/setting*``) and state."""
+    for name in STALE_FILES:
+        with contextlib.suppress(FileNotFoundError):
+            (out / name).unlink()
+    if kind == "sweep":
+        for folder in (out / "runs").glob("setting*"):
+            shutil.rmtree(folder, ignore_errors=True)
+        shutil.rmtree(out / "sweep-state", ignore_errors=True)
 
 
 def _lock(fd: int, out: Path) -> None:

@@ -19,7 +19,7 @@ from cognet_jax.api import (
     build,
     seed_key,
 )
-from cognet_jax.budget import FASTEST_RATE, simulated_agent_steps
+from cognet_jax.budget import evaluation_line
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
     read_checkpoint,
@@ -127,17 +127,14 @@ def evaluate_run(
     evaluation (its seed's evaluation key, ``evaluation.rollouts``), which reproduces its
     results.json ``final_value``; ``seed`` draws from that seed's evaluation key instead,
     ``rollouts`` changes the number, ``overrides`` the setting. ``announce(line)``, when given,
-    hears the evaluation's size and its least time before it compiles. Returns the summary with
-    ``seed``, ``overrides`` and ``wall_s``."""
+    hears a large evaluation's size and least time before it compiles (``evaluation_line``).
+    Returns the summary with ``seed``, ``overrides`` and ``wall_s``."""
     t0 = time.perf_counter()
     run = load_run(run_dir, list(overrides), rollouts)
     config = run.config
-    if announce is not None:
-        steps = simulated_agent_steps(config, run.algorithm.env)[1]  # the evaluation's
-        announce(
-            f"evaluating {run_dir}: {config.evaluation.rollouts} rollouts, {steps:.3g} "
-            f"agent-steps, at least {steps / FASTEST_RATE:.3g} s ..."
-        )
+    line = evaluation_line(config, run.algorithm.env, str(run_dir))
+    if announce is not None and line is not None:
+        announce(line)
     stored = run.results.get("seed", 0)
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")

@@ -56,11 +56,27 @@ def _raise_stopped(signum, frame):
         raise Stopped(signum)
 
 
+#: the stop signals heeded when the handlers were installed (before any ``--import``)
+_INSTALLED: list = []
+
+
 def install_stop_handlers() -> None:
     """Every stop signal raises ``Stopped`` (main thread only; the command line calls it)."""
     if threading.current_thread() is threading.main_thread():
-        for sig in _heeded():
+        _INSTALLED[:] = _heeded()
+        for sig in _INSTALLED:
             signal.signal(sig, _raise_stopped)
+
+
+def restore_stop_handlers() -> list[str]:
+    """Install ``Stopped`` again on the signals ``install_stop_handlers`` took, where code run
+    since (an ``--import`` module) replaced or ignored it; returns those signals' names."""
+    if threading.current_thread() is not threading.main_thread():
+        return []
+    changed = [sig for sig in _INSTALLED if signal.getsignal(sig) is not _raise_stopped]
+    for sig in changed:
+        signal.signal(sig, _raise_stopped)
+    return [signal.Signals(sig).name for sig in changed]
 
 
 def exit_on_stop() -> None:

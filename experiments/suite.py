@@ -5,6 +5,7 @@ seeds; writes the ``suite`` block of experiments/README.md from the saved result
     python experiments/suite.py                  # hand-written controllers, then every sweep
     python experiments/suite.py hand             # only the grid searches
     python experiments/suite.py cognet ROW ...   # only these COGNet-DICE sweeps
+    python experiments/suite.py cogdice ROW ...  # COG-DICE's defaults (scalar observations)
     python experiments/suite.py reactive         # the paper setting's reactive controller
     python experiments/suite.py --table-only     # rebuild the table from saved results
 
@@ -619,6 +620,20 @@ def run_cognet(rows: list[str]) -> None:
         _sweep(ROWS[row][0], [], SEEDS, RESULTS / f"cognet-{row}", imports)
 
 
+#: rows whose observation is a scalar: COG-DICE's regions apply (``cogdice`` column)
+SCALAR_ROWS = ("hearing-tiger", "hearing-tiger-noisy", "bearing-chase", "box-push", "readme-seek")
+
+
+def run_cogdice(rows: list[str]) -> None:
+    """COG-DICE's defaults (``experiment.algorithm = "cogdice"``, the experiment's nodes) on
+    the rows of ``rows`` whose observation is a scalar."""
+    for row in rows:
+        if row in SCALAR_ROWS:
+            imports = ["--import", str(IMPORTS[row])] if row in IMPORTS else []
+            overrides = ["experiment.algorithm=cogdice"]
+            _sweep(ROWS[row][0], overrides, SEEDS, RESULTS / f"cogdice-{row}", imports)
+
+
 def run_extra(names: list[str]) -> None:
     for name in names:
         experiment, overrides, seeds, _, _ = EXTRA[name]
@@ -913,13 +928,13 @@ def reactive_table() -> list[str]:
 
 REACTIVE_NOTES = """\
 What the tied (reactive) searches' plateau near 106.6 on the paper setting matches: the
-reactive controller's 108.0 needs its division points within a few thousandths of -1 and 1. Taggers and
-evader stop at the walls (0 and 10) and then move by whole steps, so distances of exactly 1
-recur: points a hundredth away on both sides cost about 1.5 (106.5 - 106.6, the tied searches'
-plateau), a thousandth 0.15 - 0.5. A unit's threshold is `-b / w` of two Gaussian draws, and
-telling 106.6 from 108.0 is a difference of 1.3% of a value whose rollouts spread about 50, so
-the 108.0 of SPEC's reactive controller is a bar of exact arithmetic; controllers with memory
-can pass it instead (`tagging-paper-cognet`'s seed 0, untied, 115.0)."""
+reactive controller's 108.0 needs its division points within a few thousandths of -1 and 1.
+Taggers and evader stop at the walls (0 and 10) and then move by whole steps, so distances of
+exactly 1 recur: points a hundredth away on both sides cost about 1.5 (106.5 - 106.6, the
+tied searches' plateau), a thousandth 0.15 - 0.5. A unit's threshold is `-b / w` of two
+Gaussian draws, and telling 106.6 from 108.0 is a difference of 1.3% of a value whose rollouts
+spread about 50, so the 108.0 of SPEC's reactive controller is a bar of exact arithmetic;
+controllers with memory can pass it instead (`tagging-paper-cognet`'s seed 0, untied, 115.0)."""
 
 
 #: bearings (radians) at which ``chase_map`` reads both controllers: 5-degree steps
@@ -1027,6 +1042,8 @@ def main(argv=None) -> int:
             run_hand(rows)
         if args.what in (None, "cognet"):
             run_cognet(rows)
+        if args.what in (None, "cogdice"):
+            run_cogdice(rows)
         if args.what in (None, "extra"):
             run_extra(list(EXTRA))
         if args.what in (None, "reactive"):

@@ -260,3 +260,75 @@ def test_a_closed_standard_output_is_an_error_not_silence():
     )
     assert done.returncode == 2
     assert done.stderr.strip() == "error: standard output is closed: results could not be shown"
+
+
+def test_vae_train_is_sized_and_never_replaces_a_vae_or_a_run(capsys, tmp_path):
+    """``vae train``: ``--latent`` and ``--epochs`` bounded, ``--out ''`` refused, a folder
+    holding a VAE needs ``--overwrite``, a run's folder is never written (its VAE belongs to
+    the run)."""
+    vae = tmp_path / "vae"
+    vae.mkdir()
+    (vae / "vae.msgpack").write_bytes(b"x")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "results.json").write_text("{}")
+    for argv, expected in (
+        (["--latent", "100000000"], "--latent must be in 1 .. 16"),
+        (["--epochs", "10000000000000"], "--epochs must be in 1 .. 100000"),
+        (["--out", ""], "--out ''"),
+        (["--out", str(vae)], "--overwrite"),
+        (["--out", str(run)], "belongs to that run"),
+    ):
+        one_line_error(capsys, ["vae", "train", "--no-progress", *argv], expected)
+    assert (vae / "vae.msgpack").read_bytes() == b"x"
+
+
+def test_jax_settings_the_programs_cannot_run_under_are_named(capsys, monkeypatch):
+    """``JAX_DISABLE_JIT`` and ``JAX_NUMPY_RANK_PROMOTION=raise`` are refused in one line
+    naming the variable (they were internal errors after compiling)."""
+    import jax
+
+    for name, value, expected in (
+        ("jax_disable_jit", True, "JAX_DISABLE_JIT"),
+        ("jax_numpy_rank_promotion", "raise", "JAX_NUMPY_RANK_PROMOTION=raise"),
+    ):
+        before = getattr(jax.config, name)
+        jax.config.update(name, value)
+        try:
+            one_line_error(capsys, ["check", "tagging-thesis-n3"], expected)
+        finally:
+            jax.config.update(name, before)
+
+
+def test_a_bad_import_timeout_names_the_variable(capsys, monkeypatch, tmp_path):
+    module = tmp_path / "harmless.py"
+    module.write_text("X = 1\n")
+    for value in ("abc", "-1", "nan"):
+        monkeypatch.setenv("COGNET_JAX_IMPORT_TIMEOUT", value)
+        one_line_error(capsys, ["--import", str(module), "list"], "COGNET_JAX_IMPORT_TIMEOUT")
+
+
+def test_a_budget_that_sizes_nothing_is_a_warning(capsys):
+    """``algorithm.budget`` with every size given changes nothing: one ``warning:`` line."""
+    assert main(["check", "tagging-thesis-n3", "--set", "algorithm.budget=1000"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: algorithm.budget sizes nothing" in err
+
+
+def test_a_failed_command_keeps_only_what_can_be_continued(tmp_path):
+    """A sweep's spec alone (written before it compiles) is not worth keeping; a group's
+    checkpoint, a finished group or run, results or a checkpoint are."""
+    from cognet_jax.cli import _worth_keeping
+
+    out = tmp_path / "sweep"
+    (out / "sweep-state").mkdir(parents=True)
+    (out / "sweep-state" / "sweep.json").write_text("{}")
+    assert not _worth_keeping(out)
+    for name in ("sweep-state/group0-p0.checkpoint.msgpack", "sweep-state/group0-p0.rows.json"):
+        (out / name).write_text("")
+        assert _worth_keeping(out)
+        (out / name).unlink()
+    (out / "runs" / "setting0-seed0").mkdir(parents=True)
+    assert not _worth_keeping(out)
+    (out / "runs" / "setting0-seed0" / "results.json").write_text("{}")
+    assert _worth_keeping(out)

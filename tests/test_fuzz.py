@@ -26,7 +26,7 @@ COUNTS = {
     "folders": 48,
     "check-train": 100,
     "modules": 60,
-    "simulators": 9,
+    "simulators": 10,
     "cache": 30,
     "writers": 8,
 }
@@ -363,6 +363,11 @@ SIMULATOR_FAULTS = [
         "reward",
     ),
     ("obs_shape: tuple = ()", "obs_shape: tuple = (2,)", "observation"),
+    (
+        "return state.at[:2].set(pos), obs, reward",
+        "return state.at[:2].set(pos), obs, reward * 1e38",
+        "infinite return",
+    ),
 ]
 
 

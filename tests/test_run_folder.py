@@ -5,6 +5,7 @@ policy records the numeric settings and imported code it was made with."""
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 from shared_files import TINY_TRAIN
@@ -278,3 +279,51 @@ def test_a_policy_copied_from_another_run_is_refused(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["evaluate", str(a)]) == 2
     assert "not the policy this run wrote" in capsys.readouterr().err
+
+
+def test_a_lone_policy_a_linked_lock_and_an_unwritable_folder_are_refused(tmp_path):
+    """A folder holding only a policy is a run (refused without --overwrite); a ``.lock`` that
+    is a link is refused and the file it points to left alone; a folder where no file can be
+    created is refused before anything runs, even with a lock file already in it."""
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    (lone / "policy.msgpack").write_bytes(b"x")
+    with pytest.raises(UsageError, match="policy.msgpack.*no checkpoint to resume"):
+        with claim(lone):
+            pass
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    (linked / ".lock").symlink_to(notes)
+    with pytest.raises(UsageError, match=r"\.lock: not a regular file"):
+        with claim(linked):
+            pass
+    assert notes.read_text() == "mine"
+    shut = tmp_path / "shut"
+    shut.mkdir()
+    (shut / ".lock").write_text("")
+    # a file cannot be created under the probe's name (root writes into read-only folders)
+    (shut / f".write-check-{os.getpid()}").mkdir()
+    with pytest.raises(UsageError, match="cannot write there"):
+        with claim(shut):
+            pass
+
+
+def test_overwrite_removes_what_described_the_replaced_run(tmp_path):
+    """``--overwrite`` removes the replaced run's evaluations log and results, and a sweep's
+    earlier run folders and state, so nothing of the old run passes for the new one."""
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("results.json", "evaluations.jsonl", "policy.msgpack"):
+        (run / name).write_text("{}")
+    with claim(run, overwrite=True):
+        assert not (run / "evaluations.jsonl").exists() and not (run / "results.json").exists()
+    sweep = tmp_path / "sweep"
+    (sweep / "runs" / "setting0-seed2").mkdir(parents=True)
+    (sweep / "sweep-state").mkdir()
+    (sweep / "sweep-state" / "sweep.json").write_text("{}")
+    (sweep / "runs.json").write_text("{}")
+    with claim(sweep, overwrite=True, kind="sweep"):
+        assert not (sweep / "runs" / "setting0-seed2").exists()
+        assert not (sweep / "sweep-state").exists() and not (sweep / "runs.json").exists()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Literal
 
 import jax
@@ -23,6 +24,7 @@ from cognet_jax.config import (
     require_probability,
     settings_class,
 )
+from cognet_jax.errors import ConfigWarning
 from cognet_jax.observations import (
     build_pipeline,
     check_network,
@@ -109,6 +111,14 @@ class CognetWeightsSection:
                 not getattr(self, name) or self.vote_alternate,
                 f"algorithm.{name}",
                 "acts on alternating searches only: set algorithm.vote_alternate = true",
+            )
+        if self.budget != "auto" and all(getattr(self, f) != "auto" for f in SIZE_FIELDS):
+            warnings.warn(
+                ConfigWarning(
+                    "algorithm.budget sizes nothing: every size is given (iterations, "
+                    "candidates, eval_rollouts, elites); leave one of them 'auto'"
+                ),
+                stacklevel=2,
             )
         require(
             self.budget_minutes == 0 or any(getattr(self, f) == "auto" for f in SIZE_FIELDS),

@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from cognet_jax.rollout import rollouts
+from cognet_jax.signals import in_background
 
 PILOT_CANDIDATES = 64
 PILOT_ROLLOUTS = 64
@@ -80,12 +81,16 @@ def measure_noise(algorithm, env_params) -> Noise:
         )
 
     program = jax.jit(jax.vmap(returns))
-    measured = noise_of_returns(np.asarray(program(policies)))
-    start = time.perf_counter()
-    jax.block_until_ready(program(policies))
+
+    def measure():  # in a worker thread: a stop signal is obeyed while XLA runs
+        measured = noise_of_returns(np.asarray(program(policies)))
+        start = time.perf_counter()
+        jax.block_until_ready(program(policies))
+        return measured, time.perf_counter() - start
+
+    measured, seconds = in_background(measure)
     steps = PILOT_CANDIDATES * PILOT_ROLLOUTS * algorithm.env.horizon * algorithm.env.num_agents
-    rate = steps / max(time.perf_counter() - start, 1e-9)
-    return dataclasses.replace(measured, rate=rate)
+    return dataclasses.replace(measured, rate=steps / max(seconds, 1e-9))
 
 
 #: called with one line before a measurement: the command line prints it (a measurement with

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
-from cognet_jax.errors import SimulatorError, SimulatorWarning
+from cognet_jax.errors import SimulatorError, SimulatorWarning, callback_failure
 
 EnvState = Any
 EnvParams = Any
@@ -343,10 +343,14 @@ def _check_values(env, env_params, owner: str) -> None:
         first = step(actions)
         episodes = jax.jit(jax.vmap(episode))(u_reset, u_steps, jnp.asarray(random_actions))
     except Exception as err:  # the simulator's own error
-        raise SimulatorError(
-            f"{owner}: step(u, state, actions, params) under jax.vmap raised "
-            f"{type(err).__name__}: {err}"
-        ) from err
+        failed = callback_failure(err)
+        what = (
+            f"ran a Python callback that raised at {failed}"
+            if failed
+            else f"raised {type(err).__name__}: {err}"
+        )
+        message = f"{owner}: step(u, state, actions, params) under jax.vmap {what}"
+        raise SimulatorError(message) from err
     for when, (obs, reward) in (("one step", first), ("random actions", episodes)):
         for what, x in (("observation", obs), ("reward", reward)):
             x = np.asarray(x)
@@ -360,6 +364,14 @@ def _check_values(env, env_params, owner: str) -> None:
             raise SimulatorError(
                 f"{owner}: step returned a {kind} {what}{where} ({x[~np.isfinite(x)][:4]} ...)"
             )
+    rewards = np.asarray(episodes[1], np.float32).reshape(CHECK_EPISODES, steps, -1)
+    with np.errstate(all="ignore"):  # the sum a rollout accumulates, in its float32
+        returns = rewards.sum(axis=(1, 2), dtype=np.float32)
+    if not np.isfinite(returns).all():
+        raise SimulatorError(
+            f"{owner}: the rewards of an episode of random actions sum to an infinite return "
+            f"in float32 (rewards up to {np.abs(rewards).max():.3g}): rescale the rewards"
+        )
 
 
 def _shapes(tree) -> str:

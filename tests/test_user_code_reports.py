@@ -1,0 +1,81 @@
+"""What an ``--import`` module may do to the process, and how its failures are reported: a
+module named like a standard-library one, helper modules it imports, its stop-signal handlers,
+a Python callback of its simulator that raises; and a policy's numeric settings."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+
+import pytest
+
+from cognet_jax.checkpoint import _check_fingerprint
+from cognet_jax.errors import MismatchError, callback_failure
+from cognet_jax.plugins import import_plugin
+from cognet_jax.registry import foreign_code
+from cognet_jax.signals import install_stop_handlers, restore_stop_handlers
+
+
+def test_a_module_named_like_the_standard_library_does_not_replace_it(tmp_path):
+    """A user file ``json.py`` is imported under its own private name: ``json`` stays the
+    standard library's (the tool wrote its results with it after the import)."""
+    module = tmp_path / "json.py"
+    module.write_text("VALUE = 7\n")
+    import_plugin(str(module))
+    assert sys.modules["json"].dumps({"a": 1}) == '{"a": 1}'
+    assert sys.modules["cognet_import_json"].VALUE == 7
+
+
+def test_helper_modules_of_an_import_are_recorded_with_their_digests(tmp_path, monkeypatch):
+    """A module that an ``--import`` file imports from beside it changes its numbers too: its
+    digest is recorded with the file's (a policy then refuses a changed helper)."""
+    (tmp_path / "seek_helper_x.py").write_text("HIT = 1.0\n")
+    main = tmp_path / "uses_helper_x.py"
+    main.write_text("import seek_helper_x\nHIT = seek_helper_x.HIT\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import_plugin(str(main))
+    recorded = foreign_code()
+    assert "uses_helper_x.py" in recorded and "seek_helper_x.py" in recorded
+
+
+def test_stop_handlers_replaced_by_a_module_are_put_back():
+    install_stop_handlers()
+    before = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # what a module did at import
+    try:
+        assert restore_stop_handlers() == ["SIGTERM"]
+        assert signal.getsignal(signal.SIGTERM) is before
+        assert restore_stop_handlers() == []
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def test_a_failed_callback_is_reported_at_the_users_frame():
+    text = (
+        "INTERNAL: CpuCallback error calling callback: Traceback (most recent call last): "
+        'File "/site-packages/jax/_src/callback.py", line 71, in __call__ '
+        'File "/home/me/sim.py", line 45, in boom ValueError: my callback failed'
+    )
+    assert callback_failure(RuntimeError(text)) == (
+        "/home/me/sim.py:45 in boom(): ValueError: my callback failed"
+    )
+    assert callback_failure(RuntimeError("shapes (2,) and (3,) differ")) is None
+
+
+def test_a_numeric_setting_recorded_since_a_policy_was_written_is_no_difference(tmp_path):
+    """A policy written before ``threefry_partitionable`` was recorded still evaluates; one
+    written under another value is refused naming it."""
+    now = {
+        "numerics": {
+            "x64": False,
+            "prng": "threefry2x32",
+            "threefry_partitionable": True,
+            "imported": {},
+        }
+    }
+    older = {"numerics": {"x64": False, "prng": "threefry2x32", "imported": {}}}
+    _check_fingerprint(tmp_path, json.dumps(older), now)
+    other = {"numerics": dict(now["numerics"], threefry_partitionable=False)}
+    with pytest.raises(MismatchError, match="threefry_partitionable: trained False, now True"):
+        _check_fingerprint(tmp_path, json.dumps(other), now)
