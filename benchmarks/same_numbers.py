@@ -62,20 +62,26 @@ def run(out: Path, code: Path, names: list[str], iterations: int, overrides: lis
             print(f"    failed (exit {done.returncode}): {last}", flush=True)
 
 
-def compare(a: Path, b: Path) -> int:
-    differ = 0
+def compare(a: Path, b: Path, write: Path | None = None) -> int:
+    lines, differ = [], 0
     for folder in sorted(p for p in a.iterdir() if (p / "results.json").is_file()):
         other = b / folder.name / "results.json"
         if not other.is_file():
-            print(f"{folder.name}: missing in {b}")
+            lines.append(f"{folder.name}: missing in {b}")
             differ += 1
             continue
         x = json.loads((folder / "results.json").read_text())
         y = json.loads(other.read_text())
         fields = [f for f in FIELDS if f in x and f in y]
         changed = [f for f in fields if x[f] != y[f]]
-        print(f"{folder.name}: " + (f"DIFFERS in {', '.join(changed)}" if changed else "same"))
+        lines.append(
+            f"{folder.name}: " + (f"DIFFERS in {', '.join(changed)}" if changed else "same")
+        )
         differ += bool(changed)
+    lines.append(f"{len(lines) - differ} of {len(lines)} experiments the same")
+    print("\n".join(lines))
+    if write is not None:
+        write.write_text("\n".join(lines) + "\n")
     return 1 if differ else 0
 
 
@@ -91,9 +97,10 @@ def main(argv=None) -> int:
     c = sub.add_parser("compare", help="compare two folders of `run`")
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
+    c.add_argument("--write", type=Path, help="also write the lines to this file")
     args = p.parse_args(argv)
     if args.command == "compare":
-        return compare(args.a, args.b)
+        return compare(args.a, args.b, args.write)
     code = args.code.resolve()
     run(args.out.resolve(), code, args.names or experiments(code), args.iterations, args.overrides)
     return 0
