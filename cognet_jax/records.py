@@ -232,7 +232,8 @@ def numeric_settings() -> dict:
 
 def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
-    ``results.json`` (with the policy file's ``policy_sha256``), the pipeline's VAE and, with
+    ``results.json`` (with the policy file's ``policy_sha256``), the pipeline's VAE (and its
+    ``vae_sha256``) and, with
     ``plots``, the figures (``reporting.write_plots``)."""
     if run.folder is None:
         return
@@ -244,6 +245,8 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
     vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
     if vae is not None:
         save_vae(run.folder / VAE_FILE, vae)
+        vae_file = (run.folder / VAE_FILE).read_bytes()
+        record["vae_sha256"] = hashlib.sha256(vae_file).hexdigest()  # checked as the policy's
     atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
     if plots and record.get("status") == "complete":
         write_plots(run.config, algorithm, policy, record, run.folder)

@@ -97,22 +97,26 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
-    _check_policy_digest(run_dir / "policy.msgpack", results.get("policy_sha256"))
+    _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy")
+    if ("network", "vae_path") not in named:  # the run's own VAE encodes its observations
+        _check_digest(run_dir / VAE_FILE, results.get("vae_sha256"), "VAE")
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
 
 
-def _check_policy_digest(path: Path, digest) -> None:
-    """Refuse a policy file other than the one its run wrote (``results.json``'s
-    ``policy_sha256``; runs saved before it have none): a file copied from another run would
-    give that run's number under this one's name."""
+def _check_digest(path: Path, digest, what: str) -> None:
+    """Refuse a policy (or VAE) file other than the one its run wrote (``results.json``'s
+    ``policy_sha256`` / ``vae_sha256``; runs saved before them have none): a file copied from
+    another run, or trained again into the folder, would give another number under this run's
+    name."""
     if digest is None or not path.is_file():
         return  # read_policy names a missing file
     if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
+        field = "vae_sha256" if what == "VAE" else "policy_sha256"
         raise MismatchError(
-            f"{path}: not the policy this run wrote (its sha256 differs from results.json's "
-            "policy_sha256): it was replaced, or copied from another run; evaluate the run "
-            "folder the policy came from"
+            f"{path}: not the {what} this run wrote (its sha256 differs from results.json's "
+            f"{field}): it was replaced, or copied from another run; evaluate the run "
+            f"folder the {what} came from"
         )
 
 

@@ -79,3 +79,20 @@ def test_a_numeric_setting_recorded_since_a_policy_was_written_is_no_difference(
     other = {"numerics": dict(now["numerics"], threefry_partitionable=False)}
     with pytest.raises(MismatchError, match="threefry_partitionable: trained False, now True"):
         _check_fingerprint(tmp_path, json.dumps(other), now)
+
+
+def test_a_vae_replaced_in_a_run_folder_is_refused(tmp_path):
+    """``results.json``'s ``vae_sha256`` names the VAE the run wrote: another one in its place
+    (trained again into the folder, or copied) is refused like a replaced policy."""
+    import hashlib
+
+    from cognet_jax.saved_runs import _check_digest
+
+    vae = tmp_path / "vae.msgpack"
+    vae.write_bytes(b"the run's VAE")
+    digest = hashlib.sha256(vae.read_bytes()).hexdigest()
+    _check_digest(vae, digest, "VAE")
+    vae.write_bytes(b"another VAE")
+    with pytest.raises(MismatchError, match="not the VAE this run wrote.*vae_sha256"):
+        _check_digest(vae, digest, "VAE")
+    _check_digest(vae, None, "VAE")  # a run saved before the field: nothing to compare
