@@ -34,6 +34,7 @@ import dataclasses
 import hashlib
 import importlib
 import json
+import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ from cognet_jax.config import (
     section_from_dict,
 )
 from cognet_jax.envs.base import check_simulator
+from cognet_jax.errors import ConfigWarning
 
 #: built-in simulator name -> the module that registers it
 BUILTIN_ENVS = {
@@ -398,5 +400,12 @@ def _env_key(config: Config, entry) -> tuple:
 
 
 def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config:
-    """Read an experiment (built-in name or TOML file), apply ``--set`` overrides, validate."""
-    return config_from_dict(apply_overrides(read_experiment(name_or_path), overrides or []))
+    """Read an experiment (built-in name or TOML file), apply ``--set`` overrides, validate;
+    a setting the user gave to no effect (the algorithm section's ``given_warnings``) is a
+    ``ConfigWarning``."""
+    data = apply_overrides(read_experiment(name_or_path), overrides or [])
+    config = config_from_dict(data)
+    given = data.get("algorithm", {})
+    for text in getattr(config.algorithm, "given_warnings", lambda _: [])(given):
+        warnings.warn(ConfigWarning(text), stacklevel=2)
+    return config

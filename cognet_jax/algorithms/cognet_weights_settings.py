@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from typing import Literal
 
 import jax
@@ -24,7 +23,6 @@ from cognet_jax.config import (
     require_probability,
     settings_class,
 )
-from cognet_jax.errors import ConfigWarning
 from cognet_jax.observations import (
     build_pipeline,
     check_network,
@@ -89,6 +87,18 @@ class CognetWeightsSection:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
         return rollouts_per_iteration(self)
 
+    @staticmethod
+    def given_warnings(given: dict) -> list[str]:
+        """What the user's ``[algorithm]`` settings ``given`` (before any "auto" is resolved)
+        set to no effect: a ``budget`` beside every size."""
+        sizes = [given.get(f, "auto") for f in SIZE_FIELDS]
+        if given.get("budget", "auto") != "auto" and "auto" not in sizes:
+            return [
+                "algorithm.budget sizes nothing: every size is given (iterations, candidates, "
+                "eval_rollouts, elites); leave one of them 'auto'"
+            ]
+        return []
+
     def check(self, config) -> None:
         require_positive(self, "algorithm", "nodes", "best_rollouts")
         require(
@@ -111,14 +121,6 @@ class CognetWeightsSection:
                 not getattr(self, name) or self.vote_alternate,
                 f"algorithm.{name}",
                 "acts on alternating searches only: set algorithm.vote_alternate = true",
-            )
-        if self.budget != "auto" and all(getattr(self, f) != "auto" for f in SIZE_FIELDS):
-            warnings.warn(
-                ConfigWarning(
-                    "algorithm.budget sizes nothing: every size is given (iterations, "
-                    "candidates, eval_rollouts, elites); leave one of them 'auto'"
-                ),
-                stacklevel=2,
             )
         require(
             self.budget_minutes == 0 or any(getattr(self, f) == "auto" for f in SIZE_FIELDS),
