@@ -203,6 +203,15 @@ def _sweep(args) -> int:
 MANY_RUNS = 1000
 
 
+def _duration(seconds: float) -> str:
+    """``seconds`` in the unit that reads best: s, min or h."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -> None:
     """Refuse, before anything is built for each run, a sweep whose runs together take more
     than ``budget.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
@@ -225,7 +234,7 @@ def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -
         )
     if total > MANY_RUNS or seconds > LONG_SECONDS:
         print(
-            f"sweep: {what}, at least {seconds / 3600:.2f} h of simulation; preparing them ...",
+            f"sweep: {what}, at least {_duration(seconds)} of simulation; preparing them ...",
             file=sys.stderr,
             flush=True,
         )
@@ -564,7 +573,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         failed = callback_failure(err)
-        mine = user_code_error(err) or backend_error()
+        mine = user_code_error(err) or backend_error(err)
         if mine is None and failed:
             mine = f"a Python callback raised at {failed}"
         if mine is not None:  # a user's --import module (theirs to fix), or no JAX backend

@@ -44,6 +44,9 @@ def use_compile_cache(args) -> None:
     folder = None if args.no_compile_cache else compile_cache_dir()
     if folder is None or jax.config.jax_compilation_cache_dir:
         return
+    if folder.exists() and not folder.is_dir():
+        cache_note(f"{CACHE_VARIABLE}={folder}: not a folder; compiled programs are not kept")
+        return
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     _one_cache_warning(folder)

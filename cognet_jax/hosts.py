@@ -122,15 +122,18 @@ def check_jax_settings() -> None:
         )
 
 
-def backend_error() -> str | None:
+def backend_error(failed: BaseException | None = None) -> str | None:
     """One line when JAX cannot start a backend for its platforms (``JAX_PLATFORMS`` naming
-    one this machine lacks), else ``None``."""
+    one this machine lacks; ``failed``: the error a command ended with, JAX's report of that),
+    else ``None``."""
     import jax
 
+    platforms = jax.config.jax_platforms or "(default)"
+    if failed is not None and "Unable to initialize backend" in str(failed):
+        return f"JAX could not start a backend for JAX_PLATFORMS={platforms}: {failed}"
     try:
         jax.devices()
     except Exception as err:  # JAX raises AssertionError or RuntimeError here
-        platforms = jax.config.jax_platforms or "(default)"
         detail = f": {err}" if str(err) else ""
         return f"JAX could not start a backend for JAX_PLATFORMS={platforms}{detail}"
     return None

@@ -139,12 +139,27 @@ def resolve_vae(
     vae_path: str, seed: int, epochs: int, latent: int = 1, kl_weight: float = 1.0
 ) -> TrainedVAE:
     """The VAE in ``vae_path`` or, when it is empty, the on-demand one (see module docstring).
-    A missing file raises ``ConfigError`` naming ``network.vae_path``."""
+    A missing, foreign or damaged file raises ``ConfigError`` naming ``network.vae_path``, a
+    file of another latent size one naming ``network.vae_latent``."""
     if vae_path:
         path = Path(vae_path).expanduser()
         if not path.is_file():
             raise ConfigError("network.vae_path", f"no such file: {vae_path}")
-        return load_vae(path)
+        try:
+            vae = load_vae(path)
+        except Exception as err:  # msgpack's and the blob's errors: not a VAE file, or torn
+            raise ConfigError(
+                "network.vae_path",
+                f"{vae_path}: not a VAE file of `cognet-jax vae train`, or damaged "
+                f"({type(err).__name__}: {err})",
+            ) from None
+        if vae.model.latent != latent:
+            raise ConfigError(
+                "network.vae_latent",
+                f"is {latent}, but the VAE in {vae_path} has {vae.model.latent} latent "
+                f"dimensions: set network.vae_latent = {vae.model.latent}",
+            )
+        return vae
     return trained_vae(seed, epochs, latent, kl_weight)
 
 

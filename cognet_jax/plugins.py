@@ -51,6 +51,16 @@ class _ImportEnded(BaseException):
     Exception`` does not swallow it."""
 
 
+def _end_process(line: str, code: int) -> None:
+    """Print ``line`` on stderr and end the process at once (``os._exit``: no code of the
+    module importing now can catch it)."""
+    real_exit = getattr(_end_process, "real_exit", os._exit)
+    try:
+        print(line, file=sys.stderr, flush=True)
+    finally:
+        real_exit(code)
+
+
 def _import_timeout() -> float:
     """``COGNET_JAX_IMPORT_TIMEOUT`` (seconds, > 0), or ``IMPORT_TIMEOUT_S``; ``UsageError``
     naming the variable for any other value."""
@@ -74,17 +84,34 @@ def _guarded_import(name: str):
     alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
     timeout = _import_timeout()
     real_exit, pid, importer = os._exit, os.getpid(), threading.current_thread()
+    _end_process.real_exit = real_exit
 
     def exit_instead(code=0):
         if os.getpid() != pid or threading.current_thread() is not importer:
             real_exit(code)  # a process the module forked, or a thread of its own
         raise _ImportEnded(f"--import {name} exited with status {code}")
 
+    said = f"--import {name}: still importing after {timeout:g} s (a hang?)"
+    alarms = []
+
     def out_of_time(signum, frame):
-        raise _ImportEnded(f"--import {name}: still importing after {timeout:g} s (a hang?)")
+        alarms.append(signum)
+        if len(alarms) > 1:  # the module swallowed the first: end here, from outside it
+            _end_process(f"error: {said}", 2)
+        raise _ImportEnded(said)
+
+    def stop(signum, frame):  # a module's code may swallow any exception a handler raises
+        _end_process(
+            f"error: stopped by {signal.Signals(signum).name} while importing {name}", 128 + signum
+        )
 
     main = importer is threading.main_thread()
     previous = signal.signal(signal.SIGALRM, out_of_time) if main else None
+    stops = {}
+    if main:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            if signal.getsignal(sig) not in (signal.SIG_IGN, None):
+                stops[sig] = signal.signal(sig, stop)
     os._exit = exit_instead
     try:
         if main:  # repeats, so a module that catches the first alarm meets the next one
@@ -98,6 +125,9 @@ def _guarded_import(name: str):
             finally:
                 if previous is not None:
                     signal.signal(signal.SIGALRM, previous)
+                for sig, handler in stops.items():
+                    if signal.getsignal(sig) is stop:  # not replaced by the module itself
+                        signal.signal(sig, handler)
 
 
 def import_plugin(name: str) -> None:
@@ -129,6 +159,10 @@ def import_plugin(name: str) -> None:
         raise UsageError(str(err)) from None
     except SystemExit as err:  # sys.exit() in the module's top level
         raise UsageError(f"--import {name} exited with status {err.code}") from None
+    except KeyboardInterrupt as err:
+        if type(err) is not KeyboardInterrupt:  # a stop signal (``signals.Stopped``)
+            raise
+        raise UsageError(f"--import {name} raised KeyboardInterrupt") from None
     except (ModuleNotFoundError, ValueError) as err:
         raise UsageError(f"--import {name}: {err}") from None
     except Exception as err:  # the module's own error: where, what

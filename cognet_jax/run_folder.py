@@ -6,8 +6,9 @@ they write ``out``:
 * ``out`` must name a folder (``--out ''`` is refused: it would write into the working folder);
 * a folder that already holds a run (``results.json``, ``runs.json``, a checkpoint or a
   policy) is refused unless the command continues it (``--resume``) or replaces it
-  (``--overwrite``, which removes the files of the run it replaces that the new run might not
-  write again: ``STALE_FILES``, and a sweep's earlier run folders);
+  (``--overwrite``: once the new run has finished, what the replaced run left and the new one
+  did not write again -- ``STALE_FILES``, its policy and checkpoint, a sweep's earlier run
+  folders -- is removed; a stop before then leaves the old run as it was);
 * an exclusive lock (``flock`` on ``out/.lock``, released by the kernel when the process ends,
   however it ends) makes a second writer of the same folder fail at once, naming the process
   that holds it;
@@ -63,7 +64,11 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
     found = held_run(out) if out.is_dir() else None
     if found and not resume and not overwrite:
         other = "sweep" if found in SWEEP_FILES else "train"
-        if other == kind and found not in ("runs", "policy.msgpack"):
+        sweep_of = _sweep_holding(out)
+        if sweep_of is not None:  # a run folder of a sweep: the sweep continues it
+            advice = f"a run of the sweep in {sweep_of}: continue it with `sweep --resume "
+            advice += f"{sweep_of}`, or replace this run with --overwrite"
+        elif other == kind and found not in ("runs", "policy.msgpack"):
             advice = f"continue it with --resume {out}, or replace it with --overwrite"
         else:
             advice = f"`{kind}` cannot continue it: give another --out, or "
@@ -89,11 +94,21 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         _check_writable(out)
-        if found and overwrite:
-            _remove_replaced(out, kind)
+        replaced = _replaced_files(out, kind) if found and overwrite else {}
         yield out
+        _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
     finally:
         os.close(fd)  # releases the lock
+
+
+def _sweep_holding(out: Path) -> Path | None:
+    """The sweep folder whose run folder ``out`` is (``SWEEP/runs/settingS-seedN`` beside the
+    sweep's state), or None."""
+    sweep = out.parent.parent
+    if out.parent.name == "runs" and out.name.startswith("setting"):
+        if (sweep / "sweep-state").is_dir() or (sweep / "runs.json").is_file():
+            return sweep
+    return None
 
 
 def _check_writable(out: Path) -> None:
@@ -107,16 +122,32 @@ def _check_writable(out: Path) -> None:
         raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
 
 
-def _remove_replaced(out: Path, kind: str) -> None:
-    """Remove what describes the run ``--overwrite`` replaces: ``STALE_FILES`` and, for a
-    sweep, its earlier run folders (``runs/setting*``) and state."""
-    for name in STALE_FILES:
-        with contextlib.suppress(FileNotFoundError):
-            (out / name).unlink()
+def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
+    """The files and run folders describing the run ``--overwrite`` replaces
+    (``STALE_FILES``, its policy and checkpoint, a sweep's ``runs/setting*``), with their
+    modification times."""
+    paths = [out / n for n in (*STALE_FILES, "policy.msgpack", "checkpoint.msgpack")]
     if kind == "sweep":
-        for folder in (out / "runs").glob("setting*"):
-            shutil.rmtree(folder, ignore_errors=True)
-        shutil.rmtree(out / "sweep-state", ignore_errors=True)
+        paths += sorted((out / "runs").glob("setting*"))
+    return {p: _mtime(p) for p in paths if p.exists()}
+
+
+def _mtime(path: Path) -> int:
+    """Modification time of ``path`` (of its ``results.json`` for a run folder); 0 if none."""
+    target = path / "results.json" if path.is_dir() else path
+    return target.stat().st_mtime_ns if target.exists() else 0
+
+
+def _remove_unwritten(replaced: dict[Path, float]) -> None:
+    """Remove what the replaced run left and the new run did not write again (its time
+    unchanged), once the new run finished: a stop before then leaves the old run as it was."""
+    for path, mtime in replaced.items():
+        if not path.exists() or _mtime(path) != mtime:
+            continue
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _lock(fd: int, out: Path) -> None:

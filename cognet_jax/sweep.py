@@ -39,6 +39,7 @@ import csv
 import io
 import itertools
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ from pathlib import Path
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
+from tqdm.auto import tqdm
 
 from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
@@ -105,12 +107,20 @@ class Group:
     runs: list[tuple[int, int]] = field(default_factory=list)  # (setting index, seed)
 
 
+#: ``plan`` shows a progress bar from this many settings on
+PLAN_BAR = 200
+
+
 def plan(experiment: str, grid: dict[str, list], overrides: list[str]) -> list[Group]:
     """Validated settings (every grid combination), grouped by their static fields."""
     names = list(grid)
     groups: dict[str, Group] = {}
     combos = itertools.product(*(grid[n] for n in names)) if names else [()]
-    for index, combo in enumerate(combos):
+    count = math.prod(len(grid[n]) for n in names)
+    shown = tqdm(  # loading and validating a setting takes milliseconds: a bar for many
+        combos, total=count, disable=count < PLAN_BAR, desc="preparing settings", leave=False
+    )
+    for index, combo in enumerate(shown):
         values = dict(zip(names, combo, strict=True))
         sets = overrides + [f"{n}={json.dumps(v)}" for n, v in values.items()]
         config = load_config(experiment, sets)

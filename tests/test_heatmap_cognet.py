@@ -325,3 +325,27 @@ def test_random_value_by_dp_matches_monte_carlo():
         ret = run(jax.random.key(7), make_heatmap(start)[1])
         mean, se = mean_and_stderr(ret)
         assert abs(float(mean) - random_value(start)) < 3 * float(se), (start, float(mean))
+
+
+def test_a_foreign_or_torn_vae_file_and_a_latent_that_differs_name_the_field(tmp_path):
+    """``network.vae_path`` naming a file that is not a VAE (a policy, JSON, a torn VAE) is
+    refused naming the field (these were internal errors); a VAE of another latent size than
+    ``network.vae_latent`` names that field instead of training with a value it ignores."""
+    from cognet_jax.vae import save_vae, train_vae
+
+    vae = train_vae(seed=0, epochs=1, latent=2)[0]
+    good = tmp_path / "vae.msgpack"
+    save_vae(good, vae)
+    torn = tmp_path / "torn.msgpack"
+    torn.write_bytes(good.read_bytes()[:200])
+    foreign = tmp_path / "vae.json"
+    foreign.write_text('{"latent": 2}')
+    for path in (torn, foreign):
+        network = {"vae_path": str(path), "observation": "encoded", "vae_latent": 2}
+        with pytest.raises(ConfigError) as err:
+            build_algorithm(heatmap_config(network=network))
+        assert err.value.field == "network.vae_path"
+    network = {"vae_path": str(good), "observation": "encoded", "vae_latent": 3}
+    with pytest.raises(ConfigError) as err:
+        build_algorithm(heatmap_config(network=network))
+    assert err.value.field == "network.vae_latent"

@@ -311,19 +311,39 @@ def test_a_lone_policy_a_linked_lock_and_an_unwritable_folder_are_refused(tmp_pa
 
 
 def test_overwrite_removes_what_described_the_replaced_run(tmp_path):
-    """``--overwrite`` removes the replaced run's evaluations log and results, and a sweep's
-    earlier run folders and state, so nothing of the old run passes for the new one."""
+    """``--overwrite``: once the new run finished, the replaced run's evaluations log, results
+    and a sweep's earlier run folders are gone, and what the new run wrote stays; a run stopped
+    before (an error or a signal while compiling) leaves the old run as it was."""
     run = tmp_path / "run"
     run.mkdir()
     for name in ("results.json", "evaluations.jsonl", "policy.msgpack"):
         (run / name).write_text("{}")
+    with pytest.raises(KeyboardInterrupt):
+        with claim(run, overwrite=True):
+            raise KeyboardInterrupt  # a stop while compiling
+    assert (run / "results.json").exists() and (run / "evaluations.jsonl").exists()
     with claim(run, overwrite=True):
-        assert not (run / "evaluations.jsonl").exists() and not (run / "results.json").exists()
+        (run / "results.json").write_text('{"new": 1}')
+    assert not (run / "evaluations.jsonl").exists() and not (run / "policy.msgpack").exists()
+    assert (run / "results.json").read_text() == '{"new": 1}'
     sweep = tmp_path / "sweep"
-    (sweep / "runs" / "setting0-seed2").mkdir(parents=True)
-    (sweep / "sweep-state").mkdir()
-    (sweep / "sweep-state" / "sweep.json").write_text("{}")
+    for seed in (0, 2):
+        (sweep / "runs" / f"setting0-seed{seed}").mkdir(parents=True)
+        (sweep / "runs" / f"setting0-seed{seed}" / "results.json").write_text("{}")
     (sweep / "runs.json").write_text("{}")
     with claim(sweep, overwrite=True, kind="sweep"):
-        assert not (sweep / "runs" / "setting0-seed2").exists()
-        assert not (sweep / "sweep-state").exists() and not (sweep / "runs.json").exists()
+        (sweep / "runs" / "setting0-seed0" / "results.json").write_text('{"new": 1}')
+    assert not (sweep / "runs" / "setting0-seed2").exists() and not (sweep / "runs.json").exists()
+    assert (sweep / "runs" / "setting0-seed0" / "results.json").exists()
+
+
+def test_a_sweeps_run_folder_points_to_the_sweep(tmp_path):
+    """``train`` into a run folder of a sweep names the sweep to continue, not a ``--resume``
+    of the run folder that has no checkpoint."""
+    run = tmp_path / "sw" / "runs" / "setting0-seed0"
+    run.mkdir(parents=True)
+    (run / "results.json").write_text("{}")
+    (tmp_path / "sw" / "runs.json").write_text("{}")
+    with pytest.raises(UsageError, match=r"a run of the sweep in .*sweep --resume"):
+        with claim(run):
+            pass

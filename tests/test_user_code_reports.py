@@ -96,3 +96,12 @@ def test_a_vae_replaced_in_a_run_folder_is_refused(tmp_path):
     with pytest.raises(MismatchError, match="not the VAE this run wrote.*vae_sha256"):
         _check_digest(vae, digest, "VAE")
     _check_digest(vae, None, "VAE")  # a run saved before the field: nothing to compare
+
+
+def test_a_keyboard_interrupt_raised_by_a_module_names_it(tmp_path, capsys):
+    from cognet_jax.cli import main
+
+    module = tmp_path / "kbint.py"
+    module.write_text("raise KeyboardInterrupt\n")
+    assert main(["--import", str(module), "list"]) == 2
+    assert "kbint.py raised KeyboardInterrupt" in capsys.readouterr().err
