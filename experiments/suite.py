@@ -418,10 +418,6 @@ VOTE10_WHAT = "candidate defaults: default vote at the units' scale, shorter exp
 EXTRA.update(
     {
         **{
-            f"{row}-vote10": (experiment, VOTE10, SEEDS, VOTE10_WHAT, None)
-            for row, experiment in (("bearing-chase", "bearing-chase-n5"),)
-        },
-        **{
             f"{experiment}-vote10{'-16seeds' if seeds == 16 else ''}": (
                 experiment,
                 [*TAG_BASE, *VOTE10, *paired],
@@ -748,28 +744,28 @@ def table() -> list[str]:
 
 NOTES = """\
 "holds" means the 8-seed mean is at least the hand-written controller's value and no seed is
-below it by more than 3% of its magnitude (issue 52's bar); "below" marks a row where it does not.
-The hand-written controllers are the rules of each simulator's module (`hand_controller`):
+below it by more than 3% of its magnitude (issue 52's bar); "below" marks a row where it does
+not. The hand-written controllers are the rules of each simulator's module (`hand_controller`):
 counting clear hearings (Dec-Tiger), stepping along the larger offset (beacon), stepping toward
 the bearing (chase), climbing the patch (plume), pushing when the range is small (box pushing).
-The encoded variant needs a VAE trained on the simulator's patches; only the heatmap's is
-built in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The
-defaults size the search from a noise pilot (cognet_jax/algorithms/sizing.py): on Dec-Tiger,
-its noisy variant and box pushing it moves the budget from rollouts to candidates; on beacon,
-chase and the README simulator it keeps the sizes of before. They end with a refine phase
-(`algorithm.refine`, the last quarter of the iterations searching around the kept policy).
-The horizon rule (`resolve_search` in cognet_jax/algorithms/cognet_weights_settings.py): where
-the horizon is longer than the controller has nodes -- every row of this table -- the default
-vote starts at the units' scale and the exploring searches are short (`default_vote_scale` 10,
-`restart_tol` and `refine_tol` 0.1); "before the horizon rule" gives the 8-seed mean of the
-same sweep with the values of before (1, 0.02, 0.2; rows "-before-rule" of the next table).
-The sweeps of noisy Dec-Tiger, both beacons, box pushing and the README simulator ran before
-the rule with its three values set by `--set` (their runs.json record those overrides); the
-Dec-Tiger sweep ran again under the rule and gave the same values seed for seed. Wall times
-were measured one sweep at a time, at times beside lighter work on the same 2 cores. "not
-run" marks a simulator not yet swept under the defaults. `standardize_inputs` "auto"
-standardises the plume's 3 x 3 patch only (`narrow_inputs`; row cognet-plume-raw of the next
-table: a sweep without)."""
+The encoded variant needs a VAE trained on the simulator's patches; only the heatmap's is built
+in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The defaults
+size the search from a noise pilot (cognet_jax/algorithms/sizing.py): on Dec-Tiger, its noisy
+variant and box pushing it moves the budget from rollouts to candidates; on beacon, chase and
+the README simulator it keeps the sizes of before. They end with a refine phase
+(`algorithm.refine`, the last quarter of the iterations searching around the kept policy). The
+horizon rule (`resolve_search` in cognet_jax/algorithms/cognet_weights_settings.py): where the
+horizon is longer than the controller has nodes -- every row of this table -- the default vote
+starts at the units' scale and the exploring searches are short (`default_vote_scale` 10,
+`restart_tol` and `refine_tol` 0.1); "before the horizon rule" gives the 8-seed mean of the same
+sweep with the values of before (1, 0.02, 0.2; rows "-before-rule" of the next table). The
+sweeps of noisy Dec-Tiger, both beacons, box pushing and the README simulator ran before the
+rule with its three values set by `--set` (their runs.json record those overrides); the
+Dec-Tiger and chase sweeps ran again under the rule and gave the same values seed for seed. Wall
+times were measured one sweep at a time, at times beside lighter work (the test suite, a second
+session's commands) on the same 2 cores. "not run" marks a simulator not yet swept under the
+defaults. `standardize_inputs` "auto" standardises the plume's 3 x 3 patch only
+(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without)."""
 
 
 EXTRA_NOTES = """\
@@ -877,7 +873,7 @@ the two scales between exploring searches ("-vote-alternate"), a portfolio of bo
 ("-portfolio") and the large vote for tied candidates only ("-tiedvote10") kept tagging n3 and
 helped beacon less: the rule gives them to problems whose horizon exceeds the nodes. The sweep
 of "beacon-starts2" shared the machine with the test suite; the 16-seed
-tagging sweeps, "heatmap-2d-n4-vote10", "beacon-clean-vote10" and "beacon-vote-alternate" with
+tagging sweeps, "heatmap-2d-n4-vote10", "cognet-beacon-clean" and "beacon-vote-alternate" with
 another sweep: their wall times are not comparable."""
 
 
