@@ -124,11 +124,12 @@ def _check_writable(out: Path) -> None:
 
 def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
     """The files and run folders describing the run ``--overwrite`` replaces
-    (``STALE_FILES``, its policy and checkpoint, a sweep's ``runs/setting*``), with their
-    modification times."""
+    (``STALE_FILES``, its policy and checkpoint, a sweep's ``runs/setting*`` and group states),
+    with their modification times."""
     paths = [out / n for n in (*STALE_FILES, "policy.msgpack", "checkpoint.msgpack")]
     if kind == "sweep":
         paths += sorted((out / "runs").glob("setting*"))
+        paths += sorted((out / "sweep-state").glob("group*"))
     return {p: _mtime(p) for p in paths if p.exists()}
 
 
