@@ -645,7 +645,13 @@ def _search_cell(path: Path, hand: float | None) -> str:
     values = [r["final_value"]["mean"] for r in data["rows"]]
     mean = sum(values) / len(values)
     alg = data["config"]["algorithm"]
-    sizes = f"{alg['iterations']} x {alg['candidates']} x {alg['eval_rollouts']}"
+    population = alg.get("candidates", alg.get("samples"))  # COG-DICE calls them samples
+    steps = (  # the search's own count where the weight-space sizes do not apply (COG-DICE)
+        _agent_steps(data["config"])
+        if "candidates" in alg
+        else data["rows"][0]["simulated_agent_steps"]
+    )
+    sizes = f"{alg['iterations']} x {population} x {alg['eval_rollouts']}"
     verdict = ""
     if hand is not None:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
@@ -654,8 +660,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
     before_cell = f"; before the horizon rule {sum(before) / len(before):.3f}" if before else ""
     return (
         f"{mean:.3f}{verdict}, min {min(values):.3f}; {data['wall_s'] / len(values):.0f} s per "
-        f"seed ({len(values)} seeds in one sweep); {_agent_steps(data['config']):.2g} "
-        f"agent-steps ({sizes}){before_cell}"
+        f"seed ({len(values)} seeds in one sweep); {steps:.2g} agent-steps ({sizes}){before_cell}"
     )
 
 
@@ -765,7 +770,10 @@ Dec-Tiger and chase sweeps ran again under the rule and gave the same values see
 times were measured one sweep at a time, at times beside lighter work (the test suite, a second
 session's commands) on the same 2 cores. "not run" marks a simulator not yet swept under the
 defaults. `standardize_inputs` "auto" standardises the plume's 3 x 3 patch only
-(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without)."""
+(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without). The COG-DICE column
+runs COG-DICE's defaults (`--set experiment.algorithm=cogdice`, `python experiments/suite.py
+cogdice ROW`) on the rows with a scalar observation; its Dec-Tiger sweep shared the machine with
+another sweep and the test suite for most of its hour, so its wall time is an upper bound."""
 
 
 EXTRA_NOTES = """\
