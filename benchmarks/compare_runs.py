@@ -56,7 +56,26 @@ def table(before: dict, after: dict) -> list[str]:
             f"| median of {len(ratios)} rows | | | {statistics.median(ratios):.2f} "
             f"(range {min(ratios):.2f} - {max(ratios):.2f}) |"
         )
+    lines += ["", "The machine's phase: every implementation's rows, after / before (median):", ""]
+    for impl, found in sorted(by_impl(before, after).items()):
+        lines.append(f"- {impl}: {statistics.median(found):.2f} over {len(found)} rows")
     return lines
+
+
+def by_impl(before: dict, after: dict) -> dict[str, list[float]]:
+    """after / before of every rollout and iteration row, by implementation (JAX and the
+    references): when the references slowed as much as JAX, the machine did, not the code."""
+    out: dict[str, list[float]] = {}
+    for section in ("rollouts", "iterations"):
+        old = {
+            (r["impl"], r.get("nodes"), r.get("rollouts"), r.get("case")): r["median_s"]
+            for r in before.get(section, [])
+        }
+        for r in after.get(section, []):
+            key = (r["impl"], r.get("nodes"), r.get("rollouts"), r.get("case"))
+            if key in old:
+                out.setdefault(r["impl"], []).append(r["median_s"] / old[key])
+    return out
 
 
 def main(argv=None) -> int:
