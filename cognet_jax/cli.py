@@ -59,7 +59,7 @@ from cognet_jax.hosts import (
 from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line, user_code_error
 from cognet_jax.registry import load_config
-from cognet_jax.run_folder import check_out, claim, held_run
+from cognet_jax.run_folder import check_out, claim, held_run, worth_keeping
 from cognet_jax.signals import (
     Stopped,
     exit_on_stop,
@@ -86,21 +86,9 @@ def _removed_on_failure(out: Path):
     try:
         yield
     except BaseException:
-        if not existed and out.is_dir() and not _worth_keeping(out):
+        if not existed and out.is_dir() and not worth_keeping(out):
             shutil.rmtree(out, ignore_errors=True)
         raise
-
-
-def _worth_keeping(out: Path) -> bool:
-    """Whether a failed command left something in ``out`` to continue or read: results, a
-    checkpoint, a sweep's group checkpoint, finished group or run (a sweep's spec alone,
-    written before it compiles, is not)."""
-    if any((out / k).exists() for k in ("results.json", "checkpoint.msgpack", "runs.json")):
-        return True
-    state = out / "sweep-state"
-    if any(state.glob("*.checkpoint.msgpack")) or any(state.glob("*.rows.json")):
-        return True
-    return any((out / "runs").glob("setting*/results.json"))
 
 
 def _refuse_with_resume(args, flags: dict) -> None:

@@ -51,10 +51,9 @@ class _ImportEnded(BaseException):
     Exception`` does not swallow it."""
 
 
-def _end_process(line: str, code: int) -> None:
-    """Print ``line`` on stderr and end the process at once (``os._exit``: no code of the
-    module importing now can catch it)."""
-    real_exit = getattr(_end_process, "real_exit", os._exit)
+def _end_process(line: str, code: int, real_exit) -> None:
+    """Print ``line`` on stderr and end the process at once with ``real_exit`` (the real
+    ``os._exit``: no code of the module importing now can catch it)."""
     try:
         print(line, file=sys.stderr, flush=True)
     finally:
@@ -84,7 +83,6 @@ def _guarded_import(name: str):
     alarm ends an import that takes longer than ``IMPORT_TIMEOUT_S`` (main thread only)."""
     timeout = _import_timeout()
     real_exit, pid, importer = os._exit, os.getpid(), threading.current_thread()
-    _end_process.real_exit = real_exit
 
     def exit_instead(code=0):
         if os.getpid() != pid or threading.current_thread() is not importer:
@@ -97,13 +95,12 @@ def _guarded_import(name: str):
     def out_of_time(signum, frame):
         alarms.append(signum)
         if len(alarms) > 1:  # the module swallowed the first: end here, from outside it
-            _end_process(f"error: {said}", 2)
+            _end_process(f"error: {said}", 2, real_exit)
         raise _ImportEnded(said)
 
     def stop(signum, frame):  # a module's code may swallow any exception a handler raises
-        _end_process(
-            f"error: stopped by {signal.Signals(signum).name} while importing {name}", 128 + signum
-        )
+        said_stop = f"error: stopped by {signal.Signals(signum).name} while importing {name}"
+        _end_process(said_stop, 128 + signum, real_exit)
 
     main = importer is threading.main_thread()
     previous = signal.signal(signal.SIGALRM, out_of_time) if main else None

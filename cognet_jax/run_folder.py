@@ -101,6 +101,18 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         os.close(fd)  # releases the lock
 
 
+def worth_keeping(out: Path) -> bool:
+    """Whether a failed command left something in ``out`` to continue or read: results, a
+    checkpoint, a sweep's group checkpoint, finished group or run (a sweep's spec alone,
+    written before it compiles, is not)."""
+    if any((out / k).exists() for k in ("results.json", "checkpoint.msgpack", "runs.json")):
+        return True
+    state = out / "sweep-state"
+    if any(state.glob("*.checkpoint.msgpack")) or any(state.glob("*.rows.json")):
+        return True
+    return any((out / "runs").glob("setting*/results.json"))
+
+
 def _sweep_holding(out: Path) -> Path | None:
     """The sweep folder whose run folder ``out`` is (``SWEEP/runs/settingS-seedN`` beside the
     sweep's state), or None."""

@@ -318,7 +318,7 @@ def test_a_budget_that_sizes_nothing_is_a_warning(capsys):
 def test_a_failed_command_keeps_only_what_can_be_continued(tmp_path):
     """A sweep's spec alone (written before it compiles) is not worth keeping; a group's
     checkpoint, a finished group or run, results or a checkpoint are."""
-    from cognet_jax.cli import _worth_keeping
+    from cognet_jax.run_folder import worth_keeping as _worth_keeping
 
     out = tmp_path / "sweep"
     (out / "sweep-state").mkdir(parents=True)
