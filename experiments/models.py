@@ -77,43 +77,39 @@ default) writes MADP's line, so the published optima (17.6, 66.081, 98.593, 107.
 2 to 5) are those of the generated file; ``--rules-only`` writes 91.
 
 **Mars rovers** (Amato and Zilberstein 2009, "Achieving goal-oriented behavior in decentralized
-POMDPs", AAMAS; 256 states, 6 actions and 8 observations per agent, as MADP's ``Mars``): two
-rovers on a 2 x 2 grid whose four cells are sites: cells 0 (top left) and 3 (bottom right) are
-drill sites, 1 and 2 sample sites.
+POMDPs", AAMAS; MADP's ``Mars.dpomdp``: 256 states, 6 actions and 8 observations per agent):
+two rovers on a 2 x 2 grid whose four cells are sites: cells 0 and 3 are drill sites, 1 and 2
+sample sites. The rules below are MADP's file's, quirks included (checked against a copy of it,
+which is not part of this repository: transitions, observations, rewards and start equal).
 
-* a state holds both rovers' cells and which sites are done: ``64 p1 + 16 p2 + done`` (bits of
-  ``done``: site ``c`` is bit ``c``); the episode starts with the rovers anywhere (uniform) and
-  no site done;
-* actions ``north, east, south, west, sample, drill``: a move succeeds with probability 0.9
-  (into the grid's edge the rover stays), else the rover stays; ``sample`` and ``drill`` keep
-  the rover in place and mark its cell's site done; once every site is done the next state is
-  drawn from the start distribution again;
+* a state holds both rovers' cells and which sites are done: ``64 p1 + 16 p2 + done`` (a
+  cell's bit 0 is its row, bit 1 its column; site ``c`` is bit ``c`` of ``done``); the episode
+  starts with both rovers on cell 0 and no site done; the discount is 1;
+* actions ``up, down, left, right, drill, sample``: a move succeeds with probability 0.9, else
+  the rover stays (into the grid's edge it stays); ``drill`` and ``sample`` keep the rover in
+  place and mark its cell's site done; an experiment after which every site is done sends the
+  rovers to state 0;
 * each rover observes its cell and whether that cell's site is done (after the step);
-* rewards ``R(s, ja)``: both rovers on one site not yet done, both drilling: +6 on a drill
-  site, -10 on a sample site (ruined); both sampling a sample site: +2; one drilling while the
-  other samples: -10. Otherwise per rover: -0.1 for a move; for an experiment on a site done
-  before (or by the other rover in this step), -1; drilling alone, -10; sampling, +2. The
-  discount is 0.9.
-
-These are the rules as published and as re-implemented in public code (the POMDPs.jl
-``StochasticMarsPOMDP``); MADP's file may differ in details this description leaves open (the
-order of states, the reset).
+* rewards ``R(s, ja)``, with a rover's own value -0.1 for a move, and for an experiment -1 on a
+  done site, else -10 drilling and +2 sampling: when either rover moves, the sum of both
+  rovers' own values; both experimenting on one cell: -2 if its site is done, else on a drill
+  site +6 both drilling, +1 both sampling, 0 mixed, and on a sample site +2 both sampling, 0
+  otherwise; experimenting on two cells: rover 1's action counts for both sites (the sum of
+  its own value at each), except that drilling two open sites gives 0.
 
 **Meeting in a 3 x 3 grid with corners** (Amato, Dibangoye and Zilberstein 2009, "Incremental
-policy generation for finite-horizon DEC-POMDPs", ICAPS; 81 states, 5 actions and 9
-observations per agent, as MADP's ``Grid3x3corners``): two agents on a 3 x 3 grid.
+policy generation for finite-horizon DEC-POMDPs", ICAPS; MADP's ``Grid3x3corners.dpomdp``:
+81 states, 5 actions and 9 observations per agent), checked against MADP's file in the same way:
 
 * a state is both agents' cells, ``9 c1 + c2`` (cell ``3 row + column``, row 0 on top); the
-  episode starts with the agents in the top-right and the bottom-left corner (cells 2 and 6),
-  two moves from either meeting corner;
-* actions ``north, south, east, west, stay``: a move succeeds with probability 0.6, else the
-  agent stays (into the edge of the grid it stays), as in Bernstein et al.'s 2 x 2 grid;
-* each agent observes the walls around it: left / right / neither times top / bottom /
-  neither (9 observations, which on 3 x 3 name its cell);
+  episode starts with the agents in the top-right and the bottom-left corner (cells 2 and 6);
+  the discount is 1;
+* actions ``up, down, left, right, stay``: a move goes the intended way with probability 0.6,
+  each of the other three ways with 0.1 and nowhere with 0.1 (a way into the grid's edge
+  leaves the agent where it is); ``stay`` stays;
+* each agent observes its own cell;
 * reward 1 in every step the agents share the top-left or the bottom-right corner (the state
-  before the step), 0 otherwise; the discount is 1. **[choice]** which corners and the start
-  are this generator's reading of the published optima (0 at horizon 2: nobody meets in one
-  step; 0.133 at horizon 3, where these rules give 0.6^4 = 0.1296: the details differ).
+  before the step), 0 otherwise.
 """
 
 from __future__ import annotations
@@ -368,143 +364,159 @@ def _product(values) -> float:
 # ---------------------------------------------------------------------------------------------
 # Mars rovers and meeting in a 3 x 3 grid (module docstring)
 # ---------------------------------------------------------------------------------------------
-#: moves on a grid of ``width`` columns: action -> (row step, column step)
-MARS_MOVES = {0: (-1, 0), 1: (0, 1), 2: (1, 0), 3: (0, -1)}
-MARS_SAMPLE, MARS_DRILL = 4, 5
+#: Mars rovers: action -> (row step, column step); 4 drill and 5 sample stay
+MARS_MOVES = {0: (-1, 0), 1: (1, 0), 2: (0, -1), 3: (0, 1)}
+MARS_DRILL, MARS_SAMPLE = 4, 5
 MARS_DRILL_SITES = (0, 3)
-MARS_START = [64 * p1 + 16 * p2 for p1 in range(4) for p2 in range(4)]
+MARS_ALL_DONE = 0b1111
 
 
-def _moved(cell: int, move: tuple[int, int], width: int) -> int:
-    """The cell one step ``move`` from ``cell`` on a ``width x width`` grid (the same cell at
-    the edge)."""
-    row, col = divmod(cell, width)
-    row, col = row + move[0], col + move[1]
-    return cell if not (0 <= row < width and 0 <= col < width) else width * row + col
+def mars_cell_moved(cell: int, action: int) -> int:
+    """The cell a rover in ``cell`` of the 2 x 2 grid reaches when ``action`` succeeds (bit 0
+    of a cell is its row, bit 1 its column); the same cell at the edge or for an experiment."""
+    if action not in MARS_MOVES:
+        return cell
+    row, col = cell & 1, cell >> 1
+    row, col = row + MARS_MOVES[action][0], col + MARS_MOVES[action][1]
+    return cell if not (0 <= row < 2 and 0 <= col < 2) else row + 2 * col
 
 
-def _rover_outcomes(cell: int, action: int, moves: dict, width: int, succeed: float) -> dict:
-    """``{next cell: probability}`` of one agent's move (or experiment: stays)."""
-    if action not in moves:
-        return {cell: 1.0}
-    target = _moved(cell, moves[action], width)
-    if target == cell:
-        return {cell: 1.0}
-    return {target: succeed, cell: round(1.0 - succeed, 10)}
+def _mars_alone(action: int, open_site: bool) -> float:
+    """One rover's reward for ``action`` at a site open (not yet done) or not."""
+    if action in MARS_MOVES:
+        return -0.1
+    if not open_site:
+        return -1.0
+    return -10.0 if action == MARS_DRILL else 2.0
 
 
 def mars_reward(cells: tuple[int, int], done: int, actions: tuple[int, int]) -> float:
     """``R(s, ja)`` of Mars rovers (module docstring): ``cells`` of both rovers, ``done`` the
     bits of the sites done."""
-    experiments = (MARS_SAMPLE, MARS_DRILL)
-    if cells[0] == cells[1] and not done >> cells[0] & 1:
-        site_is_drill = cells[0] in MARS_DRILL_SITES
-        if actions == (MARS_DRILL, MARS_DRILL):
-            return 6.0 if site_is_drill else -10.0
-        if actions == (MARS_SAMPLE, MARS_SAMPLE) and not site_is_drill:
-            return 2.0
-        if actions[0] in experiments and actions[1] in experiments and actions[0] != actions[1]:
-            return -10.0
-    reward, seen = 0.0, done
+    open1, open2 = (not done >> c & 1 for c in cells)
+    a1, a2 = actions
+    if a1 in MARS_MOVES or a2 in MARS_MOVES:
+        return round(_mars_alone(a1, open1) + _mars_alone(a2, open2), 10)
+    if cells[0] == cells[1]:
+        if not open1:
+            return -2.0
+        if cells[0] in MARS_DRILL_SITES:
+            both = {(MARS_DRILL, MARS_DRILL): 6.0, (MARS_SAMPLE, MARS_SAMPLE): 1.0}
+            return both.get(actions, 0.0)
+        return 2.0 if actions == (MARS_SAMPLE, MARS_SAMPLE) else 0.0
+    if a1 == MARS_DRILL and open1 and open2:
+        return 0.0
+    return round(_mars_alone(a1, open1) + _mars_alone(a1, open2), 10)
+
+
+def _rover_outcomes(cell: int, action: int) -> dict:
+    """``{next cell: probability}`` of one rover: a move into the grid succeeds with 0.9."""
+    target = mars_cell_moved(cell, action)
+    return {cell: 1.0} if target == cell else {target: 0.9, cell: 0.1}
+
+
+def mars_next(cells: tuple[int, int], done: int, actions: tuple[int, int]) -> dict:
+    """``{next state: probability}`` of Mars rovers (module docstring)."""
+    after = done
     for cell, action in zip(cells, actions):
-        if action not in experiments:
-            reward -= 0.1
-        elif seen >> cell & 1:
-            reward -= 1.0
-        else:
-            reward += -10.0 if action == MARS_DRILL else 2.0
-        if action in experiments:
-            seen |= 1 << cell
-    return round(reward, 10)
+        if action not in MARS_MOVES:
+            after |= 1 << cell
+    if after == MARS_ALL_DONE and any(a not in MARS_MOVES for a in actions):
+        return {0: 1.0}
+    dist: dict = {}
+    firsts, seconds = (_rover_outcomes(c, a) for c, a in zip(cells, actions))
+    for (c1, p1), (c2, p2) in itertools.product(firsts.items(), seconds.items()):
+        nxt = 64 * c1 + 16 * c2 + after
+        dist[nxt] = dist.get(nxt, 0.0) + p1 * p2
+    return dist
 
 
 def mars_rovers() -> str:
     """The ``.dpomdp`` text of Mars rovers (module docstring)."""
     start = ["0"] * 256
-    for s in MARS_START:
-        start[s] = _number(1 / 16)
+    start[0] = "1"
+    names = [f"site{c}{what}" for what in ("open", "done") for c in range(4)]
     out = [
         "# Mars rovers (experiments/models.py, from Amato and Zilberstein 2009)",
         "agents: 2",
-        "discount: 0.9",
+        "discount: 1",
         "values: reward",
         "states: 256",
         "start:",
         " ".join(start),
         "actions:",
-        "north east south west sample drill",
-        "north east south west sample drill",
+        "up down left right drill sample",
+        "up down left right drill sample",
         "observations:",
-        " ".join(f"c{c}{f}" for c in range(4) for f in ("open", "done")),
-        " ".join(f"c{c}{f}" for c in range(4) for f in ("open", "done")),
+        " ".join(names),
+        " ".join(names),
     ]
     for s in range(256):
         cells, done = (s // 64, s // 16 % 4), s % 16
-        for actions in itertools.product(range(6), repeat=2):
-            after = done
-            for cell, action in zip(cells, actions):
-                if action in (MARS_SAMPLE, MARS_DRILL):
-                    after |= 1 << cell
-            dist: dict = {}
-            firsts = _rover_outcomes(cells[0], actions[0], MARS_MOVES, 2, 0.9)
-            seconds = _rover_outcomes(cells[1], actions[1], MARS_MOVES, 2, 0.9)
-            for (c1, p1), (c2, p2) in itertools.product(firsts.items(), seconds.items()):
-                if after == 15:  # every site done: the start distribution again
-                    for nxt in MARS_START:
-                        dist[nxt] = dist.get(nxt, 0.0) + p1 * p2 / 16
-                else:
-                    nxt = 64 * c1 + 16 * c2 + after
-                    dist[nxt] = dist.get(nxt, 0.0) + p1 * p2
-            a1, a2 = actions
+        for a1, a2 in itertools.product(range(6), repeat=2):
+            dist = mars_next(cells, done, (a1, a2))
             out += [
                 f"T: {a1} {a2} : {s} : {n} : {_number(round(p, 10))}"
                 for n, p in sorted(dist.items())
             ]
-            out.append(f"R: {a1} {a2} : {s} : * : * : {_number(mars_reward(cells, done, actions))}")
+            reward = mars_reward(cells, done, (a1, a2))
+            if reward:
+                out.append(f"R: {a1} {a2} : {s} : * : * : {_number(reward)}")
     for s in range(256):
         cells, done = (s // 64, s // 16 % 4), s % 16
-        seen = [2 * c + (done >> c & 1) for c in cells]
+        seen = [c + 4 * (done >> c & 1) for c in cells]
         out.append(f"O: * : {s} : {seen[0]} {seen[1]} : 1.0")
     return "\n".join(out) + "\n"
 
 
 #: meeting in a 3 x 3 grid: action -> (row step, column step); 4 stays
-GRID_MOVES = {0: (-1, 0), 1: (1, 0), 2: (0, 1), 3: (0, -1)}
+GRID_MOVES = {0: (-1, 0), 1: (1, 0), 2: (0, -1), 3: (0, 1)}
 GRID_MEETING_CELLS = (0, 8)
+#: a move goes the intended way with this probability, each other way and nowhere with 0.1
+GRID_INTENDED, GRID_ASTRAY = 0.6, 0.1
 
 
-def grid_walls(cell: int) -> int:
-    """The observation of an agent in ``cell`` of the 3 x 3 grid: ``3 x vertical + horizontal``
-    with 0 neither wall, 1 the top (left) wall, 2 the bottom (right) wall."""
+def _grid_moved(cell: int, move: tuple[int, int]) -> int:
     row, col = divmod(cell, 3)
-    return 3 * {0: 1, 1: 0, 2: 2}[row] + {0: 1, 1: 0, 2: 2}[col]
+    row, col = row + move[0], col + move[1]
+    return cell if not (0 <= row < 3 and 0 <= col < 3) else 3 * row + col
+
+
+def grid_outcomes(cell: int, action: int) -> dict:
+    """``{next cell: probability}`` of one agent of the 3 x 3 grid (module docstring)."""
+    if action not in GRID_MOVES:
+        return {cell: 1.0}
+    dist = {cell: GRID_ASTRAY}
+    for a, move in GRID_MOVES.items():
+        target = _grid_moved(cell, move)
+        dist[target] = dist.get(target, 0.0) + (GRID_INTENDED if a == action else GRID_ASTRAY)
+    return dist
 
 
 def meeting_grid() -> str:
     """The ``.dpomdp`` text of meeting in a 3 x 3 grid with corners (module docstring)."""
-    names = [f"{v}{h}" for v in ("mid", "top", "bottom") for h in ("Mid", "Left", "Right")]
+    names = [f"cell{c}" for c in range(9)]
     out = [
         "# meeting in a 3 x 3 grid with corners (experiments/models.py, from Amato, Dibangoye"
         " and Zilberstein 2009)",
         "agents: 2",
-        "discount: 1.0",
+        "discount: 1",
         "values: reward",
         "states: 81",
         "start: 24",
         "actions:",
-        "north south east west stay",
-        "north south east west stay",
+        "up down left right stay",
+        "up down left right stay",
         "observations:",
         " ".join(names),
         " ".join(names),
     ]
     for s in range(81):
         cells = divmod(s, 9)
-        met = float(cells[0] == cells[1] and cells[0] in GRID_MEETING_CELLS)
+        met = cells[0] == cells[1] and cells[0] in GRID_MEETING_CELLS
         for a1, a2 in itertools.product(range(5), repeat=2):
             dist: dict = {}
-            firsts = _rover_outcomes(cells[0], a1, GRID_MOVES, 3, 0.6)
-            seconds = _rover_outcomes(cells[1], a2, GRID_MOVES, 3, 0.6)
+            firsts, seconds = grid_outcomes(cells[0], a1), grid_outcomes(cells[1], a2)
             for (c1, p1), (c2, p2) in itertools.product(firsts.items(), seconds.items()):
                 dist[9 * c1 + c2] = dist.get(9 * c1 + c2, 0.0) + p1 * p2
             out += [
@@ -515,7 +527,7 @@ def meeting_grid() -> str:
                 out.append(f"R: {a1} {a2} : {s} : * : * : 1")
     for s in range(81):
         c1, c2 = divmod(s, 9)
-        out.append(f"O: * : {s} : {grid_walls(c1)} {grid_walls(c2)} : 1.0")
+        out.append(f"O: * : {s} : {c1} {c2} : 1.0")
     return "\n".join(out) + "\n"
 
 

@@ -135,32 +135,38 @@ def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
 
 
 def test_mars_rovers_sizes_rows_and_the_horizon_1_optimum(models):
-    """Mars rovers: 256 states, 6 actions and 8 observations per agent; every transition row
-    sums to 1; at horizon 1 the best joint action is both sampling, worth 3.375 by the rules
-    (same cell 1/4: a sample site +2, a drill site +2 - 1; apart 3/4: +2 each)."""
+    """Mars rovers as MADP's ``Mars`` file: 256 states, 6 actions and 8 observations per agent;
+    every transition row sums to 1; the rovers start together on drill site 0, so at horizon 1
+    the best joint action is both drilling, worth 6 (the published optimum at horizon 2, 5.80,
+    is that and two moves at -0.1 each); the last site done sends the rovers back to state 0."""
     mars = parse_dpomdp(models.mars_rovers())
     assert mars.transition.shape == (256, 36, 256)
     assert mars.observation.shape[-1] == 64
     np.testing.assert_allclose(mars.transition.sum(-1), 1.0, atol=1e-9)
-    assert np.count_nonzero(mars.initial_belief) == 16
-    assert brute_force_optimum(mars, 1).value == pytest.approx(3.375, abs=1e-9)
-    both_drill = mars.joint_action_index([5, 5])
-    assert mars.reward[0, both_drill] == 6.0  # both on drill site 0, nothing done
-    assert mars.reward[64 + 16, both_drill] == -10.0  # both on sample site 1: ruined
+    assert np.flatnonzero(mars.initial_belief).tolist() == [0]
+    assert brute_force_optimum(mars, 1).value == pytest.approx(6.0, abs=1e-9)
+    drill = mars.joint_action_index([4, 4])
+    assert mars.reward[0, drill] == 6.0  # both on drill site 0, nothing done
+    assert mars.reward[64 + 16, drill] == 0.0  # both drilling sample site 1
+    assert mars.reward[64 + 16 + 0b0010, drill] == -2.0  # ... once it is done
     last_site_left = 64 * 1 + 16 * 2 + 0b1011  # rovers on cells 1 and 2; only site 2 not done
-    row = mars.transition[last_site_left, mars.joint_action_index([4, 4])]
-    assert np.count_nonzero(row) == 16  # the last site done: the start distribution again
+    row = mars.transition[last_site_left, mars.joint_action_index([0, 5])]
+    assert np.flatnonzero(row).tolist() == [0]  # the last site done: state 0 again
+    down = mars.transition[0, mars.joint_action_index([1, 0])]
+    assert down[64] == pytest.approx(0.9) and down[0] == pytest.approx(0.1)  # bit 0: the row
 
 
 def test_meeting_grid_rewards_only_the_two_corners(models):
-    """Meeting in a 3 x 3 grid: 81 states, 5 actions and 9 observations per agent (the walls
-    around the agent), reward 1 when both share the top-left or bottom-right corner; from the
-    other two corners nobody meets within 2 steps (optimum 0 at horizon 2, the published
-    value)."""
+    """Meeting in a 3 x 3 grid as MADP's ``Grid3x3corners`` file: 81 states, 5 actions and 9
+    observations per agent (its own cell), reward 1 when both share the top-left or
+    bottom-right corner; a move goes its way with 0.6 and each other way, or nowhere, with 0.1;
+    from the other two corners nobody meets within 2 steps (optimum 0 at horizon 2, the
+    published value)."""
     grid = parse_dpomdp(models.meeting_grid())
     assert grid.transition.shape == (81, 25, 81)
     np.testing.assert_allclose(grid.transition.sum(-1), 1.0, atol=1e-9)
     assert {int(s) for s in np.flatnonzero(grid.reward.max(1))} == {0, 80}
     assert brute_force_optimum(grid, 1).value == 0.0
     assert int(np.argmax(grid.initial_belief)) == 9 * 2 + 6
-    assert [models.grid_walls(c) for c in (0, 4, 8)] == [4, 0, 8]
+    assert models.grid_outcomes(4, 0) == pytest.approx({4: 0.1, 1: 0.6, 7: 0.1, 3: 0.1, 5: 0.1})
+    assert models.grid_outcomes(0, 0) == pytest.approx({0: 0.8, 3: 0.1, 1: 0.1})
