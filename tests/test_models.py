@@ -109,9 +109,8 @@ PEAK_RSS = (
 def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
     """Issue 33's case: ``cognet-jax train gdice-dpomdp`` on the 2025-state fire fighting model
     with 2 iterations of 20 samples, in a fresh process with the default compilation-cache
-    settings (a fresh folder), parse included: at most 60 s wall and 1 GB peak RSS (the polish
-    is budgeted by the search's size; the dense transition table is neither copied into every
-    program nor kept beside its sparse rows)."""
+    settings (a fresh folder), parse included: at most 60 s wall and 1 GB peak RSS (the dense
+    transition table is neither copied into every program nor kept beside its sparse rows)."""
     model = tmp_path / "ff243.dpomdp"
     model.write_text(models.fire_fighting(4, 3))
     args = ["train", "gdice-dpomdp", "--set", f"problem.path={str(model)!r}"]
@@ -130,8 +129,9 @@ def test_tiny_run_on_the_2025_state_model_is_quick_and_small(models, tmp_path):
     peak = int(next(x for x in proc.stderr.splitlines() if x.startswith("peak-rss-kib")).split()[1])
     assert peak <= 2**20, f"peak RSS {peak / 2**10:.0f} MB"  # KiB
     record = json.loads((tmp_path / "run" / "results.json").read_text())
-    polish = record["finish"]
-    assert polish["exact_evaluations"] <= polish["budget"] == 2 * 20 * 3 // 4
+    # one polish sweep of this model at h 3 costs 1.5e9 multiply-adds, above
+    # POLISH_SWEEP_LIMIT: the run ends without it (the polish's budget: tests/test_polish.py)
+    assert record["finish"] is None and record["resolved"]["polish_sweeps"] == 0
 
 
 def test_mars_rovers_sizes_rows_and_the_horizon_1_optimum(models):

@@ -225,3 +225,39 @@ def test_sparse_observation_rows_draw_and_value_as_the_full_rows():
         assert float(exact_value(env, params, policy, 3)) == pytest.approx(
             float(exact_value(env, dense, policy, 3)), abs=1e-5
         )
+
+
+def test_rows_of_17_to_32_listed_entries_draw_by_their_inverse_cdf():
+    """Rows listing 17 to 32 successors (the meeting grid's 25) are drawn with written-out
+    running sums (``LISTED_UNROLLED``): every draw is the inverse CDF of its row, as float64
+    running sums place it, except within float32 rounding of a boundary."""
+    from cognet_jax.envs.base import UNROLLED_CATEGORIES
+    from cognet_jax.envs.tabular import LISTED_UNROLLED
+
+    rng = np.random.default_rng(0)
+    S, K = 60, 25
+    assert UNROLLED_CATEGORIES < K <= LISTED_UNROLLED
+    transition = np.zeros((S, 1, S))
+    for s in range(S):
+        transition[s, 0, rng.choice(S, K, replace=False)] = rng.dirichlet(np.ones(K))
+    lines = ["agents: 1", "discount: 1", "values: reward", f"states: {S}", "start: uniform"]
+    lines += ["actions:", "a", "observations:", "o", "R: * : * : * : * : 0"]
+    rows, cols = transition[:, 0].nonzero()
+    lines += [f"T: 0 : {s} : {n} : {float(transition[s, 0, n])!r}" for s, n in zip(rows, cols)]
+    lines += ["O: * : * : 0 : 1"]
+    env, params = make_tabular(parse_dpomdp("\n".join(lines) + "\n"), 2)
+    assert params.successors is not None and params.successors.shape[-1] == K
+    n = 50_000
+    u = rng.uniform(size=n)
+    s = rng.integers(0, S, n)
+    uu = jnp.asarray(np.stack([u, u], 1), jnp.float32)
+    step = jax.vmap(lambda u, s: env.step(u, s, jnp.zeros(1, jnp.int32), params)[0])
+    drawn = np.asarray(step(uu, jnp.asarray(s, jnp.int32)))
+    listed = np.asarray(params.successors)[s, 0]  # [n, K]
+    probs = np.asarray(params.successor_probs, np.float64)[s, 0]
+    cdf = np.cumsum(probs, -1)
+    threshold = np.asarray(uu[:, 0], np.float64)[:, None] * cdf[:, -1:]
+    expected = listed[np.arange(n), np.minimum((cdf <= threshold).sum(-1), K - 1)]
+    near = np.min(np.abs(cdf - threshold), -1) < 1e-5
+    assert np.mean(near) < 0.01
+    np.testing.assert_array_equal(drawn[~near], expected[~near])

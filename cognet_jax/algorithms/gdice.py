@@ -22,6 +22,7 @@ from cognet_jax.algorithms.gdice_search import (
     EXACT_EVALUATOR_LIMIT,
     EXACT_TOP_MAX,
     HYBRID_EXACT_LIMIT,
+    HYBRID_MIN_TOP,
     POLISH_SWEEP_LIMIT,
     GDice,
     GDiceSection,
@@ -88,10 +89,13 @@ def resolve_evaluator(env, section, env_params) -> str:
     if evaluator == "rollouts":
         return evaluator
     cost = exact_iteration_cost(env, section, env_params)
-    top = min(EXACT_TOP_MAX if section.exact_top == "auto" else section.exact_top, section.samples)
+    auto_top = section.exact_top == "auto"
+    top = min(fitting_top(cost, section) if auto_top else section.exact_top, section.samples)
     if evaluator == "auto":
         evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "hybrid"
-        if evaluator == "hybrid" and cost * top // section.samples > EXACT_AUTO_LIMIT:
+        if evaluator == "hybrid" and (
+            top < HYBRID_MIN_TOP if auto_top else cost * top // section.samples > EXACT_AUTO_LIMIT
+        ):
             return "rollouts"
     if evaluator == "hybrid":
         cost = cost * top // section.samples
@@ -115,9 +119,15 @@ def resolve_exact_top(env, section, env_params, evaluator: str) -> int:
         return section.exact_top
     if evaluator != "hybrid":
         return EXACT_TOP_MAX
-    cost = exact_iteration_cost(env, section, env_params)
+    return max(1, fitting_top(exact_iteration_cost(env, section, env_params), section))
+
+
+def fitting_top(cost: int, section) -> int:
+    """How many of ``section.samples`` get exact values within ``HYBRID_EXACT_LIMIT``
+    multiply-adds per iteration when valuing all of them costs ``cost``, at most
+    ``EXACT_TOP_MAX``."""
     fits = HYBRID_EXACT_LIMIT * section.samples // max(cost, 1)
-    return int(max(1, min(EXACT_TOP_MAX, section.samples, fits)))
+    return int(min(EXACT_TOP_MAX, section.samples, fits))
 
 
 def affordable_polish(env, settings, env_params):

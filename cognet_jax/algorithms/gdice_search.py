@@ -137,11 +137,20 @@ EXACT_AUTO_LIMIT = 300_000_000
 #: "G-DICE defaults in a minute": the time and the 8-seed values behind the limit)
 EXACT_TOP_MAX = 50
 HYBRID_EXACT_LIMIT = 40_000_000
+#: ``evaluator = "auto"`` is hybrid where at least this many samples per iteration fit
+#: ``HYBRID_EXACT_LIMIT`` (``exact_top = "auto"``), rollouts where fewer do. **[choice]**
+#: Mars rovers at h 5 fits 5: there the hybrid reached the optimum (13.27) where rollouts
+#: alone ended at 12.02 (experiments/README.md, "G-DICE defaults in a minute")
+HYBRID_MIN_TOP = 5
 
 
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
-#: ``GDice.polish_moves``); above it the polish is skipped.
-POLISH_SWEEP_LIMIT = 3_000_000_000
+#: ``GDice.polish_moves``); above it the polish is skipped. **[choice]** The exact values of a
+#: sweep are gather-bound (about 5 ms each on the meeting grid): box pushing (4e8 - 6.5e8 per
+#: sweep at h 4 - 5) and fire fighting 2-3-3 (3.3e8 - 5.4e8) keep their polish, the meeting
+#: grid at h 4 (2.0e9: 32 s for no change of seed 0's optimal controller) runs without it
+#: (experiments/README.md, "G-DICE defaults in a minute")
+POLISH_SWEEP_LIMIT = 1_000_000_000
 
 
 #: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: a single
@@ -165,7 +174,7 @@ class GDiceSection(ThresholdSection):
     #: exact expected return over the horizon, computed inside the compiled iteration),
     #: "hybrid" (rollouts pick the ``exact_top`` best samples, which get exact values) or
     #: "auto" (exact when one iteration's exact values cost at most ``EXACT_AUTO_LIMIT``
-    #: multiply-adds, else hybrid when its exact part does, else rollouts)
+    #: multiply-adds, else hybrid when ``HYBRID_MIN_TOP`` samples fit its exact part, else rollouts)
     evaluator: Literal["rollouts", "exact", "hybrid", "auto"] = "rollouts"
     #: evaluator "hybrid": the samples (best by rollouts) that get exact values; "auto": as many
     #: as keep one iteration's exact part within ``HYBRID_EXACT_LIMIT`` multiply-adds, at most

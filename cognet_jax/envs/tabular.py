@@ -39,7 +39,11 @@ from cognet_jax.config import (
     require_discount,
     require_positive,
 )
-from cognet_jax.envs.base import categorical_from_uniform
+from cognet_jax.envs.base import (
+    UNROLLED_CATEGORIES,
+    categorical_from_columns,
+    categorical_from_uniform,
+)
 from cognet_jax.io.dpomdp import TabularModel, parse_dpomdp
 from cognet_jax.registry import register_env
 
@@ -155,13 +159,25 @@ class TabularEnv:
         return next_state, self.split_joint_obs(jo), reward
 
 
+#: rows of up to this many listed entries are drawn with written-out running sums
+#: (``categorical_from_columns``), wider ones with ``categorical_from_uniform``. **[choice]**
+#: The meeting grid's 25 successors per row: one G-DICE member's 1000 x 100 rollouts at h 4 take
+#: 51 ms with the cumsum (a reduce-window kernel on CPU), 10 ms written out (benchmarks/NOTES.md);
+#: every other model of experiments/ and ../shared lists at most 16, so its draws are unchanged.
+LISTED_UNROLLED = 32
+
+
 def _draw(u, listed, listed_probs, full, row) -> jax.Array:
     """The column drawn with uniform ``u`` from the row ``row`` (an index tuple) of a table:
     from its listed non-zero entries when the table keeps them (``listed`` not ``None``), else
-    from the full row (the same draw either way)."""
+    from the full row (the same draw either way, up to the last bit of the running sums)."""
     if listed is None:
         return categorical_from_uniform(u, full[row])
-    return listed[row][categorical_from_uniform(u, listed_probs[row])]
+    probs = listed_probs[row]
+    k = probs.shape[-1]
+    if UNROLLED_CATEGORIES < k <= LISTED_UNROLLED:
+        return listed[row][categorical_from_columns(u, [probs[..., i] for i in range(k)])]
+    return listed[row][categorical_from_uniform(u, probs)]
 
 
 def _uniforms(u: jax.Array, n: int) -> jax.Array:
