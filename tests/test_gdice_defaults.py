@@ -369,3 +369,41 @@ def test_repeated_searches_include_the_unrepeated_ones():
         for a, b in zip(jax.tree.leaves(m_once), jax.tree.leaves(first)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
     assert float(twice.progress.best_value) >= float(once.progress.best_value) - 1e-6
+
+
+def test_hybrid_exact_part_sizes_from_the_model():
+    """``exact_top = "auto"`` (sizes only, no arrays): the auto evaluator is hybrid where
+    ``HYBRID_MIN_TOP`` samples' exact values fit ``HYBRID_EXACT_LIMIT``, rollouts where fewer
+    do; an explicit hybrid whose single exact value per iteration costs more than
+    ``EXACT_EVALUATOR_LIMIT`` is refused rather than run."""
+    from cognet_jax.algorithms.gdice import exact_iteration_cost, resolve_evaluator
+    from cognet_jax.algorithms.gdice_search import (
+        EXACT_EVALUATOR_LIMIT,
+        HYBRID_EXACT_LIMIT,
+        HYBRID_MIN_TOP,
+        GDiceSection,
+    )
+    from cognet_jax.config import ConfigError
+    from cognet_jax.envs.tabular import TabularEnv
+
+    def env(states):
+        return TabularEnv(2, states, (5, 5), (5, 5), 5)
+
+    section = GDiceSection(evaluator="auto", nodes=5, samples=1000, explore_restarts=1)
+    sizes = {}
+    for states in (100, 300, 600, 1200, 5000):
+        per_sample = exact_iteration_cost(env(states), section) / section.samples
+        sizes[states] = (
+            HYBRID_EXACT_LIMIT // per_sample,
+            resolve_evaluator(env(states), section, None),
+        )
+    for fits, evaluator in sizes.values():
+        if evaluator == "hybrid":
+            assert fits >= HYBRID_MIN_TOP
+        elif evaluator == "rollouts":
+            assert fits < HYBRID_MIN_TOP
+    assert {e for _, e in sizes.values()} >= {"hybrid", "rollouts"}
+    huge = GDiceSection(evaluator="hybrid", nodes=20, samples=1000)
+    assert exact_iteration_cost(env(5000), huge) / huge.samples > EXACT_EVALUATOR_LIMIT
+    with pytest.raises(ConfigError, match="algorithm.evaluator"):
+        resolve_evaluator(env(5000), huge, None)

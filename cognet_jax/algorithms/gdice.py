@@ -90,7 +90,9 @@ def resolve_evaluator(env, section, env_params) -> str:
         return evaluator
     cost = exact_iteration_cost(env, section, env_params)
     auto_top = section.exact_top == "auto"
-    top = min(fitting_top(cost, section) if auto_top else section.exact_top, section.samples)
+    top = min(
+        max(1, fitting_top(cost, section)) if auto_top else section.exact_top, section.samples
+    )
     if evaluator == "auto":
         evaluator = "exact" if cost <= EXACT_AUTO_LIMIT else "hybrid"
         if evaluator == "hybrid" and (
