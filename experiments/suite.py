@@ -582,8 +582,35 @@ EXTRA.update(
 
 #: experiments whose TOML pins the exploring search (tagging, heatmap): their rows are as before
 PINNED = ("tagging-thesis-n3", "tagging-thesis-n6", "heatmap-2d-n4", "tagging-paper-cognet")
+#: probes of this session's defaults (the horizon rule): twice the default budget, and as many
+#: nodes as the tuned hand-written controller uses on noisy Dec-Tiger (2 x count + 1 = 9)
+EXTRA.update(
+    {
+        "hearing-tiger-noisy-n9": (
+            "hearing-tiger-noisy-n7",
+            ["algorithm.nodes=9"],
+            SEEDS,
+            "the defaults with 9 nodes, those of the tuned hand-written controller (count 4)",
+            None,
+        ),
+        "hearing-tiger-noisy-budget2x": (
+            "hearing-tiger-noisy-n7",
+            ["algorithm.budget=1.2e9"],
+            SEEDS,
+            "the defaults with twice the default budget (1.2e9 agent-steps)",
+            None,
+        ),
+        "readme-seek-budget2x": (
+            str(HERE / "readme-seek-n3.toml"),
+            ["algorithm.budget=2.4e9"],
+            SEEDS,
+            "the defaults with twice the default budget (2.4e9 agent-steps)",
+            None,
+        ),
+    }
+)
 #: rows run under the horizon rule, or setting all its fields
-AFTER_RULE = ()
+AFTER_RULE = ("hearing-tiger-noisy-n9", "hearing-tiger-noisy-budget2x", "readme-seek-budget2x")
 
 
 def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
