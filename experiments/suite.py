@@ -1060,13 +1060,17 @@ def write_table() -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("what", nargs="?", choices=["hand", "cognet", "extra", "reactive"], default=None)
-    p.add_argument("rows", nargs="*", help=f"default: all of {', '.join(ROWS)}")
+    kinds = ["hand", "cognet", "cogdice", "extra", "reactive"]
+    p.add_argument("what", nargs="?", choices=kinds, default=None)
+    p.add_argument(
+        "rows", nargs="*", help=f"default: all of {', '.join(ROWS)} (with extra: of EXTRA)"
+    )
     p.add_argument("--table-only", action="store_true")
     args = p.parse_args(argv)
-    unknown = [r for r in args.rows if r not in ROWS]
+    known = EXTRA if args.what == "extra" else ROWS
+    unknown = [r for r in args.rows if r not in known]
     if unknown:
-        p.error(f"unknown row(s) {', '.join(unknown)}; known: {', '.join(ROWS)}")
+        p.error(f"unknown row(s) {', '.join(unknown)}; known: {', '.join(known)}")
     rows = args.rows or list(ROWS)
     if not args.table_only:
         if args.what in (None, "hand"):
@@ -1076,7 +1080,7 @@ def main(argv=None) -> int:
         if args.what in (None, "cogdice"):
             run_cogdice(rows)
         if args.what in (None, "extra"):
-            run_extra(list(EXTRA))
+            run_extra(args.rows if args.what == "extra" and args.rows else list(EXTRA))
         if args.what in (None, "reactive"):
             run_reactive()
     write_table()
