@@ -108,7 +108,10 @@ def _bound(config, env, params):
 BEFORE_POOL = ["algorithm.tie_structure=true", "algorithm.restart_tol=0.02"]
 #: the library's defaults before the refine phase, and with it
 BEFORE_REFINE = [*BEFORE_POOL, "algorithm.best_pool=4"]
-NEW = [*BEFORE_REFINE, "algorithm.refine=0.25"]
+BEFORE_DISTINCT = [*BEFORE_REFINE, "algorithm.refine=0.25"]
+#: the library's defaults: as before, with the actions drawn distinct where the rule says so
+#: (the heatmap's TOML pins ``distinct_actions = false``)
+NEW = [*BEFORE_DISTINCT, "algorithm.distinct_actions=auto"]
 #: rows whose sweep before the refine phase ran the pool's first version (notes below the table)
 FIRST_POOL = ("beacon", "bearing-chase", "readme-seek")
 #: the heatmap experiments compare the best policy on paired fresh rollouts, which replaces the
@@ -257,6 +260,11 @@ EXTRA = {
         for experiment, paired in (("tagging-thesis-n6", []), ("heatmap-2d-n4", UNPAIRED))
         for suffix, overrides, what in (
             ("-defaults", [*NEW, *paired], "the library's defaults"),
+            (
+                "-defaults-before-distinct",
+                [*BEFORE_DISTINCT, *paired],
+                "the library's defaults before distinct_actions",
+            ),
             (
                 "-defaults-before-refine",
                 [*BEFORE_REFINE, *paired],
@@ -609,8 +617,41 @@ EXTRA.update(
         ),
     }
 )
+#: rows whose problem the rule of ``distinct_actions`` turns it on for (5 nodes, 5 moves)
+DISTINCT_ROWS = ("beacon", "beacon-clean", "bearing-chase", "plume")
+EXTRA.update(
+    {
+        **{
+            f"cognet-{row}-before-distinct": (
+                ROWS[row][0],
+                ["algorithm.distinct_actions=false"],
+                SEEDS,
+                "the defaults before distinct_actions: every node's action drawn on its own",
+                None,
+            )
+            for row in DISTINCT_ROWS
+        },
+        **{
+            f"{row}-refine-half": (
+                ROWS[row][0],
+                ["algorithm.refine=0.5"],
+                SEEDS,
+                "the defaults with half of the iterations refining instead of a quarter",
+                None,
+            )
+            for row in ("plume", "bearing-chase")
+        },
+    }
+)
 #: rows run under the horizon rule, or setting all its fields
-AFTER_RULE = ("hearing-tiger-noisy-n9", "hearing-tiger-noisy-budget2x", "readme-seek-budget2x")
+AFTER_RULE = (
+    "hearing-tiger-noisy-n9",
+    "hearing-tiger-noisy-budget2x",
+    "readme-seek-budget2x",
+    *(f"cognet-{row}-before-distinct" for row in DISTINCT_ROWS),
+    "plume-refine-half",
+    "bearing-chase-refine-half",
+)
 
 
 def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
@@ -683,8 +724,11 @@ def _search_cell(path: Path, hand: float | None) -> str:
     if hand is not None:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
         verdict = " (holds)" if ok else " (**below**)"
-    before = _values(path.parent.parent / f"{path.parent.name}-before-rule" / "runs.json")
-    before_cell = f"; before the horizon rule {sum(before) / len(before):.3f}" if before else ""
+    before_cell = ""
+    for suffix, what in (("-before-rule", "the horizon rule"), ("-before-distinct", "distinct")):
+        before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
+        if before:
+            before_cell += f"; before {what} {sum(before) / len(before):.3f}"
     return (
         f"{mean:.3f}{verdict}, min {min(values):.3f}; {data['wall_s'] / len(values):.0f} s per "
         f"seed ({len(values)} seeds in one sweep); {steps:.2g} agent-steps ({sizes}){before_cell}"
@@ -797,7 +841,10 @@ Dec-Tiger and chase sweeps ran again under the rule and gave the same values see
 times were measured one sweep at a time, at times beside lighter work (the test suite, a second
 session's commands) on the same 2 cores. "not run" marks a simulator not yet swept under the
 defaults. `standardize_inputs` "auto" standardises the plume's 3 x 3 patch only
-(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without). The COG-DICE column
+(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without). `distinct_actions`
+"auto" (`covers_rarely`) draws the nodes' actions without repeats, for the candidates whose
+flag says so, on beacon, chase and plume (5 nodes, 5 moves; "before distinct" gives the sweep of
+the defaults before it, rows "-before-distinct" of the next table). The COG-DICE column
 runs COG-DICE's defaults (`--set experiment.algorithm=cogdice`, `python experiments/suite.py
 cogdice ROW`) on the rows with a scalar observation; its Dec-Tiger sweep shared the machine with
 another sweep and the test suite for most of its hour, so its wall time is an upper bound."""
@@ -1012,10 +1059,11 @@ def chase_map() -> list[str]:
 
 CHASE_NOTES = """\
 What the chase's controller misses: the moves at each bearing (R, L: x+1, x-1; U, D: y+1,
-y-1). The search orders four intervals L, D, R, U along the bearing; the hand-written controller
-also steps L again past 135 degrees, where the bearing wraps around: a fifth interval, the same
-move on both ends of the observation's range, which needs units of the node network that agree
-on both sides."""
+y-1). Seed 0 of the search orders four intervals along the bearing (its sweep before
+`distinct_actions`: L, D, R, U; under it: D, R, U, L); the hand-written controller steps L on
+both ends, where the bearing wraps around: a fifth interval, the same move on both ends of the
+observation's range, which needs units of the node network that agree on both sides. The seeds
+that end near the hand-written controller (14.8 - 14.9, 5 of 8) have that fifth interval."""
 
 
 def write_table() -> None:

@@ -16,10 +16,12 @@ from cognet_jax.algorithms.cognet_weights import (
 from cognet_jax.algorithms.cognet_weights_settings import (
     SEARCH_LONG_HORIZON,
     SEARCH_SHORT_HORIZON,
+    cover_probability,
+    covers_rarely,
     narrow_inputs,
 )
 from cognet_jax.algorithms.engine import SearchParams
-from cognet_jax.algorithms.weight_space import WeightSample
+from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
 from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
@@ -536,3 +538,42 @@ def test_auto_search_fields_follow_the_horizon_against_the_nodes():
     assert alg.settings.default_vote_scale == 10.0 and alg.settings.refine_tol == 0.1
     alg, _ = small_algorithm()
     assert alg.settings.default_vote_scale == 1.0 and alg.settings.restart_tol == 0.02
+
+
+def test_distinct_draw_runs_every_action_before_any_twice():
+    u = jax.random.uniform(jax.random.key(3), (500, 2, 6))
+    probs = jnp.full((2, 6, 4), 0.25).at[1, :, 3].set(0.0)  # agent 1 has 3 actions
+    support = jnp.asarray([[[True] * 4], [[True, True, True, False]]])
+    actions = np.asarray(distinct_draw(u, probs, support))
+    assert all(sorted(row[:4]) == [0, 1, 2, 3] for row in actions[:, 0])
+    assert all(sorted(row[:3]) == [0, 1, 2] for row in actions[:, 1])
+    assert (actions[:, 1] < 3).all()  # never an action the agent lacks, also after covering
+    peaked = probs.at[:, :, 0].set(5.0)  # every node prefers action 0
+    mode = np.asarray(distinct_draw(None, peaked, support))
+    assert mode[0, 0] == 0 and len(set(mode[0, :4])) == 4 and (mode[0, 4:] == 0).all()
+
+
+def test_distinct_actions_auto_is_on_where_independent_draws_rarely_cover():
+    assert cover_probability(3, 3) == pytest.approx(6 / 27)
+    assert cover_probability(5, 4) == 0.0
+    assert covers_rarely((5, 5), 5)  # 0.038: beacon, chase, plume
+    assert not covers_rarely((5, 5), 4)  # fewer nodes than actions: no draw covers
+    assert not covers_rarely((3, 3), 3) and not covers_rarely((3, 3), 7)
+
+
+def test_distinct_flag_draws_on_its_own_stream_and_is_refit():
+    off, params = small_algorithm(distinct_actions=False)
+    on, _ = small_algorithm(distinct_actions=True)
+    d_off, d_on = off.init_distribution(), on.init_distribution()
+    assert d_off.distinct_probs is None and d_on.distinct_probs.shape == (2, 2)
+    a, b = off.draw(jax.random.key(4), d_off, 64), on.draw(jax.random.key(4), d_on, 64)
+    for name in ("w1", "b1", "unit_targets", "m", "default", "bias", "node_tie", "agent_tie"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    flag = np.asarray(b.distinct)  # [64, agents]
+    assert 0 < flag.mean() < 1
+    acts = np.asarray(b.actions)
+    np.testing.assert_array_equal(acts[flag == 0], np.asarray(a.actions)[flag == 0])
+    assert all(len(set(row)) == 3 for row in acts[flag == 1])
+    elites = jax.tree.map(lambda x: x[np.flatnonzero(flag[:, 0] == 1)[:4]], b)
+    new = on.update_distribution(d_on, elites, params.hyper.replace(alpha=1.0))
+    assert float(new.distinct_probs[0, 1]) > 0.9

@@ -52,6 +52,14 @@ actions). Both are categoricals refit to the elites like the others; the Gaussia
 the weights the candidates ran, so a tied elite teaches every node. A problem that needs
 memory or asymmetric agents unties them (the Dec-Tiger counters do).
 
+**Distinct actions** (``distinct_actions``, **[choice]**, "auto": ``covers_rarely``): where
+the controller has as many nodes as an agent has actions and independent draws rarely give a
+candidate every action (5 nodes, 5 actions: 1 in 26), every candidate also draws, per agent,
+whether its nodes' actions are drawn without repeats until every action has a node
+(``weight_space.distinct_draw``, on the same uniforms); the flag is a categorical refit to the
+elites like the tie flags. A reactive controller that moves four ways and stays is then one
+draw away.
+
 **Restarts** (``restart_tol``, **[choice]**, "auto": 0.1 where the horizon is longer than
 the nodes, 0.02 otherwise, with ``default_vote_scale``): once the hidden layer's Gaussians
 have shrunk below ``restart_tol`` of their initial spread the distribution has converged (the
@@ -145,6 +153,8 @@ from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
     WeightSample,
     centered,
+    distinct_draw,
+    draw_actions,
     refit,
     sample_of,
     tie,
@@ -234,6 +244,7 @@ class CognetWeights(Search):
             agent_tie_probs=jnp.array(
                 [0.5, 0.5] if self._agents_can_tie else [1.0, 0.0], jnp.float32
             ),
+            distinct_probs=full((a, 2), 0.5) if s.distinct_actions else None,
         )
 
     @property
@@ -246,7 +257,8 @@ class CognetWeights(Search):
     def draw(self, key: jax.Array, dist: WeightDistribution, num: int) -> WeightSample:
         """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
         ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
-        about 3 s slower)."""
+        about 3 s slower). The flags of ``distinct_actions`` have a stream of their own (the
+        key folded with 1), so the other draws are those of a search without them."""
         ties = self.settings.tie_structure
         ks = jax.random.split(fast_key(key), 9 if ties else 7)  # untied: the draws of before
 
@@ -256,9 +268,12 @@ class CognetWeights(Search):
         def categorical(k, probs):
             return sample_categorical(jax.random.uniform(k, (num,) + probs.shape[:-1]), probs)
 
+        distinct = None
+        if dist.distinct_probs is not None:
+            distinct = categorical(jax.random.fold_in(fast_key(key), 1), dist.distinct_probs)
         untied = (jnp.zeros((num, self.env.num_agents), jnp.int32), jnp.zeros(num, jnp.int32))
         sample = WeightSample(
-            actions=categorical(ks[0], dist.action_probs),
+            actions=draw_actions(ks[0], dist.action_probs, num, distinct, action_support(self.env)),
             w1=normal(ks[1], dist.w1_mean, dist.w1_std),
             b1=normal(ks[2], dist.b1_mean, dist.b1_std),
             unit_targets=categorical(ks[3], dist.unit_target_probs),
@@ -267,6 +282,7 @@ class CognetWeights(Search):
             bias=normal(ks[6], dist.bias_mean, dist.bias_std),
             node_tie=categorical(ks[7], dist.node_tie_probs) if ties else untied[0],
             agent_tie=categorical(ks[8], dist.agent_tie_probs) if ties else untied[1],
+            distinct=distinct,
         )
         return tie(sample) if ties else sample
 
@@ -283,6 +299,11 @@ class CognetWeights(Search):
             node_tie=jnp.argmax(dist.node_tie_probs, -1).astype(jnp.int32),
             agent_tie=jnp.argmax(dist.agent_tie_probs, -1).astype(jnp.int32),
         )
+        if dist.distinct_probs is not None:  # the most likely actions, distinct if so flagged
+            flag = jnp.argmax(dist.distinct_probs, -1).astype(jnp.int32)
+            chosen = distinct_draw(None, dist.action_probs, action_support(self.env))
+            sample = sample.replace(actions=jnp.where(flag[:, None] == 1, chosen, sample.actions))
+            sample = sample.replace(distinct=flag)
         return tie(sample) if self.settings.tie_structure else sample
 
     def to_policy(self, sample: WeightSample) -> NeuralPolicy:

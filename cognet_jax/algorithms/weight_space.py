@@ -9,6 +9,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import count_table, inject_entropy, smooth
+from cognet_jax.controllers.base import sample_categorical
 
 
 @struct.dataclass
@@ -28,6 +29,9 @@ class WeightDistribution:
     bias_std: jax.Array  # [agents, Q]
     node_tie_probs: jax.Array  # [agents, 2]: (own networks, node 0's network in every node)
     agent_tie_probs: jax.Array  # [2]: (own controllers, agent 0's controller for every agent)
+    #: [agents, 2]: (independent actions, distinct actions until every action has a node);
+    #: None where not searched (``distinct_actions``)
+    distinct_probs: jax.Array | None = None
 
 
 @struct.dataclass
@@ -43,6 +47,7 @@ class WeightSample:
     bias: jax.Array  # [agents, Q]
     node_tie: jax.Array  # [agents] int32, 1: every node runs node 0's network
     agent_tie: jax.Array  # [] int32, 1: every agent runs agent 0's controller
+    distinct: jax.Array | None = None  # [agents] int32, 1: actions drawn by ``distinct_draw``
 
 
 #: the fields of a node's network (copied by node tying); agent tying copies every field
@@ -72,6 +77,7 @@ def tie(sample: WeightSample) -> WeightSample:
         **{f: pick(getattr(sample, f), node_src, lead + 1) for f in NETWORK_FIELDS}
     )
     fields = (*NETWORK_FIELDS, "actions", "node_tie")
+    fields += ("distinct",) if sample.distinct is not None else ()
     return sample.replace(**{f: pick(getattr(sample, f), agent_src, lead) for f in fields})
 
 
@@ -153,6 +159,9 @@ def refit(dist: WeightDistribution, elites: WeightSample, alpha, floors, agent_f
         bias_std=bias_std,
         node_tie_probs=categorical(dist.node_tie_probs, elites.node_tie, 2, node_floor),
         agent_tie_probs=categorical(dist.agent_tie_probs, elites.agent_tie, 2, agent_floor),
+        distinct_probs=None
+        if dist.distinct_probs is None
+        else categorical(dist.distinct_probs, elites.distinct, 2, category_floor),
     )
 
 
@@ -189,4 +198,42 @@ def centered(
         bias_std=scale * init.bias_std,
         node_tie_probs=peaked(sample.node_tie, 2) if tie_nodes else init.node_tie_probs,
         agent_tie_probs=peaked(sample.agent_tie, 2) if tie_agents else init.agent_tie_probs,
+        distinct_probs=init.distinct_probs,  # the kept actions are likely under either flag
     )
+
+
+def distinct_draw(u: jax.Array | None, probs: jax.Array, support: jax.Array) -> jax.Array:
+    """Actions drawn node after node, each from its node's categorical restricted to the
+    actions no earlier node runs, until every action has a node; later nodes draw freely.
+    ``u [..., agents, Q]`` uniforms in [0, 1), or ``None`` for the most likely actions (the
+    mode); ``probs [..., agents, Q, actions]``; ``support [agents, 1, actions]`` the actions
+    each agent has -> int32 ``[..., agents, Q]``. With Q >= actions every action is run by
+    some node: a controller that must be able to do everything (move four ways and stay) is
+    then one draw away, where independent draws give it once in 26 (5 nodes, 5 actions)."""
+    if u is not None:  # one row of probabilities per candidate
+        probs = jnp.broadcast_to(probs, u.shape + probs.shape[-1:])
+    allowed = jnp.broadcast_to(support[..., 0, :], probs.shape[:-2] + probs.shape[-1:])
+
+    def node(used, x):
+        p_q, u_q = x  # [..., agents, actions], [..., agents] (or None)
+        free = allowed & ~used
+        p_q = p_q * jnp.where(jnp.any(free, -1, keepdims=True), free, allowed)
+        pick = (
+            jnp.argmax(p_q, -1).astype(jnp.int32) if u_q is None else sample_categorical(u_q, p_q)
+        )
+        return used | jax.nn.one_hot(pick, probs.shape[-1], dtype=bool), pick
+
+    xs = (jnp.moveaxis(probs, -2, 0), None if u is None else jnp.moveaxis(u, -1, 0))
+    _, picks = jax.lax.scan(node, jnp.zeros(allowed.shape, bool), xs)
+    return jnp.moveaxis(picks, 0, -1)
+
+
+def draw_actions(key, probs: jax.Array, num: int, distinct, support: jax.Array) -> jax.Array:
+    """``[num, agents, Q]`` int32 actions from the uniforms of ``key`` under ``probs [agents,
+    Q, actions]``: one per node independently, and for the candidates whose flag ``distinct
+    [num, agents]`` (or ``None``: none) is 1 by ``distinct_draw`` on the same uniforms."""
+    u = jax.random.uniform(key, (num,) + probs.shape[:-1])
+    actions = sample_categorical(u, probs)
+    if distinct is None:
+        return actions
+    return jnp.where(distinct[..., None] == 1, distinct_draw(u, probs, support), actions)
