@@ -93,11 +93,23 @@ def restore_state(template: Any, raw: dict) -> Any:
     """The algorithm state stored in ``raw`` with the structure (and types) of ``template``;
     ``CorruptFileError`` when it does not fit."""
     try:
-        return serialization.from_state_dict(template, raw["state"])
+        state = _with_absent_fields(serialization.to_state_dict(template), raw["state"])
+        return serialization.from_state_dict(template, state)
     except (ValueError, KeyError, TypeError, AttributeError) as err:
         raise CorruptFileError(
             raw.get("path", "checkpoint"), f"state does not fit: {err}"
         ) from None
+
+
+def _with_absent_fields(template: Any, stored: Any) -> Any:
+    """``stored`` (a state dict) with the fields that ``template``'s state dict holds as
+    ``None`` and ``stored`` lacks added as ``None``: optional parts of a state added to the
+    library since the checkpoint was written, off in the search it resumes."""
+    if not (isinstance(template, dict) and isinstance(stored, dict)):
+        return stored
+    filled = {k: _with_absent_fields(template.get(k), v) for k, v in stored.items()}
+    filled.update({k: None for k, v in template.items() if v is None and k not in stored})
+    return filled
 
 
 def restore_history(template: Any, raw: dict) -> list:

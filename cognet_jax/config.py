@@ -351,6 +351,23 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return path, value
 
 
+#: per algorithm, fields added after configs were written whose default changes the search they
+#: were added to, with the value that keeps it: a stored config (a checkpoint's, a results.json)
+#: that did not write one resumes and evaluates as it ran (``with_added_fields``)
+ADDED_FIELDS = {"cognet-dice": {"algorithm": {"distinct_actions": False}}}
+
+
+def with_added_fields(data: dict) -> dict:
+    """A copy of the stored raw config ``data`` with the ``ADDED_FIELDS`` of its algorithm that
+    it does not hold set to the values it ran with."""
+    algorithm = (data.get("experiment") or {}).get("algorithm", ExperimentSection.algorithm)
+    data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    for section, fields in ADDED_FIELDS.get(algorithm, {}).items():
+        if isinstance(data.get(section), dict):
+            data[section] = {**fields, **data[section]}
+    return data
+
+
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """A copy of the raw ``data`` with every ``section.key=value`` of ``overrides`` set."""
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}

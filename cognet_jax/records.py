@@ -30,7 +30,7 @@ from cognet_jax.checkpoint import (
     save_checkpoint,
     stack_history,
 )
-from cognet_jax.config import Config
+from cognet_jax.config import Config, with_added_fields
 from cognet_jax.errors import CorruptFileError, MismatchError
 from cognet_jax.observations import VAE_FILE
 from cognet_jax.program import Program, Run, file_digest
@@ -127,6 +127,10 @@ def restore_group(program: Program, state, path: Path):
     raw = read_checkpoint(path)
     raw["meta"] = current_meta(raw["meta"], path)
     stored_meta, meta = _without_run_section(raw["meta"]), _without_run_section(_meta(program.runs))
+    if isinstance(stored_meta.get("configs"), list):  # fields whose default changed the search
+        stored_meta["configs"] = [
+            with_added_fields(c) if isinstance(c, dict) else c for c in stored_meta["configs"]
+        ]
     meta = _written_fields(meta, stored_meta)
     if stored_meta != meta:
         raise MismatchError(f"{path} was written by another {_first_difference(stored_meta, meta)}")

@@ -25,7 +25,13 @@ from cognet_jax.checkpoint import (
     read_checkpoint,
     read_policy,
 )
-from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
+from cognet_jax.config import (
+    Config,
+    ConfigError,
+    apply_overrides,
+    parse_override,
+    with_added_fields,
+)
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
 from cognet_jax.observations import VAE_FILE
 from cognet_jax.program import final_value
@@ -46,7 +52,8 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
     meta = current_meta(read_checkpoint(path)["meta"], path)
     if len(meta.get("runs", [])) != 1:
         raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")
-    config = config_from_dict(apply_overrides(meta["configs"][0], overrides or []))
+    stored = with_added_fields(meta["configs"][0])
+    config = config_from_dict(apply_overrides(stored, overrides or []))
     return config, int(meta["runs"][0][1])
 
 
@@ -75,6 +82,7 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     results = read_json(results_path, ("config",))
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
+    results["config"] = with_added_fields(results["config"])
     trained = fingerprint(config_from_dict(results["config"]), results["config"])
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}

@@ -21,10 +21,11 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     narrow_inputs,
 )
 from cognet_jax.algorithms.engine import SearchParams
-from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw
+from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw, reproduces_distinct
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
 from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
+from cognet_jax.prng import fast_key
 from cognet_jax.registry import load_config
 
 SMALL_SIZES = {"iterations": 2, "candidates": 8, "eval_rollouts": 16, "elites": 4}
@@ -577,3 +578,49 @@ def test_distinct_flag_draws_on_its_own_stream_and_is_refit():
     elites = jax.tree.map(lambda x: x[np.flatnonzero(flag[:, 0] == 1)[:4]], b)
     new = on.update_distribution(d_on, elites, params.hyper.replace(alpha=1.0))
     assert float(new.distinct_probs[0, 1]) > 0.9
+
+
+def test_distinct_flags_do_not_reuse_a_stream_of_the_other_draws():
+    on, _ = small_algorithm(distinct_actions=True)
+    key = jax.random.key(5)
+    flags = on.draw(key, on.init_distribution(), 64).distinct  # agent tie copies agent 0's
+    split = jax.random.split(fast_key(key), 9)
+    for k in split:  # the flags are not the first uniforms of any stream of ``draw``
+        u = np.asarray(jax.random.uniform(k, (64, 2)))
+        assert not np.array_equal((u >= 0.5)[:, 0], np.asarray(flags)[:, 0])
+
+
+def test_distinct_draw_never_picks_an_action_the_agent_lacks():
+    support = jnp.asarray([[[True, True, True, False]]])
+    probs = jnp.asarray([[[0.0, 1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]])  # no mass on unused ones
+    u = jnp.asarray([[[0.3, 0.9]]])
+    assert (np.asarray(distinct_draw(u, probs, support)) < 3).all()
+    assert (np.asarray(distinct_draw(None, probs, support)) < 3).all()
+
+
+def test_refine_centres_the_flag_on_whether_distinct_draws_give_the_kept_actions():
+    support = jnp.ones((2, 1, 3), bool)
+    actions = jnp.asarray([[2, 0, 1], [0, 0, 1]])  # agent 1 repeats 0 before running 2
+    np.testing.assert_array_equal(reproduces_distinct(actions, support), [1, 0])
+
+
+def test_checkpoints_and_configs_written_before_distinct_actions_read_as_they_ran():
+    from flax import serialization
+
+    from cognet_jax.checkpoint import restore_state
+    from cognet_jax.config import with_added_fields
+
+    off, _ = small_algorithm(distinct_actions=False)
+    dist = off.init_distribution()
+    stored = serialization.to_state_dict(dist)
+    del stored["distinct_probs"]  # what a checkpoint of an earlier version holds
+    back = restore_state(dist, {"state": stored})
+    assert back.distinct_probs is None
+    np.testing.assert_array_equal(back.w1_std, dist.w1_std)
+    old = {"experiment": {"algorithm": "cognet-dice"}, "algorithm": {"nodes": 5}}
+    assert with_added_fields(old)["algorithm"]["distinct_actions"] is False
+    assert "distinct_actions" not in old["algorithm"]  # a copy
+    given = {"algorithm": {"nodes": 5, "distinct_actions": "auto"}}
+    assert with_added_fields(given)["algorithm"]["distinct_actions"] == "auto"
+    gdice = {"experiment": {"algorithm": "gdice"}, "algorithm": {"nodes": 5}}
+    assert with_added_fields(gdice) == gdice

@@ -171,6 +171,11 @@ from cognet_jax.prng import fast_key
 from cognet_jax.registry import env_description, fields_from, register_algorithm
 from cognet_jax.reporting import neural_plots
 
+#: the stream of the ``distinct_actions`` flags: the iteration's key folded with this number
+#: (with partitionable threefry, folding with ``i`` gives ``split(key, n)[i]``: a small number
+#: would reuse a stream of ``draw``)
+DISTINCT_STREAM = 0x64697374
+
 
 @struct.dataclass
 class WeightsState:
@@ -258,7 +263,8 @@ class CognetWeights(Search):
         """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
         ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
         about 3 s slower). The flags of ``distinct_actions`` have a stream of their own (the
-        key folded with 1), so the other draws are those of a search without them."""
+        key folded with ``DISTINCT_STREAM``: folding with a small number gives a key of the
+        split above), so the other draws are those of a search without them."""
         ties = self.settings.tie_structure
         ks = jax.random.split(fast_key(key), 9 if ties else 7)  # untied: the draws of before
 
@@ -270,7 +276,8 @@ class CognetWeights(Search):
 
         distinct = None
         if dist.distinct_probs is not None:
-            distinct = categorical(jax.random.fold_in(fast_key(key), 1), dist.distinct_probs)
+            flag_key = jax.random.fold_in(fast_key(key), DISTINCT_STREAM)
+            distinct = categorical(flag_key, dist.distinct_probs)
         untied = (jnp.zeros((num, self.env.num_agents), jnp.int32), jnp.zeros(num, jnp.int32))
         sample = WeightSample(
             actions=draw_actions(ks[0], dist.action_probs, num, distinct, action_support(self.env)),

@@ -198,8 +198,19 @@ def centered(
         bias_std=scale * init.bias_std,
         node_tie_probs=peaked(sample.node_tie, 2) if tie_nodes else init.node_tie_probs,
         agent_tie_probs=peaked(sample.agent_tie, 2) if tie_agents else init.agent_tie_probs,
-        distinct_probs=init.distinct_probs,  # the kept actions are likely under either flag
+        distinct_probs=None
+        if init.distinct_probs is None
+        else peaked(reproduces_distinct(sample.actions, support), 2),
     )
+
+
+def reproduces_distinct(actions: jax.Array, support: jax.Array) -> jax.Array:
+    """``[agents]`` int32: 1 where ``distinct_draw`` on categoricals peaked at ``actions
+    [agents, Q]`` gives those actions again (no action repeats before every action has a
+    node), so the refine phase draws the kept actions under the flag it centres on."""
+    k = support.shape[-1]
+    again = distinct_draw(None, jax.nn.one_hot(actions, k, dtype=jnp.float32), support)
+    return jnp.all(again == actions, -1).astype(jnp.int32)
 
 
 def distinct_draw(u: jax.Array | None, probs: jax.Array, support: jax.Array) -> jax.Array:
@@ -217,7 +228,9 @@ def distinct_draw(u: jax.Array | None, probs: jax.Array, support: jax.Array) -> 
     def node(used, x):
         p_q, u_q = x  # [..., agents, actions], [..., agents] (or None)
         free = allowed & ~used
-        p_q = p_q * jnp.where(jnp.any(free, -1, keepdims=True), free, allowed)
+        mask = jnp.where(jnp.any(free, -1, keepdims=True), free, allowed)  # all once none is
+        masked = p_q * mask  # left; uniform over them where the node gives them no mass
+        p_q = jnp.where(jnp.sum(masked, -1, keepdims=True) > 0, masked, mask.astype(p_q.dtype))
         pick = (
             jnp.argmax(p_q, -1).astype(jnp.int32) if u_q is None else sample_categorical(u_q, p_q)
         )
