@@ -82,8 +82,9 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     results = read_json(results_path, ("config",))
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
-    results["config"] = with_added_fields(results["config"])
-    trained = fingerprint(config_from_dict(results["config"]), results["config"])
+    written = results["config"]  # as the policy's fingerprint hashed it
+    results["config"] = with_added_fields(written)
+    trained = fingerprint(config_from_dict(results["config"]), written)
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
     if ("problem", "path") in named:

@@ -624,3 +624,16 @@ def test_checkpoints_and_configs_written_before_distinct_actions_read_as_they_ra
     assert with_added_fields(given)["algorithm"]["distinct_actions"] == "auto"
     gdice = {"experiment": {"algorithm": "gdice"}, "algorithm": {"nodes": 5}}
     assert with_added_fields(gdice) == gdice
+
+
+def test_a_run_folder_written_before_distinct_actions_evaluates_to_its_own_value():
+    from pathlib import Path
+
+    from cognet_jax.saved_runs import evaluate_run, load_run
+
+    folder = Path(__file__).parent.parent / (
+        "experiments/results/suite/cognet-bearing-chase-before-distinct/seed0"
+    )
+    run = load_run(folder)  # its results.json has no distinct_actions: false, as it ran
+    assert run.config.algorithm.distinct_actions is False
+    assert evaluate_run(folder, rollouts=1000)["mean"] == pytest.approx(13.5, abs=0.3)
