@@ -299,9 +299,10 @@ def covers_rarely(action_counts, nodes: int) -> bool:
     often enough to leave as they were (Dec-Tiger 7 nodes, 3 actions: 0.83; tagging n6 0.74;
     3 nodes, 3 actions: 0.22) and the heatmap (4 nodes, 4 actions: 0.094), whose bound a
     2-node controller reaches, sits just below. Measured over 8 seeds against the same
-    sweeps without it (experiments/README.md, suite): plume 17.30 against 15.48 (worst seed
-    15.68 against 11.14), chase 14.27 against 14.12, beacon 28.09 against 27.96, beacon
-    without noise 29.90 against 29.89, the heatmap 46.37 against 46.41."""
+    sweeps without it (experiments/README.md, suite): plume 16.90 against 15.48 (worst seed
+    15.23 against 11.14), beacon 28.11 against 27.96; chase 14.07 against 14.12, beacon
+    without noise 29.86 against 29.89 and the heatmap 46.29 against 46.41, within the
+    spread of their seeds."""
     return any(
         nodes >= a and cover_probability(a, nodes) < DISTINCT_COVER for a in set(action_counts)
     )
