@@ -82,9 +82,8 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     results = read_json(results_path, ("config",))
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
-    written = results["config"]  # as the policy's fingerprint hashed it
-    results["config"] = with_added_fields(written)
-    trained = fingerprint(config_from_dict(results["config"]), written)
+    ran = with_added_fields(results["config"])  # results.json as written: the fingerprint's
+    trained = fingerprint(config_from_dict(ran), results["config"])
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
     if ("problem", "path") in named:
@@ -95,7 +94,7 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         )
     if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
         overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
-    config = config_from_dict(apply_overrides(results["config"], overrides))
+    config = config_from_dict(apply_overrides(ran, overrides))
     if rollouts is not None:
         evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
         config = dataclasses.replace(config, evaluation=evaluation)

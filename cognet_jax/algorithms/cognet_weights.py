@@ -309,8 +309,8 @@ class CognetWeights(Search):
         if dist.distinct_probs is not None:  # the most likely actions, distinct if so flagged
             flag = jnp.argmax(dist.distinct_probs, -1).astype(jnp.int32)
             chosen = distinct_draw(None, dist.action_probs, action_support(self.env))
-            sample = sample.replace(actions=jnp.where(flag[:, None] == 1, chosen, sample.actions))
-            sample = sample.replace(distinct=flag)
+            actions = jnp.where(flag[:, None] == 1, chosen, sample.actions)
+            sample = sample.replace(actions=actions, distinct=flag)
         return tie(sample) if self.settings.tie_structure else sample
 
     def to_policy(self, sample: WeightSample) -> NeuralPolicy:
