@@ -6,9 +6,9 @@ pure functions to run them.
   every method of the search takes ``params`` explicitly (``algorithms.engine``).
 * ``make_train(config) -> train(key, params=None) -> (final_state, metrics)``: the whole search
   as one pure function -- ``lax.scan`` over ``algorithm.iterations`` iterations, then the
-  algorithm's ``finish`` (G-DICE's exact polish) -- returning the policy ``cognet-jax train
-  --seed s`` returns for ``key = seed_key(config, s)``. ``jax.vmap`` over keys runs many
-  seeds, over ``params`` many noise levels or ``alpha`` values, in one program.
+  algorithm's ``finish`` (e.g. a final polish of the best policy) -- returning the policy
+  ``cognet-jax train --seed s`` returns for ``key = seed_key(config, s)``. ``jax.vmap`` over
+  keys runs many seeds, over ``params`` many noise levels or ``alpha`` values, in one program.
 * ``make_evaluate(config) -> evaluate(key, policy, params=None) -> (mean, stderr)``: the
   honest value of a policy from the seed key's evaluation key, which the search never uses.
 
@@ -222,7 +222,7 @@ def _built(config: Config | Built) -> Built:
 
 def make_train(config: Config | Built):
     """A pure ``train(key, params=None) -> (final_state, metrics)`` running
-    ``algorithm.iterations`` iterations and then ``finish`` (the G-DICE polish), so
+    ``algorithm.iterations`` iterations and then the algorithm's ``finish``, so
     ``algorithm.best_policy(final_state)`` is the policy ``cognet-jax train --seed s`` writes
     for ``key = seed_key(config, s)``; metrics leaves have a leading ``[iterations]`` axis.
 

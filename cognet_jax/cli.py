@@ -311,7 +311,7 @@ def _vae(args) -> int:
 
 
 def _train_vae(args, out: Path) -> int:
-    from cognet_jax.reporting import plot_vae_mu
+    from cognet_jax.controllers.figures import plot_vae_mu
     from cognet_jax.vae import diagnostics, save_vae, train_vae
 
     t0 = time.perf_counter()

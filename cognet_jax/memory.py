@@ -10,8 +10,7 @@ uses the same key (common random numbers) and its own rollouts are never split.
 * :func:`budget_bytes` -- ``run.memory_gb`` in bytes (0: half of this machine's memory).
 * :func:`rollout_bytes` -- bytes one in-flight rollout needs, as XLA counts them: a probe of
   ``4 x 256`` rollouts is compiled and its temporary buffer size read
-  (``Compiled.memory_analysis``). Measured: 62-105 B for tagging and tabular models, 290-430 B
-  for the heatmap with node networks. The probe costs about 0.5 s, so it runs only when an
+  (``Compiled.memory_analysis``). The probe costs a compile, so it runs only when an
   upper bound says the batch could be too big: every array the evaluation of all candidates
   at once creates, summed (:func:`traced_bytes` of its trace, which
   ``rollout.evaluate_candidates`` then uses as it is), or without such a trace every array

@@ -3,7 +3,7 @@
 
 Every function takes plain numpy arrays (or anything ``np.asarray`` accepts), writes one PNG to
 ``path``, closes its figure and returns ``path``. There is no JAX in here, so the same functions
-serve G-DICE, COG-DICE and COGNet-DICE.
+serve every controller kind.
 
 * ``plot_action_distributions``: each node's action distribution, one panel per agent.
 * ``plot_node_responses``: next-node probabilities as a function of a scalar observation.
@@ -13,7 +13,7 @@ serve G-DICE, COG-DICE and COGNet-DICE.
 * ``plot_controller_graphs``: each agent's controller drawn as a graph (nodes on a circle).
 * ``plot_value_vs_noise``: value against a noise level, one errorbar line per variant.
 
-Next-node probabilities of a COGNet-DICE controller over an observation grid (tagging, scalar
+Next-node probabilities of a neural controller over an observation grid (scalar
 observations), to pass to ``plot_node_responses`` / ``controller_graph_edges``::
 
     logits = jax.vmap(lambda z: controller.all_node_logits(
@@ -48,6 +48,11 @@ __all__ = [
 
 Interval = tuple[float, float]
 Edge = tuple[int, int, list]
+
+
+def run_title(results: dict) -> str:
+    """A run's figure title: its experiment and seed (``results.json``'s fields)."""
+    return f"{results['experiment']} (seed {results['seed']})"
 
 
 @functools.cache

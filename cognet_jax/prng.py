@@ -89,8 +89,7 @@ def _counters(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.Ar
     The low words are the index plus a zero XLA cannot prove is zero (``key[0] > 2**32 - 1``),
     so they depend on the key: in a rollout's time loop, whose key changes every step, XLA
     then computes them inside the generator's loop instead of hoisting them out as a
-    ``[*shape]`` array that every step reads back from memory (4.4 MB per step for the
-    ``[1e5, 11]`` tagging block; 1.08x the 3-node rollout throughput, benchmarks/NOTES.md,
+    ``[*shape]`` array that every step reads back from memory (benchmarks/NOTES.md,
     "Ninth pass"). The same numbers."""
     n = math.prod(shape)
     if n >= 2**32:

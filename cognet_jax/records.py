@@ -191,7 +191,7 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     """The per-iteration fields of run ``r`` (``None``: an unbatched history)."""
     h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
     env = algorithm.env
-    return {
+    fields = {
         "in_loop_best": float(h.best_value[-1]),
         # the search's budget: agent-steps simulated by all its iterations
         "simulated_agent_steps": iterations
@@ -200,10 +200,15 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
         * env.num_agents,
         "values_per_iteration": np.asarray(h.value).tolist(),
         "best_per_iteration": np.asarray(h.best_value).tolist(),
-        "threshold_per_iteration": np.asarray(h.threshold).tolist(),
-        "kept_per_iteration": np.asarray(h.kept).tolist(),
-        "entropy_injections": int(np.sum(h.injected)),
     }
+    # the cross-entropy figures, where the search reports them (``SearchMetrics``)
+    if h.threshold is not None:
+        fields["threshold_per_iteration"] = np.asarray(h.threshold).tolist()
+    if h.kept is not None:
+        fields["kept_per_iteration"] = np.asarray(h.kept).tolist()
+    if h.injected is not None:
+        fields["entropy_injections"] = int(np.sum(h.injected))
+    return fields
 
 
 def fingerprint(config: Config, written: dict | None = None) -> dict:

@@ -26,8 +26,7 @@ into several times, and the loop state XLA must copy at every step is kept small
   kernels, are drawn one step ahead and carried through the scan. The loop state is then the
   simulator's state, that integer, the returns and the simulator's uniforms: no block of the
   controller's uniforms is stored, nor copied twice per step as XLA copies loop state that
-  several kernels read (1.14x the 3-node rollouts, about 1.3x with the 16-bit integer;
-  benchmarks/NOTES.md, "Eleventh pass").
+  several kernels read (benchmarks/NOTES.md, "Eleventh pass").
 - Otherwise the whole block is drawn one step ahead, carried through the scan and read by
   every kernel and candidate: candidates sharing each step's block (common random numbers in
   ``evaluate_candidates``) would compute draws made in the kernels again for each candidate,
@@ -102,10 +101,8 @@ def _simulate(
 
     The same computation as ``vmap`` over the candidates of the one-policy engine, bit for bit
     (tests/test_rollout.py), traced in less time: JAX batches a ``vmap``-ed ``lax.scan`` by
-    tracing its body again, twice when the carry becomes batched (the default COGNet-DICE
-    iteration's candidates: 0.28 s against 0.76 s with the memory probe it also spares, at
-    XLA's level 0 on the 2-core CPU; the whole iteration 0.67 s against 0.80 s; one
-    measurement each).
+    tracing its body again, twice when the carry becomes batched (and the memory probe is
+    spared too).
 
     ``shared_key``: the caller ``vmap``s this over policies that share ``key`` (one
     candidate's engine under ``evaluate_candidates``' chunks): the block is then drawn one

@@ -15,8 +15,8 @@ evaluation (``api.final_returns``) of its best policy with its own params, compi
 ``train`` compiles it (one run after another, so ``eval_s`` grows with the runs). The search
 itself runs ``vmap``-ed, its hyper-parameters as data: the same operations on the same keys as
 the single run, which batching may round differently (equal to the last bit on tagging,
-tests/test_sweep.py; the heatmap's larger networks can differ, docs/reference.md, "Sweeps"); with
-``standardize_inputs`` every run uses the input statistics of the group's first setting.
+tests/test_sweep.py; larger networks can differ, docs/reference.md, "Sweeps"); a search that
+measures its inputs (``standardize_inputs``) uses the group's first setting's statistics.
 
 Devices: the ``[runs]`` axis is sharded over the local devices (``NamedSharding`` over a 1-D
 mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run); each

@@ -97,9 +97,6 @@ class ThresholdSearch(Search):
             value=values[i],
             best_value=progress.best_value,
             mean_value=values.mean(),
-            threshold=values[i],
-            kept=jnp.int32(1),
-            injected=jnp.bool_(False),
         )
         return ThresholdState(best, progress), metrics
 
@@ -140,6 +137,8 @@ def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
     assert (out / "thresholds.png").stat().st_size > 0  # its own figure
     assert (out / "values.png").stat().st_size > 0  # the driver's, for every search
     assert (out / "checkpoint.msgpack").is_file()
+    # a search without cross-entropy figures writes none (SearchMetrics' optional fields)
+    assert "threshold_per_iteration" not in results and "entropy_injections" not in results
     value = results["final_value"]["mean"]
 
     assert main([*imports, "evaluate", str(out)]) == 0

@@ -3,13 +3,12 @@ iteration on the same fresh rollouts as the iteration's challengers.
 
 Why: a search that keeps "the policy with the best fresh value so far" picks the maximum of
 hundreds of noisy means (one per iteration), so on a noisy problem it keeps a lucky policy, not
-a good one (the winner's curse; measured on tagging n3 and Dec-Tiger the kept policy's honest
-value was 4 below its in-loop estimate). In a pool every member's estimate is the mean of all
-its evaluations since it entered, so it sharpens with every iteration it survives; the member
-kept as the best policy is the one with the largest lower confidence bound
-``mean - CONFIDENCE * sigma / sqrt(count)`` (``sigma``: the spread of one evaluation, pooled
-over the members evaluated at least twice), so a policy that entered on one lucky evaluation is not
-kept before it was checked again.
+a good one (the winner's curse; experiments/NOTES.md). In a pool every member's estimate is
+the mean of all its evaluations since it entered, so it sharpens with every iteration it
+survives; the member kept as the best policy is the one with the largest lower confidence
+bound ``mean - CONFIDENCE * sigma / sqrt(count)`` (``sigma``: the spread of one evaluation,
+pooled over the members evaluated at least twice), so a policy that entered on one lucky
+evaluation is not kept before it was checked again.
 
 One update (``race``), pool of ``P >= 2`` members (leaves ``[P, ...]``):
 

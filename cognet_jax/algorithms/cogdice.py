@@ -97,9 +97,9 @@ from cognet_jax.algorithms.engine import (
 )
 from cognet_jax.config import ConfigError, require, settings_class
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
+from cognet_jax.controllers.figures import region_plots
 from cognet_jax.controllers.regions import DeterministicRegionPolicy, RegionController
 from cognet_jax.registry import fields_from, register_algorithm
-from cognet_jax.reporting import region_plots
 
 
 # --------------------------------------------------------------------------------------------

@@ -60,6 +60,7 @@ from cognet_jax.config import (
     settings_class,
 )
 from cognet_jax.controllers.base import action_support
+from cognet_jax.controllers.figures import neural_plots
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
@@ -68,7 +69,6 @@ from cognet_jax.observations import (
     neural_controller,
 )
 from cognet_jax.registry import fields_from, register_algorithm
-from cognet_jax.reporting import neural_plots
 from cognet_jax.rollout import rollouts
 
 
@@ -443,7 +443,7 @@ class CognetThesis(Search):
         return new_state, metrics
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:
-        """The neural policy's figures (``reporting.neural_plots``)."""
+        """The neural policy's figures (``controllers.figures.neural_plots``)."""
         return neural_plots(self, policy, record, out_dir)
 
 

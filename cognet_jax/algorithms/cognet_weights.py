@@ -24,25 +24,21 @@ Q nodes, F network inputs):
   ``vote_std``, the default vote's times ``default_vote_scale``). A threshold on the observation
   is one ReLU unit voting for a node, so the reactive controllers of the tagging problem are a
   few draws away, and a node's role (which next node an observation leads to) is a categorical
-  choice the elites can agree on. A diagonal Gaussian over a dense output layer averages the
-  roles of different elites; in prototypes (not kept) it stalled below the reactive controller
-  on tagging n3.
+  choice the elites can agree on (a diagonal Gaussian over a dense output layer would average
+  the roles of different elites).
 
 **Default vote's scale** (``default_vote_scale``, **[choice]**, "auto": 10 where the horizon
 is longer than the nodes, 1 otherwise, ``resolve_search``): a unit's vote is ``m_j`` times its
 pre-activation, whose initial spread is about ``init_scale`` (10); a default vote of
 ``vote_mean`` (5) loses to any unit a tenth of an observation unit past its threshold, so "do
 the default unless an observation is far enough out" -- stop near the beacon -- needs every
-unit's threshold moved at once. At 10 (the units' scale) every beacon seed found the
-hand-written controller's stop region (8 seeds: 27.96 against 25.82 at 1), but on tagging n3
-(horizon 3) more seeds ended near the reactive controller (16 seeds: 21.55 against 22.55).
-``vote_alternate`` alternates the exploring searches between scale 1 (the first) and
-``default_vote_scale``: tagging n3 as at 1 (22.55), beacon 26.51. ``vote_first`` starts with a
-search at ``default_vote_scale`` and ``vote_restart_tol`` ends those searches at their own
-tolerance (a portfolio of short searches at the units' scale and long ones at 1: tagging n3
-22.36 over 16 seeds, beacon 26.55); ``tied_vote_scale`` scales the default vote of tied
-(reactive) candidates only (tagging n3 22.32 over 16 seeds, beacon 26.92). None of the three
-held on both, so the horizon decides instead (experiments/README.md, suite: every row).
+unit's threshold moved at once; at 10 (the units' scale) it is one draw away. Where every step
+can run a node of its own (horizon <= nodes) the next node is the observation's to decide, and
+the scale of 1 keeps the units in charge. ``vote_alternate`` alternates the exploring searches
+between scale 1 (the first) and ``default_vote_scale``; ``vote_first`` starts with a search at
+``default_vote_scale`` and ``vote_restart_tol`` ends those searches at their own tolerance;
+``tied_vote_scale`` scales the default vote of tied (reactive) candidates only. None of the
+three is on by default: the horizon decides instead (the measurements: experiments/NOTES.md).
 
 **Tied structure** (``tie_structure``, **[choice]**, on by default): every candidate also
 draws, per agent, whether all its nodes run node 0's network (``node_tie``: the next node then
@@ -67,8 +63,8 @@ elites agree and the search draws nearly one controller); the next iteration sta
 initial distribution again, the anytime best kept. A larger budget then buys further
 independent searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets
 another start (metrics ``injected`` marks the iterations that restarted). Shorter searches fit
-more of them before the refine phase: on beacon (8 seeds, default vote at 1) 25.82 at 0.02,
-26.50 at 0.1, 27.25 at 0.2, but on tagging n3 0.1 lost (21.70 against 22.78).
+more of them before the refine phase, which the long-horizon problems need and tagging's
+thesis setting does not (experiments/NOTES.md).
 
 **Refine** (``refine``, ``refine_scale``, **[choice]**): the last ``refine`` share of the
 iterations searches around the kept policy: the distribution restarts centred on it (Gaussian
@@ -82,7 +78,7 @@ show.
 of equal length, each from the initial distribution.
 
 **Input standardisation** (``standardize_inputs``, **[choice]**, "auto" by default: on where
-the inputs are narrow, ``narrow_inputs``; plume, 8 seeds: 16.35 against 14.37 raw): the Gaussians
+the inputs are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
 ``scale [agents, F]`` are the features' mean and standard deviation over the observations of
 ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (fixed key, so every seed of a
@@ -160,6 +156,7 @@ from cognet_jax.algorithms.weight_space import (
     tie,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
+from cognet_jax.controllers.figures import neural_plots
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
@@ -169,7 +166,6 @@ from cognet_jax.observations import (
 )
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import env_description, fields_from, register_algorithm
-from cognet_jax.reporting import neural_plots
 
 #: the stream of the ``distinct_actions`` flags: the iteration's key folded with this number
 #: (with partitionable threefry, folding with ``i`` gives ``split(key, n)[i]``: a small number
@@ -261,8 +257,8 @@ class CognetWeights(Search):
 
     def draw(self, key: jax.Array, dist: WeightDistribution, num: int) -> WeightSample:
         """``num`` candidates (leaves with a leading ``[num]`` axis). The draws go through
-        ``prng.fast_key`` (the same numbers; JAX's own CPU threefry made this iteration compile
-        about 3 s slower). The flags of ``distinct_actions`` have a stream of their own (the
+        ``prng.fast_key`` (the same numbers; JAX's own CPU threefry compiles this iteration
+        more slowly). The flags of ``distinct_actions`` have a stream of their own (the
         key folded with ``DISTINCT_STREAM``: folding with a small number gives a key of the
         split above), so the other draws are those of a search without them."""
         ties = self.settings.tie_structure
@@ -530,7 +526,7 @@ class CognetWeights(Search):
         return jnp.mean(dist.w1_std) < tol * initial
 
     def write_plots(self, config, policy, record: dict, out_dir) -> list:
-        """The neural policy's figures (``reporting.neural_plots``)."""
+        """The neural policy's figures (``controllers.figures.neural_plots``)."""
         return neural_plots(self, policy, record, out_dir)
 
 

@@ -254,15 +254,11 @@ def resolve_search(section, env):
     """``section`` (config section or ``WeightsSettings``) with ``default_vote_scale``,
     ``restart_tol`` and ``refine_tol`` "auto" decided by ``loops_back`` on ``env.horizon``:
     ``SEARCH_LONG_HORIZON`` or ``SEARCH_SHORT_HORIZON``; numbers given are kept.
-    **[choice]** Measured over 8 seeds (16 on tagging n3; experiments/README.md, suite): the
-    long-horizon values gave beacon (h 30, 5 nodes) 27.96 against 25.82, the bearing chase
-    (h 50) 14.12 against 13.33, Dec-Tiger with hearing (h 10, 7 nodes) 12.27 against 12.16 and
-    -19.24 against -19.45 with the noise dominating, box pushing (h 100) 3.03 against 3.09,
-    the plume (h 20, a 3 x 3 patch) 15.48 against 16.35 (seeds spread about 2), the README
-    simulator (h 20) and beacon without noise within 0.01; on tagging's thesis
-    setting (h 3, 3 nodes, where every step can run a node of its own and the next node is
-    the observation's to decide) they lost 1.0 (21.55 against 22.55), at 6 nodes 0.24, on
-    the heatmap (h 4, 4 nodes) 0.05: the short-horizon values there."""
+    **[choice]** Where the controller must loop back, the long-horizon values let a node
+    repeat its action until an observation is far enough out and spend the budget on short
+    exploring searches; where every step can run a node of its own (tagging's thesis setting,
+    the heatmap) the next node is the observation's to decide and the short-horizon values
+    stay (8-seed sweeps of the suite: experiments/NOTES.md)."""
     if section.distinct_actions == "auto":
         distinct = covers_rarely(env.action_counts, section.nodes)
         section = dataclasses.replace(section, distinct_actions=distinct)
@@ -294,15 +290,9 @@ def covers_rarely(action_counts, nodes: int) -> bool:
     as some agent has actions (then it can run them all), and independent draws of the
     initial distribution run them all with probability below ``DISTINCT_COVER``.
     **[choice]** A controller that must move four ways and stay (beacon, chase, plume: 5
-    nodes, 5 actions, 0.038) then has the chance to be drawn whole, where 200 candidates of
-    independent draws hold about 8 with every action; the suite's other problems cover
-    often enough to leave as they were (Dec-Tiger 7 nodes, 3 actions: 0.83; tagging n6 0.74;
-    3 nodes, 3 actions: 0.22) and the heatmap (4 nodes, 4 actions: 0.094), whose bound a
-    2-node controller reaches, sits just below. Measured over 8 seeds against the same
-    sweeps without it (experiments/README.md, suite): plume 16.90 against 15.48 (worst seed
-    15.23 against 11.14), beacon 28.11 against 27.96; chase 14.07 against 14.12, beacon
-    without noise 29.86 against 29.89 and the heatmap 46.29 against 46.41, within the
-    spread of their seeds."""
+    nodes, 5 actions, 0.038) then has the chance to be drawn whole, where independent draws
+    give a few candidates of 200 every action; the problems that cover often enough keep the
+    draws of before bit for bit (probabilities and sweeps: experiments/NOTES.md)."""
     return any(
         nodes >= a and cover_probability(a, nodes) < DISTINCT_COVER for a in set(action_counts)
     )
@@ -322,10 +312,9 @@ def narrow_inputs(stats) -> bool:
     ``input_statistics``) are narrow: the median feature's standard deviation below
     ``NARROW_INPUTS`` x ``sqrt(F)``, the scale of an initial unit's threshold ``-b / w`` along a
     feature (``b ~ N(0, s)``, ``w ~ N(0, s / sqrt(F))``: a ratio of spread ``sqrt(F)``).
-    **[choice]** Measured spreads of the suite (random controller): 1.05 (Dec-Tiger hearing,
-    F 1) to 6.8 (paper tagging) on the scalar problems, 4.2 per coordinate on beacon (F 2),
-    0.25 on the plume's 3 x 3 patch (F 9, against 3) and 0.3 on the heatmap's 4 x 4 (F 16,
-    against 4): the rule splits the patches from the rest with a margin of 3 on both sides."""
+    **[choice]** The suite's scalar and planar observations spread 1 - 7 under the random
+    controller, its image patches a tenth of the rule's scale: the rule splits the patches
+    from the rest with a margin of about 3 on both sides (experiments/NOTES.md)."""
     _, scale = stats
     f = scale.shape[-1]
     return bool(float(jnp.median(scale)) < NARROW_INPUTS * math.sqrt(f))

@@ -14,10 +14,11 @@ params pytree and the algorithm's hyper-parameters -- is one :class:`SearchParam
     policy = search.best_policy(state)
 
 ``step(key, state, params)`` is exactly ``ask``, ``evaluate`` and ``tell`` with one iteration
-key. What the driver (``cognet_jax.driver``) reads besides: ``state.progress.iteration`` (the
-iteration count, ``cross_entropy.Progress``), the metrics fields ``value``, ``best_value``,
-``threshold``, ``kept`` and ``injected`` (``SearchMetrics``), and the algorithm's
-``rollouts_per_iteration``.
+key. What the orchestration reads besides: ``state.progress.iteration`` (the iteration
+count, ``cross_entropy.Progress``; the loop, ``cognet_jax.loop``), the metrics fields
+``value``, ``best_value`` and ``mean_value`` (``SearchMetrics``; a cross-entropy search also
+fills ``threshold``, ``kept`` and ``injected``, which ``cognet_jax.records`` writes when they
+are there), and the algorithm's ``rollouts_per_iteration``.
 
 **Random streams**: each of ``ask``, ``evaluate`` and ``tell`` derives what it draws from the
 iteration key through :func:`streams`, which splits it once into independent named keys --
@@ -155,9 +156,10 @@ class SearchMetrics:
     value: jax.Array  # [] best sample value of this iteration
     best_value: jax.Array  # [] value of the anytime best so far
     mean_value: jax.Array  # [] mean sample value
-    threshold: jax.Array  # [] V_w after this iteration
-    kept: jax.Array  # [] number of elites
-    injected: jax.Array  # [] bool: entropy injected this iteration
+    # cross-entropy searches only (None where a search has no such figure):
+    threshold: jax.Array | None = None  # [] V_w after this iteration
+    kept: jax.Array | None = None  # [] number of elites
+    injected: jax.Array | None = None  # [] bool: entropy injected (a restart) this iteration
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

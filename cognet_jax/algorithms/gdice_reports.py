@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from cognet_jax.controllers.figures import action_names, tabular_plots
 from cognet_jax.envs.tabular import TabularEnv, load_problem
 from cognet_jax.exact import exact_value
 from cognet_jax.registry import env_entry
-from cognet_jax.reporting import action_names, tabular_plots
 
 
 def _model(config, env):

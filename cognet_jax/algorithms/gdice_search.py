@@ -26,10 +26,9 @@ an elite.
 **[option]** ``evaluator="hybrid"`` (tabular models too large for exact values of every sample):
 step 2's Monte Carlo means pick the ``exact_top`` most promising samples, and only those get
 exact values; the others get ``-inf``, so the elites, the threshold V_w and the anytime best
-are all ranked by exact values, at ``exact_top / samples`` of the exact evaluator's cost. On
-the 100-state box-pushing benchmark at h 3, rollouts alone left one seed of two at 19.2 (the
-optimum is 66.081): a lucky Monte Carlo mean set V_w and the elites drifted to pushing the
-small boxes.
+are all ranked by exact values, at ``exact_top / samples`` of the exact evaluator's cost:
+with rollouts alone a lucky Monte Carlo mean can set V_w and draw the elites to a poor
+controller (experiments/NOTES.md, box pushing).
 
 **[option]** ``shared_controller=True`` (identical agents: the same action and observation
 counts): each sample is one controller used by every agent (``TabularController.shared``), so
@@ -139,17 +138,16 @@ EXACT_TOP_MAX = 50
 HYBRID_EXACT_LIMIT = 40_000_000
 #: ``evaluator = "auto"`` is hybrid where at least this many samples per iteration fit
 #: ``HYBRID_EXACT_LIMIT`` (``exact_top = "auto"``), rollouts where fewer do. **[choice]**
-#: Mars rovers at h 5 fits 6: there the hybrid ends 4 of 8 seeds at the optimum (13.27),
-#: rollouts alone 1 of 8 (experiments/README.md, "G-DICE defaults in a minute")
+#: Even a few exact values per iteration keep the elites off lucky Monte Carlo means
+#: (Mars rovers at h 5: experiments/NOTES.md)
 HYBRID_MIN_TOP = 5
 
 
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
 #: ``GDice.polish_moves``); above it the polish is skipped. **[choice]** The exact values of a
-#: sweep are gather-bound (about 5 ms each on the meeting grid): box pushing (4e8 - 6.5e8 per
-#: sweep at h 4 - 5) and fire fighting 2-3-3 (3.3e8 - 5.4e8) keep their polish, the meeting
-#: grid at h 4 (2.0e9: 32 s for no change of seed 0's optimal controller) runs without it
-#: (experiments/README.md, "G-DICE defaults in a minute")
+#: sweep are gather-bound: the limit keeps the polish of box pushing and fire fighting 2-3-3
+#: and skips the meeting grid's at h 4, which costs a large share of a minute for no gain
+#: (experiments/NOTES.md)
 POLISH_SWEEP_LIMIT = 1_000_000_000
 
 
@@ -506,8 +504,8 @@ class GDice(TabularReports, ThresholdSearch):
 
     def _polish_functions(self, params):
         """``(move_values, respond)`` of ``Polish.advance``: a layered controller values a
-        sweep's moves by one-layer updates (``exact_jax.layered_move_values``, 4-8x faster
-        at h 4-5 than evaluating every changed controller), a free one changed by changed."""
+        sweep's moves by one-layer updates (``exact_jax.layered_move_values``, faster than
+        evaluating every changed controller), a free one changed by changed."""
         if self.settings.layered:
             width = self.settings.nodes
 

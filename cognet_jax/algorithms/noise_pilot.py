@@ -1,5 +1,5 @@
 """How noisy one candidate's evaluation is against how much candidates differ: the measurement
-``sizing`` reads to choose ``eval_rollouts`` (issue 52).
+``sizing`` reads to choose ``eval_rollouts``.
 
 ``measure_noise(algorithm, env_params)`` draws ``PILOT_CANDIDATES`` joint controllers from the
 search's initial distribution and rolls each out ``PILOT_ROLLOUTS`` times on the same keys

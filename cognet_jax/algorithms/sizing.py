@@ -56,12 +56,11 @@ def sized(section, env, noise=None):
       ``Kn = resolving_rollouts(noise) < Kb``, the budget moves from rollouts to candidates:
       ``K = sqrt(Kn Kb)`` and ``C = R / (I K)`` (both by the square root of ``Kb / Kn``);
       a quiet simulator also reaches the most iterations at a smaller budget (``I`` above).
-      **[choice]** Never the other way: on the noisiest simulators of the suite (beacon,
-      8 seeds) more rollouts bought with fewer iterations gave worse controllers (25.44
-      against 27.28 at 150 x 200 x 1000 against 400 x 200 x 375), while on quiet ones (box
-      pushing) a larger population with fewer rollouts each gave better ones (1.33 against
-      0.29; experiments/README.md, suite). Half way (the geometric mean), since candidates
-      differ less once the distribution narrows than at the start, where ``Kn`` is measured;
+      **[choice]** Never the other way: on the noisiest simulators of the suite more
+      rollouts bought with fewer iterations gave worse controllers, while on quiet ones a
+      larger population with fewer rollouts each gave better ones (experiments/NOTES.md).
+      Half way (the geometric mean), since candidates differ less once the distribution
+      narrows than at the start, where ``Kn`` is measured;
     * elites ``max(2, ELITE_FRACTION x C)``.
 
     Settings given as numbers are kept, and the others sized around them."""

@@ -27,9 +27,9 @@ from cognet_jax.errors import SimulatorError
 
 #: Node nets with at most this many inputs and hidden units are evaluated as unrolled scalar
 #: arithmetic in rollouts (``NeuralController.one_net_logits``); larger ones use ``dot``.
-#: Written out, the plume's 9-input networks ran a search iteration 3x faster than with ``dot``
-#: and the heatmap's 16-input ones 2x (benchmarks/NOTES.md, "Written-out networks up to 12
-#: inputs"); 12 keeps the heatmap's committed rows, made with ``dot``, bit for bit.
+#: Written out, small networks run a search iteration several times faster than with ``dot``
+#: (benchmarks/NOTES.md, "Written-out networks up to 12 inputs"); 12 keeps the heatmap's
+#: committed rows, made with ``dot``, bit for bit.
 UNROLL_MAX_IN = 12
 UNROLL_MAX_HIDDEN = 32
 #: Small node nets of controllers with at least this many nodes are applied in one fused loop
@@ -39,14 +39,13 @@ UNROLL_MIN_NODES = 4
 #: Controllers with small written-out networks, at most this many nodes, and at most this many
 #: ``where``s to pick a rollout's member weights run in the rollout engine's rollouts-last
 #: layout and draw from the current node's network alone (``NeuralController.agents_major``,
-#: ``selected_member_logits``). Measured limits: at 7 nodes (10 hidden units), or 6 nodes with
-#: 32 hidden units, the paper's iteration ran 2x slower than the other forms
-#: (benchmarks/NOTES.md, "Ninth pass").
+#: ``selected_member_logits``). Beyond these limits the picks cost more than the other forms
+#: spare (benchmarks/NOTES.md, "Ninth pass").
 AGENTS_MAJOR_MAX_NODES = 6
 AGENTS_MAJOR_MAX_WHERES = 600
 #: Agents-major controllers with at most this many picks ask the rollout engine for 16-bit
-#: nodes (``narrow_nodes``). Measured: 1.05-1.2x the rollouts from 42 to 326 picks, 0.86-1.0x at
-#: 430 (6 nodes, 10 hidden units) (benchmarks/NOTES.md, "Eleventh pass").
+#: nodes (``narrow_nodes``): faster up to this many picks, slower beyond
+#: (benchmarks/NOTES.md, "Eleventh pass").
 NARROW_NODES_MAX_WHERES = 330
 
 
@@ -146,8 +145,8 @@ class NeuralController:
         Small nets (``unrolled``) are written out as ``hidden * (in + 1)`` scalar multiply-adds
         instead of two ``dot``s: under ``vmap`` over rollouts XLA then fuses the whole net into
         one loop over the rollouts, where a ``dot`` with 1-10 inputs and 3-6 outputs runs at a
-        few GFLOP/s and writes the ``[rollouts, hidden]`` activations to memory (1.5x faster
-        COGNet-DICE iterations on tagging, benchmarks/NOTES.md). Same function as
+        few GFLOP/s and writes the ``[rollouts, hidden]`` activations to memory
+        (benchmarks/NOTES.md). Same function as
         ``self.net.apply`` (the Flax module, used for training), up to float rounding."""
         if not self.unrolled:
             return self.net.apply(member_params, obs)
@@ -177,8 +176,7 @@ class NeuralController:
         Every member is applied and its logits kept where the agent is in that node (``where``),
         instead of gathering each rollout's member weights: under ``vmap`` over rollouts each
         member is then one fused loop (or one batched matmul) over all rollouts and no
-        per-rollout copy of the weights is made (benchmarks/NOTES.md: on the heatmap's
-        16 -> 160 -> 4 networks the gather is about 4x slower).
+        per-rollout copy of the weights is made (benchmarks/NOTES.md: the gather is slower).
 
         Two forms of the same arithmetic, the same numbers bit for bit with XLA's default CPU
         emitters (tests/test_neural.py):
@@ -186,9 +184,9 @@ class NeuralController:
         after each member, or the members written out one after the other
         (``unrolled_agent_logits``), which XLA computes in one fused loop and writes once. The
         second is used for small (``unrolled``) networks with at least
-        ``UNROLL_MIN_NODES`` nodes: 1.3-1.9x the rollout throughput at 4-8 nodes. With fewer
-        nodes XLA fuses the written-out networks into the softmax and draw that read the
-        logits, and computes them again for each read (3x slower at 3 nodes), so the scan's
+        ``UNROLL_MIN_NODES`` nodes. With fewer nodes XLA fuses the written-out networks into the
+        softmax and draw that read the logits, and computes them again for each read, so the
+        scan's
         stores are the cheaper way there (benchmarks/NOTES.md, "Fifth pass")."""
         if self.unrolled and self.num_nodes >= UNROLL_MIN_NODES:
             return self.unrolled_agent_logits(members, node, obs)
@@ -212,8 +210,8 @@ class NeuralController:
         rollouts (the rollouts-last layout, ``agents_major``) each output is an array of its
         own whose minor axis is the rollouts, and XLA fuses the picks, the network, the softmax
         and the draw into one loop over the rollouts: one network per rollout instead of one
-        per member and rollout, and no logit written to memory (1.15x the 3-node rollout
-        throughput and 1.4x the paper's iteration, benchmarks/NOTES.md, "Ninth pass").
+        per member and rollout, and no logit written to memory (benchmarks/NOTES.md, "Ninth
+        pass").
         The same operations on the same numbers as every member's network kept where the
         agent is in that node (``scan_agent_logits``): the same logits bit for bit."""
         self.check_inputs(obs)

@@ -2,7 +2,7 @@
 
 What a practitioner writes in ten minutes for a new simulator: a few nodes, each with a fixed
 action, and a rule that picks the next node from the current one and the observation, with a
-few thresholds tuned by a grid search (``baselines.grid_search``). Every simulator of the suite
+few thresholds tuned by a grid search (``baselines.tune``). Every simulator of the suite
 ships one (``hand_controller`` in its module), the yardstick the searches must beat.
 
 ``RuleController(num_agents, num_nodes, rule)``: ``rule(theta, nodes [agents], obs [agents,

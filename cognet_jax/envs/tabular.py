@@ -145,7 +145,7 @@ class TabularEnv:
         ja = self.joint_action(actions)
         reward = params.reward[state, ja].astype(jnp.float32)
         # sparse rows: an inverse-CDF draw over the K listed entries instead of the whole row
-        # (fire fighting 2-3-3 steps 175x faster than from its dense 432-wide rows)
+        # (a few listed entries of rows hundreds wide)
         next_state = _draw(
             u[0], params.successors, params.successor_probs, params.transition, (state, ja)
         )
@@ -161,9 +161,9 @@ class TabularEnv:
 
 #: rows of up to this many listed entries are drawn with written-out running sums
 #: (``categorical_from_columns``), wider ones with ``categorical_from_uniform``. **[choice]**
-#: The meeting grid's 25 successors per row: one G-DICE member's 1000 x 100 rollouts at h 4 take
-#: 51 ms with the cumsum (a reduce-window kernel on CPU), 10 ms written out (benchmarks/NOTES.md);
-#: every other model of experiments/ and ../shared lists at most 16, so its draws are unchanged.
+#: The cumsum is a slow reduce-window kernel on CPU (benchmarks/NOTES.md); 32 covers the
+#: meeting grid's 25 successors per row, and every other model of experiments/ and ../shared
+#: lists at most 16, so its draws are unchanged.
 LISTED_UNROLLED = 32
 
 
