@@ -287,37 +287,48 @@ def _stderr(x: np.ndarray) -> float:
     return float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
 
 
-def exact_of(final_value: dict) -> float | None:
-    """The exact value of a run's best policy (tabular problems): the infinite discounted value
-    when the discount is below 1, else the value at the horizon; ``None`` when not computed."""
-    return final_value.get("exact_infinite", final_value.get("exact"))
+#: the fields of every run's ``final_value``; any other is one the search's ``exact_record``
+#: added (e.g. exact values of the best policy), summarised per setting as it comes
+FINAL_VALUE_FIELDS = ("mean", "stderr", "rollouts")
+
+
+def added_fields(rows: list[dict]) -> list[str]:
+    """The numeric fields the search added to the ``final_value`` of every run of ``rows``
+    (``exact_record``), in the order of the first run's."""
+    first = rows[0]["final_value"] if rows else {}
+    return [
+        k
+        for k in first
+        if k not in FINAL_VALUE_FIELDS
+        and all(isinstance(r["final_value"].get(k), (int, float)) for r in rows)
+    ]
 
 
 def summarize(result: dict) -> list[dict]:
-    """Per setting: mean +- s.e. over seeds of the honest final value and the in-loop best, and
-    for tabular problems the exact values' mean, minimum and maximum over seeds."""
+    """Per setting: mean +- s.e. over seeds of the honest final value and the in-loop best,
+    and of each field the search added to the final values (``added_fields``) the mean,
+    minimum and maximum over seeds (``{field: [mean, min, max]}`` under ``added``)."""
     out = []
     for index, values in enumerate(result["settings"]):
         rows = [r for r in result["rows"] if r["setting"] == index]
         finals = np.array([r["final_value"]["mean"] for r in rows])
         best = np.array([r["in_loop_best"] for r in rows])
-        n = finals.size
+        added = {}
+        for k in added_fields(rows):
+            v = [float(r["final_value"][k]) for r in rows]
+            added[k] = [float(np.mean(v)), min(v), max(v)]
         out.append(
             {
                 "setting": index,
                 "grid": values,
-                "seeds": n,
+                "seeds": finals.size,
                 "final_mean": float(finals.mean()),
                 "final_se": _stderr(finals),
                 "in_loop_best_mean": float(best.mean()),
                 "in_loop_best_se": _stderr(best),
+                "added": added,
             }
         )
-        exact = [exact_of(r["final_value"]) for r in rows]
-        if exact and all(e is not None for e in exact):
-            out[-1].update(
-                exact_mean=float(np.mean(exact)), exact_min=min(exact), exact_max=max(exact)
-            )
     return out
 
 
@@ -330,21 +341,21 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result["grid"])
-    # tabular problems: the exact values of each best policy (the search's ``exact_record``)
-    exact_keys = [k for k in ("exact", "exact_infinite") if k in result["rows"][0]["final_value"]]
+    # the fields the search added to the final values (``exact_record``), a column each
+    added_keys = added_fields(result["rows"])
     table = io.StringIO(newline="")  # written whole, atomically: a failed write keeps the old one
     w = csv.writer(table)
     w.writerow(
         ["setting", "group", "seed", *names, "final_mean", "final_stderr", "final_rollouts"]
         + ["in_loop_best"]
-        + [f"final_{k}" for k in exact_keys]
+        + [f"final_{k}" for k in added_keys]
     )
     for r in result["rows"]:
         fv = r["final_value"]
         w.writerow(
             [r["setting"], r["group"], r["seed"], *(r["grid"][n] for n in names)]
             + [repr(fv["mean"]), repr(fv["stderr"]), fv["rollouts"], repr(r["in_loop_best"])]
-            + [repr(fv.get(k)) for k in exact_keys]
+            + [repr(fv.get(k)) for k in added_keys]
         )
     atomic_write_text(out / "runs.csv", table.getvalue())
     atomic_write_text(out / "runs.json", json.dumps(result, indent=1))
@@ -358,27 +369,25 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
         f"evaluation of its best policy ({result['rows'][0]['final_value']['rollouts']} "
         "rollouts, the seed's eval key); +- is the standard error over seeds.",
     ]
-    with_exact = all("exact_mean" in s for s in summary)
-    if with_exact:
-        infinite = "exact_infinite" in exact_keys
+    added = [k for k in added_keys if all(k in s["added"] for s in summary)]
+    if added:
         lines[-1] += (
-            " Exact value: the best policy's value by dynamic programming ("
-            + ("infinite discounted sum" if infinite else "at the horizon")
-            + "), mean over seeds and [min, max]."
+            " " + ", ".join(added) + ": fields the search adds to each run's final value"
+            " (its ``exact_record``), mean over seeds and [min, max]."
         )
-    header = "| setting | seeds | honest value | in-loop best |"
     lines += [
         "",
-        header + (" exact value |" if with_exact else ""),
-        "|---|---|---|---|" + ("---|" if with_exact else ""),
+        "| setting | seeds | honest value | in-loop best |" + "".join(f" {k} |" for k in added),
+        "|---|---|---|---|" + "---|" * len(added),
     ]
     for s in summary:
         row = (
             f"| {_setting_label(s['grid'])} | {s['seeds']} | {s['final_mean']:.3f} +- "
             f"{s['final_se']:.3f} | {s['in_loop_best_mean']:.3f} +- {s['in_loop_best_se']:.3f} |"
         )
-        if with_exact:
-            row += f" {s['exact_mean']:.6f} [{s['exact_min']:.6f}, {s['exact_max']:.6f}] |"
+        for k in added:
+            mean, lo, hi = s["added"][k]
+            row += f" {mean:.6f} [{lo:.6f}, {hi:.6f}] |"
         lines.append(row)
     atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
     plot_sweep_values(result, out / "values.png", _setting_label)
