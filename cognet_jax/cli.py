@@ -45,7 +45,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from cognet_jax.algorithms import noise_pilot
+from cognet_jax import status
 from cognet_jax.cli_parser import DEFAULT_EXPERIMENT, merge_common, parser
 from cognet_jax.compile_cache import use_compile_cache
 from cognet_jax.config import ConfigError, builtin_experiments, parse_override, read_experiment
@@ -512,7 +512,7 @@ _IMPORTED: list[str] = []
 def main(argv: list[str] | None = None) -> int:
     install_stop_handlers()
     _one_line_warnings()
-    noise_pilot.announce = lambda line: print(line, file=sys.stderr, flush=True)
+    status.listener = lambda line: print(line, file=sys.stderr, flush=True)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = argparse.Namespace(debug="--debug" in argv)
     if sys.stdout is None:  # started with its standard output closed (``>&-``)

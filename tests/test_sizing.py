@@ -87,6 +87,7 @@ def test_noise_only_moves_the_budget_from_rollouts_to_candidates():
 
 
 def test_a_loaded_config_is_sized_from_one_pilot_whatever_the_budget(monkeypatch):
+    from cognet_jax import status
     from cognet_jax.algorithms import noise_pilot
     from cognet_jax.registry import load_config
 
@@ -100,7 +101,7 @@ def test_a_loaded_config_is_sized_from_one_pilot_whatever_the_budget(monkeypatch
     told = []
     monkeypatch.setattr(noise_pilot, "measure_noise", counted)
     monkeypatch.setattr(noise_pilot, "_MEASURED", {})
-    monkeypatch.setattr(noise_pilot, "announce", told.append)
+    monkeypatch.setattr(status, "listener", told.append)
     first = load_config("hearing-tiger-n7", ["run.plots=false"]).algorithm
     overrides = ["run.progress=false", "algorithm.budget=1e8"]
     second = load_config("hearing-tiger-n7", overrides).algorithm

@@ -25,6 +25,7 @@ import time
 import jax
 import numpy as np
 
+from cognet_jax import status
 from cognet_jax.rollout import rollouts
 from cognet_jax.signals import in_background
 
@@ -93,10 +94,6 @@ def measure_noise(algorithm, env_params) -> Noise:
     return dataclasses.replace(measured, rate=steps / max(seconds, 1e-9))
 
 
-#: called with one line before a measurement: the command line prints it (a measurement with
-#: its compile takes up to about 10 s); ``None`` in a library: silent
-announce = None
-
 #: measurements of this process, by ``measure_noise_cached``'s key (the most recent few)
 _MEASURED: dict[str, Noise] = {}
 _MEASURED_MAX = 8
@@ -109,10 +106,10 @@ def measure_noise_cached(key_parts, build) -> Noise:
     if key not in _MEASURED:
         if len(_MEASURED) >= _MEASURED_MAX:
             _MEASURED.pop(next(iter(_MEASURED)))
-        if announce is not None:
-            announce(
-                f"measuring the simulator's noise ({PILOT_CANDIDATES} candidates x "
-                f"{PILOT_ROLLOUTS} rollouts) to size the search ..."
-            )
+        # a measurement with its compile takes seconds: one line first (``status``)
+        status.say(
+            f"measuring the simulator's noise ({PILOT_CANDIDATES} candidates x "
+            f"{PILOT_ROLLOUTS} rollouts) to size the search ..."
+        )
         _MEASURED[key] = measure_noise(*build())
     return _MEASURED[key]
