@@ -219,6 +219,17 @@ class Config:
     def to_dict(self) -> dict:
         return {name: dataclasses.asdict(getattr(self, name)) for name in self.SECTIONS}
 
+    def input_files(self) -> list[str]:
+        """The files the run reads: every non-empty field named ``path`` or ``*_path`` of any
+        section (a model, a VAE), as written. A simulator or algorithm that reads a file names
+        its field so; the programs kept and the policies saved are keyed by those files' bytes."""
+        return [
+            value
+            for section in self.to_dict().values()
+            for name, value in section.items()
+            if (name == "path" or name.endswith("_path")) and isinstance(value, str) and value
+        ]
+
 
 #: sections that only a simulator or an algorithm that declares them reads (registry ``reads``)
 OPTIONAL_SECTIONS = {"problem": ProblemSection, "network": NetworkSection}

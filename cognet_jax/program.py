@@ -147,15 +147,14 @@ DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds",
 def program_identity(config: Config, search: bool = False, **extra) -> dict:
     """What a program of ``config`` depends on besides its constants and argument shapes: the
     config without its ``DRIVING_FIELDS`` (and without its ``evaluation`` section for the
-    ``search``'s own programs, which never read it), the bytes of the files it reads (the
-    model, the VAE of ``network.vae_path``: their weights may be baked in), its memory budget
+    ``search``'s own programs, which never read it), the bytes of the files it reads
+    (``Config.input_files``: a model, a VAE, whose weights may be baked in), its memory budget
     in bytes, and ``extra``."""
     sections = config.to_dict()
     sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
     if search:
         del sections["evaluation"]
-    files = [config.problem.path, config.network.vae_path]
-    digests = [file_digest(Path(f).expanduser()) for f in files if f]
+    digests = [file_digest(Path(f).expanduser()) for f in config.input_files()]
     memory = budget_bytes(config.run.memory_gb)
     return {"config": sections, "files": digests, "memory": memory, **extra}
 
