@@ -25,6 +25,7 @@ from typing import Any
 import jax
 from tqdm.auto import tqdm
 
+from cognet_jax.api import Built
 from cognet_jax.budget import FASTEST_RATE, LONG_SECONDS, evaluation_line
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
@@ -71,9 +72,10 @@ class Interrupted(Exception):
 class GroupOptions:
     """How ``run_group`` drives a group: ``checkpoint`` file (``None``: none), ``resume`` from
     it, ``progress`` bar (``None``: ``run.progress``), ``log`` for lines a person reads, ``desc``
-    of the bar, ``resume_dir`` named by ``Interrupted``, and ``announce``: a run of its own
+    of the bar, ``resume_dir`` named by ``Interrupted``, ``announce``: a run of its own
     (``train``), which logs its result and draws its plots (``run.plots``); a sweep's runs do
-    neither (the sweep writes its tables)."""
+    neither (the sweep writes its tables); ``built``: the first run's ``api.build``, when the
+    caller made it (else the group builds it)."""
 
     checkpoint: Path | None = None
     resume: bool = False
@@ -82,6 +84,7 @@ class GroupOptions:
     desc: str | None = None
     resume_dir: Path | None = None
     announce: bool = False
+    built: Built | None = None
 
 
 def _stop(program: Program, state, iteration: int, opts: GroupOptions, signum):
@@ -146,7 +149,7 @@ def _prepare(runs: list[Run], opts: GroupOptions):
 
     def prepare():
         with rollout_mesh(config):
-            program = Program(runs)  # built and checked once (``api.build``)
+            program = Program(runs, opts.built)  # built and checked once (``api.build``)
             _warn_if_long(program, len(runs))
             t0 = time.perf_counter()
             state, raw, start = program.init(), None, 0
@@ -395,12 +398,18 @@ def _log_run(record: dict, run: Run, algorithm, log) -> None:
         log(f"wrote {run.folder}/results.json, policy.msgpack{plots}")
 
 
-def train(config: Config, seed: int, out_dir, progress=None, log=print, resume=False) -> dict:
-    """Run the search of ``config`` with ``seed`` and write its folder ``out_dir``: the group
-    of one run (``run_group``), checkpointed to ``out_dir/checkpoint.msgpack``; ``resume``
-    continues from that checkpoint. Returns the run's results.json record."""
+def train(
+    config: Config | Built, seed: int, out_dir, progress=None, log=print, resume=False
+) -> dict:
+    """Run the search of ``config`` (or of a ``api.build`` of it, used as built) with ``seed``
+    and write its folder ``out_dir``: the group of one run (``run_group``), checkpointed to
+    ``out_dir/checkpoint.msgpack``; ``resume`` continues from that checkpoint. Returns the
+    run's results.json record."""
+    built = config if isinstance(config, Built) else None
+    config = built.config if built else config
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    opts = GroupOptions(out / CHECKPOINT_NAME, resume, progress, log, resume_dir=out, announce=True)
+    opts = GroupOptions(out / CHECKPOINT_NAME, resume, progress, log, resume_dir=out)
+    opts = dataclasses.replace(opts, announce=True, built=built)
     records, _ = run_group([Run(config, seed, out)], opts)
     return records[0]

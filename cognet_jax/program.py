@@ -224,7 +224,8 @@ class Program:
         self.algorithm, self.params = self.built.algorithm, self.built.params
         # one run: its params are constants of its programs, except the largest arrays
         self.held, self._rebuild = hoist_large(self.params)
-        self.run_params = [params_of(r.config) for r in runs]  # envs: ``build_env``'s
+        # every run's params (envs: ``build_env``'s); the first run's are the build's
+        self.run_params = [self.params] + [params_of(r.config) for r in runs[1:]]
         self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
         # the first run's init and run keys (what a single-run program uses)
         self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
