@@ -38,11 +38,27 @@ from cognet_jax.config import ConfigError, require, require_positive
 from cognet_jax.controllers.neural import NeuralController
 from cognet_jax.memory import trace_checked
 from cognet_jax.rollout import rollouts
-from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae
+from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae, vae_bytes
 
 KINDS = ("raw", "encoded")
 #: File name of the VAE a run used, inside its output folder.
 VAE_FILE = "vae.msgpack"
+
+
+def pipeline_run_files(pipeline) -> dict:
+    """The run files (``engine.Search.run_files``) of a search that reads its observations
+    through ``pipeline``: its VAE, which ``network.vae_path`` then names, if it has one."""
+    if pipeline is None or pipeline.vae is None:
+        return {}
+    return {VAE_FILE: ("network.vae_path", vae_bytes(pipeline.vae))}
+
+
+def legacy_run_files(results: dict, run_dir: Path) -> dict:
+    """``run_files`` of a results.json written before that field: its VAE file with the
+    ``vae_sha256`` it recorded (``None`` before that field too)."""
+    if not (Path(run_dir) / VAE_FILE).is_file():
+        return {}
+    return {VAE_FILE: {"field": "network.vae_path", "sha256": results.get("vae_sha256")}}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -32,14 +32,12 @@ from cognet_jax.checkpoint import (
 )
 from cognet_jax.config import Config, with_added_fields
 from cognet_jax.errors import CorruptFileError, MismatchError
-from cognet_jax.observations import VAE_FILE
 from cognet_jax.program import Program, Run, file_digest
 from cognet_jax.registry import (
     env_entry,
     foreign_code,
 )
 from cognet_jax.reporting import write_plots
-from cognet_jax.vae import save_vae
 
 #: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
 RESULTS_SCHEMA = 2
@@ -241,9 +239,9 @@ def numeric_settings() -> dict:
 
 def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
-    ``results.json`` (with the policy file's ``policy_sha256``), the pipeline's VAE (and its
-    ``vae_sha256``) and, with
-    ``plots``, the figures (``reporting.write_plots``)."""
+    ``results.json`` (with the policy file's ``policy_sha256``), the search's ``run_files``
+    (recorded under ``run_files``: each one's config field and sha256) and, with ``plots``,
+    the figures (``reporting.write_plots``)."""
     if run.folder is None:
         return
     run.folder.mkdir(parents=True, exist_ok=True)
@@ -251,11 +249,12 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
     atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
     # the file's digest: ``evaluate`` refuses a policy file replaced since (another run's)
     record = {**record, "policy_sha256": hashlib.sha256(policy_file).hexdigest()}
-    vae = getattr(getattr(algorithm, "pipeline", None), "vae", None)
-    if vae is not None:
-        save_vae(run.folder / VAE_FILE, vae)
-        vae_file = (run.folder / VAE_FILE).read_bytes()
-        record["vae_sha256"] = hashlib.sha256(vae_file).hexdigest()  # checked as the policy's
+    kept = {}
+    for name, (field, data) in algorithm.run_files().items():
+        atomic_write_bytes(run.folder / name, data)
+        kept[name] = {"field": field, "sha256": hashlib.sha256(data).hexdigest()}
+    if kept:  # checked as the policy's digest is
+        record["run_files"] = kept
     atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
     if plots and record.get("status") == "complete":
         write_plots(run.config, algorithm, policy, record, run.folder)

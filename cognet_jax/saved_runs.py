@@ -33,7 +33,7 @@ from cognet_jax.config import (
     with_added_fields,
 )
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
-from cognet_jax.observations import VAE_FILE
+from cognet_jax.observations import legacy_run_files
 from cognet_jax.program import final_value
 from cognet_jax.records import current_meta, fingerprint
 from cognet_jax.registry import (
@@ -92,8 +92,12 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
             f"{results['config'].get('problem', {}).get('path')!r}; a policy is evaluated on "
             "its own model (other fields, e.g. problem.horizon or env noise, may change)"
         )
-    if (run_dir / VAE_FILE).is_file() and ("network", "vae_path") not in named:
-        overrides.insert(0, f"network.vae_path={json.dumps(str(run_dir / VAE_FILE))}")
+    # the files the run kept (an encoder, ...), read from the folder unless a field is given
+    recorded = "run_files" if "run_files" in results else "vae_sha256"  # before run_files
+    kept = results.get("run_files") or legacy_run_files(results, run_dir)
+    kept = {n: f for n, f in kept.items() if tuple(f["field"].split(".")) not in named}
+    for name, file in kept.items():
+        overrides.insert(0, f"{file['field']}={json.dumps(str(run_dir / name))}")
     config = config_from_dict(apply_overrides(ran, overrides))
     if rollouts is not None:
         evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
@@ -105,26 +109,25 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
-    _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy")
-    if ("network", "vae_path") not in named:  # the run's own VAE encodes its observations
-        _check_digest(run_dir / VAE_FILE, results.get("vae_sha256"), "VAE")
+    _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
+    for name, file in kept.items():
+        _check_digest(run_dir / name, file["sha256"], recorded)
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
 
 
-def _check_digest(path: Path, digest, what: str) -> None:
-    """Refuse a policy (or VAE) file other than the one its run wrote (``results.json``'s
-    ``policy_sha256`` / ``vae_sha256``; runs saved before them have none): a file copied from
-    another run, or trained again into the folder, would give another number under this run's
-    name."""
+def _check_digest(path: Path, digest, field: str) -> None:
+    """Refuse a policy file (or a kept run file) other than the one its run wrote
+    (``results.json``'s ``field``: ``policy_sha256``, ``run_files``; runs saved before them
+    have none): a file copied from another run, or trained again into the folder, would give
+    another number under this run's name."""
     if digest is None or not path.is_file():
         return  # read_policy names a missing file
     if hashlib.sha256(path.read_bytes()).hexdigest() != digest:
-        field = "vae_sha256" if what == "VAE" else "policy_sha256"
         raise MismatchError(
-            f"{path}: not the {what} this run wrote (its sha256 differs from results.json's "
+            f"{path}: not the file this run wrote (its sha256 differs from results.json's "
             f"{field}): it was replaced, or copied from another run; evaluate the run "
-            f"folder the {what} came from"
+            f"folder it came from"
         )
 
 

@@ -221,13 +221,18 @@ def train_vae(
     return _canonical_sign(TrainedVAE(model, params)), np.asarray(losses)
 
 
-def save_vae(path: str | Path, vae: TrainedVAE) -> None:
+def vae_bytes(vae: TrainedVAE) -> bytes:
+    """The VAE file's bytes (msgpack: latent and hidden sizes, parameters)."""
     blob = {
         "latent": vae.model.latent,
         "hidden": vae.model.hidden,
         "params": serialization.to_state_dict(jax.device_get(vae.params)),
     }
-    atomic_write_bytes(path, serialization.msgpack_serialize(blob))
+    return serialization.msgpack_serialize(blob)
+
+
+def save_vae(path: str | Path, vae: TrainedVAE) -> None:
+    atomic_write_bytes(path, vae_bytes(vae))
 
 
 def load_vae(path: str | Path) -> TrainedVAE:

@@ -289,6 +289,8 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     args = ["train", "heatmap-encoded-spec-n4", "--no-progress", "--out", str(out)]
     assert main(args + [x for o in small for x in ("--set", o)]) == 0
     assert (out / "vae.msgpack").is_file()
+    kept = json.loads((out / "results.json").read_text())["run_files"]  # the search's run files
+    assert kept["vae.msgpack"]["field"] == "network.vae_path"
     values = {}
     for std in (0.0, 0.2):
         code = main(
@@ -310,6 +312,19 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     # a bad override still names the field
     assert main(["evaluate", str(out), "--set", "env.obs_noise_std=-1"]) == 2
     assert "env.obs_noise_std" in capsys.readouterr().err
+    # a results.json written before run_files (its VAE's digest as vae_sha256) reads as before
+    results = json.loads((out / "results.json").read_text())
+    results["vae_sha256"] = results.pop("run_files")["vae.msgpack"]["sha256"]
+    (out / "results.json").write_text(json.dumps(results))
+    assert main(["evaluate", str(out), "--rollouts", "2000"]) == 0
+    legacy = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
+    assert legacy["mean"] == values[0.0]["mean"]  # the run's own VAE, as the field said
+    from cognet_jax.vae import save_vae
+
+    save_vae(out / "vae.msgpack", trained_vae(1, 8))  # a VAE, but not the run's
+    capsys.readouterr()
+    assert main(["evaluate", str(out)]) == 2
+    assert "vae_sha256" in capsys.readouterr().err
 
 
 def test_random_value_by_dp_matches_monte_carlo():

@@ -278,7 +278,8 @@ def test_a_policy_copied_from_another_run_is_refused(tmp_path, capsys):
     (a / "policy.msgpack").write_bytes((b / "policy.msgpack").read_bytes())
     capsys.readouterr()
     assert cli.main(["evaluate", str(a)]) == 2
-    assert "not the policy this run wrote" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "not the file this run wrote" in err and "policy_sha256" in err
 
 
 def test_a_lone_policy_a_linked_lock_and_an_unwritable_folder_are_refused(tmp_path):

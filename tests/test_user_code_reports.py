@@ -82,8 +82,9 @@ def test_a_numeric_setting_recorded_since_a_policy_was_written_is_no_difference(
 
 
 def test_a_vae_replaced_in_a_run_folder_is_refused(tmp_path):
-    """``results.json``'s ``vae_sha256`` names the VAE the run wrote: another one in its place
-    (trained again into the folder, or copied) is refused like a replaced policy."""
+    """``results.json``'s ``run_files`` name the files the run kept (the VAE of an encoded
+    run) with their sha256: another file in its place (trained again into the folder, or
+    copied) is refused like a replaced policy."""
     import hashlib
 
     from cognet_jax.saved_runs import _check_digest
@@ -91,11 +92,11 @@ def test_a_vae_replaced_in_a_run_folder_is_refused(tmp_path):
     vae = tmp_path / "vae.msgpack"
     vae.write_bytes(b"the run's VAE")
     digest = hashlib.sha256(vae.read_bytes()).hexdigest()
-    _check_digest(vae, digest, "VAE")
+    _check_digest(vae, digest, "run_files")
     vae.write_bytes(b"another VAE")
-    with pytest.raises(MismatchError, match="not the VAE this run wrote.*vae_sha256"):
-        _check_digest(vae, digest, "VAE")
-    _check_digest(vae, None, "VAE")  # a run saved before the field: nothing to compare
+    with pytest.raises(MismatchError, match="not the file this run wrote.*run_files"):
+        _check_digest(vae, digest, "run_files")
+    _check_digest(vae, None, "vae_sha256")  # a run saved before the field: nothing to compare
 
 
 def test_a_keyboard_interrupt_raised_by_a_module_names_it(tmp_path, capsys):

@@ -51,7 +51,8 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
     smooth,
 )
-from cognet_jax.algorithms.engine import Search, SearchParams, streams
+from cognet_jax.algorithms.engine import SearchParams, streams
+from cognet_jax.algorithms.neural_search import NeuralSearch
 from cognet_jax.config import (
     NetworkSection,
     require,
@@ -60,7 +61,6 @@ from cognet_jax.config import (
     settings_class,
 )
 from cognet_jax.controllers.base import action_support
-from cognet_jax.controllers.figures import neural_plots
 from cognet_jax.controllers.neural import NeuralController, NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
@@ -244,7 +244,7 @@ def training_pairs(traj, kept_idx, kept_mask, last_transition: bool = True):
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class CognetThesis(Search):
+class CognetThesis(NeuralSearch):
     """COGNet-DICE on one environment; ``init`` / ``ask`` / ``evaluate`` / ``tell`` / ``step``
     are pure and jit-able (the protocol of ``algorithms.engine``).
 
@@ -441,10 +441,6 @@ class CognetThesis(Search):
             policy=policy, opt_state=opt_state, best_policy=best_policy, progress=progress
         )
         return new_state, metrics
-
-    def write_plots(self, config, policy, record: dict, out_dir) -> list:
-        """The neural policy's figures (``controllers.figures.neural_plots``)."""
-        return neural_plots(self, policy, record, out_dir)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -142,7 +142,8 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     rollouts_per_iteration,
 )
 from cognet_jax.algorithms.cross_entropy import Progress, select_tree
-from cognet_jax.algorithms.engine import Search, SearchParams, streams
+from cognet_jax.algorithms.engine import SearchParams, streams
+from cognet_jax.algorithms.neural_search import NeuralSearch
 from cognet_jax.algorithms.noise_pilot import measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.algorithms.weight_space import (
@@ -156,7 +157,6 @@ from cognet_jax.algorithms.weight_space import (
     tie,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
-from cognet_jax.controllers.figures import neural_plots
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
@@ -195,7 +195,7 @@ class WeightsMetrics:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class CognetWeights(Search):
+class CognetWeights(NeuralSearch):
     """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``ask`` /
     ``evaluate`` / ``tell`` / ``step`` are pure (the protocol of ``algorithms.engine``).
 
@@ -524,10 +524,6 @@ class CognetWeights(Search):
             tol = jnp.where(self.voting_search(searches), s.vote_restart_tol, tol)
         tol = jnp.where(refining, s.refine_tol * s.refine_scale, tol)
         return jnp.mean(dist.w1_std) < tol * initial
-
-    def write_plots(self, config, policy, record: dict, out_dir) -> list:
-        """The neural policy's figures (``controllers.figures.neural_plots``)."""
-        return neural_plots(self, policy, record, out_dir)
 
 
 # ---------------------------------------------------------------------------------------------

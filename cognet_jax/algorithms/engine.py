@@ -280,6 +280,12 @@ class Search:
         curve, ``values.png``, for every search); returns the paths written."""
         return []
 
+    def run_files(self) -> dict:
+        """Files a run folder keeps beside its policy, ``{name: (config_field, bytes)}``
+        (e.g. an encoder the policy reads its observations through): ``evaluate`` of the
+        folder points ``config_field`` at the kept file and refuses one replaced since."""
+        return {}
+
 
 class ThresholdSearch(Search):
     """The shared ``ask`` / ``evaluate`` / ``tell`` of G-DICE and COG-DICE."""
