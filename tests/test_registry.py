@@ -280,15 +280,6 @@ def test_a_step_that_calls_back_into_python_is_named_before_compiling(tmp_path, 
             assert name in errors[0] and "under jax.vmap raised" in errors[0]
 
 
-def test_readme_states_the_user_simulator_module_size():
-    """The README's line count of the user simulator (up to its registration) is the block's."""
-    text = (Path(__file__).parents[1] / "README.md").read_text()
-    stated = int(re.search(r"with its registration, is (\d+) lines in one module", text).group(1))
-    block = _readme_block("### Your own simulator")
-    upto = block[: block.index("\n", block.index("register_env("))]
-    assert stated == len(upto.splitlines())
-
-
 TOY_ALGORITHM = '''
 """A toy search, registered by a user: keep the best of uniformly random region controllers.
 One module and one register call; nothing in cognet_jax is edited."""
