@@ -6,10 +6,16 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import logging
 import os
+import re
 import shutil
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar("T")
 
 #: the environment variable naming the compilation cache folder ("off" turns it off)
 CACHE_VARIABLE = "COGNET_JAX_CACHE"
@@ -49,6 +55,7 @@ def use_compile_cache(args) -> None:
         return
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    _watch_lookups()
     _one_cache_warning(folder)
     if importlib.util.find_spec("filelock") is not None:  # JAX's eviction needs it
         repair_cache_folder(folder)
@@ -94,9 +101,14 @@ def _one_cache_warning(folder: Path) -> None:
         text = " ".join(str(message).split())
         if "compilation cache" not in text:
             return shown(message, category, filename, lineno, file, line)
+        if "Error reading" in text and _LOOKED_UP:  # the entry just read: compiled afresh,
+            _remove_entry(folder, _LOOKED_UP[-1])  # and JAX writes the new one in its place
+            text += " (the entry is removed)"
         cache_note(f"compilation cache {folder}: {text[:160]}")
 
     warnings.showwarning = show
+    # every unreadable entry reaches ``show`` (and is removed), not only a line's first
+    warnings.filterwarnings("always", message="Error reading persistent compilation cache")
 
 
 #: the first note about a cache of this process (``cache_note``)
@@ -110,3 +122,61 @@ def cache_note(text: str) -> None:
     if not _CACHE_TOLD:
         _CACHE_TOLD.append(text)
         print(f"note: {text}", file=sys.stderr)
+
+
+#: the compilation cache's keys JAX looked up in this process, in order (``_watch_lookups``)
+_LOOKED_UP: list[str] = []
+_LOOKUP = re.compile(r"Cache (?:hit|miss) for key: '([^']+)'")
+
+
+def _watch_lookups() -> None:
+    """Record every key JAX's compilation cache looks up (its ``lru_cache`` logger's debug
+    lines, which go no further than they went before), so an entry that fails is known."""
+    logger = logging.getLogger("jax._src.lru_cache")
+    shown = logger.getEffectiveLevel()
+
+    def record_key(record: logging.LogRecord) -> bool:
+        found = _LOOKUP.match(str(record.msg))
+        if found:
+            _LOOKED_UP.append(found.group(1))
+        return record.levelno >= shown
+
+    logger.addFilter(record_key)
+    logger.setLevel(logging.DEBUG)
+
+
+def _remove_entry(folder: Path, key: str) -> None:
+    """Remove the compilation cache's entry ``key`` (and its access time) from ``folder``."""
+    for suffix in ("-cache", "-atime"):
+        path = Path(folder) / f"{key}{suffix}"
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
+def compiled_despite_cache(compile: Callable[[], T]) -> T:
+    """``compile()``; when it fails after JAX looked up entries of its compilation cache (an
+    entry swapped with another program's or damaged loads, then fails), those entries are
+    removed with one note and it compiles once more: the cache never blocks a program."""
+    import jax
+
+    start = len(_LOOKED_UP)
+    try:
+        return compile()
+    except Exception as err:
+        folder = jax.config.jax_compilation_cache_dir
+        looked_up = _LOOKED_UP[start:]
+        if not folder or not looked_up:
+            raise
+        for key in looked_up:
+            _remove_entry(Path(folder), key)
+        reason = " ".join(str(err).split())[:80] or type(err).__name__
+        cache_note(
+            f"compilation cache {folder}: an entry that would not run is removed and the "
+            f"program compiled afresh ({type(err).__name__}: {reason})"
+        )
+        return compile()

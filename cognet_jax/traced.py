@@ -38,6 +38,7 @@ import json
 import os
 import pickle
 import platform
+import shutil
 import sys
 import threading
 from collections import OrderedDict
@@ -47,7 +48,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from cognet_jax.compile_cache import cache_note
+from cognet_jax.compile_cache import cache_note, compiled_despite_cache
 
 #: programs whose constants (model arrays baked in) take more bytes than this are not kept:
 #: exporting them holds further copies of the constants (the 2025-state fire fighting model's
@@ -161,6 +162,8 @@ def _load(path: Path):
     """``(exported, out_tree)`` from ``path``, or None when it is missing, unreadable, kept
     under another key or its bytes differ from the digest written with them."""
     try:
+        if not path.is_file():  # missing, or no regular file (a folder, a pipe: never opened)
+            return None
         with path.open("rb") as f:
             key, digest, blob, out_tree = pickle.load(f)
         if key != path.stem:  # a file copied or moved from another key
@@ -174,15 +177,16 @@ def _load(path: Path):
 
 def _save(path: Path, exported, out_tree) -> None:
     """Written to a temporary name first, so a reader never sees half a file."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
         with tmp.open("wb") as f:
             blob = exported.serialize()
             pickle.dump((path.stem, hashlib.sha256(blob).hexdigest(), blob, out_tree), f)
         os.replace(tmp, path)
     except Exception:  # a read-only or full disk, no flatbuffers, a type JAX cannot serialize
-        pass  # (a PRNG implementation of one's own): not kept
+        with contextlib.suppress(OSError):  # (a PRNG implementation of one's own): not kept
+            tmp.unlink(missing_ok=True)
 
 
 def _flat(fn: Callable, args: tuple):
@@ -235,7 +239,7 @@ def compile_kept(
     if not keep:
         jitted, leaves, out_trees = _flat(fn, args)
         check(jitted, leaves)
-        return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+        return _caller(_compile(jitted, leaves), out_trees[0])
     in_process = _in_process_key(key)
     with _COMPILED_LOCK:
         if in_process in _COMPILED:
@@ -263,14 +267,14 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callabl
     cannot be read, does not fit the arguments or does not compile (torn, edited, swapped
     between keys) is removed with one line on stderr, and the program traced afresh."""
     kept = _load(path)
-    if kept is None and path.exists():
+    if kept is None and (path.exists() or path.is_symlink()):
         _discard(path, ValueError("cannot be read"))
     if kept is not None:
         exported, out_tree = kept
         try:
             if not _fits(exported, out_tree, args):
                 raise ValueError("its arguments or outputs differ from the program's")
-            compiled = jax.jit(exported.call).lower(*jax.tree.leaves(args)).compile()
+            compiled = _compile(jax.jit(exported.call), tuple(jax.tree.leaves(args)))
             return _caller(compiled, out_tree)
         except Exception as err:
             _discard(path, err)
@@ -278,9 +282,15 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callabl
     check(jitted, leaves)
     exported = _export(jitted, leaves) if jax.process_count() == 1 else None
     if exported is None:  # not exportable: compiled as usual
-        return _caller(jitted.lower(*leaves).compile(), out_trees[0])
+        return _caller(_compile(jitted, leaves), out_trees[0])
     _save(path, exported, out_trees[0])
-    return _caller(jax.jit(exported.call).lower(*leaves).compile(), out_trees[0])
+    return _caller(_compile(jax.jit(exported.call), leaves), out_trees[0])
+
+
+def _compile(jitted, leaves: tuple):
+    """``jitted`` lowered at ``leaves`` and compiled; an entry of JAX's compilation cache that
+    loads but fails is removed and the program compiled afresh (``compiled_despite_cache``)."""
+    return compiled_despite_cache(lambda: jitted.lower(*leaves).compile())
 
 
 def _fits(exported, out_tree, args) -> bool:
@@ -295,7 +305,10 @@ def _discard(path: Path, err: BaseException) -> None:
     """Remove an unusable kept program; reported in one line, the only line a process says
     about its caches (``compile_cache.cache_note``)."""
     with contextlib.suppress(OSError):
-        path.unlink()
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
     reason = " ".join(str(err).split())[:100] or type(err).__name__
     cache_note(
         f"unusable kept programs in {path.parent} are removed and traced afresh "

@@ -80,3 +80,33 @@ def test_a_repeated_run_loads_its_programs_and_off_keeps_none(tmp_path):
     unused = tmp_path / "unused"
     _cli(unused, "evaluate", str(tmp_path / "a"), "--rollouts", "50", "--no-compile-cache")
     assert not unused.exists() or not any(unused.iterdir())
+
+
+def _entries(cache: Path, prefix: str = "") -> list[Path]:
+    return sorted(cache.glob(f"{prefix}*-cache"))
+
+
+def test_damaged_compilation_cache_entries_are_removed_not_blocking(tmp_path):
+    """Entries of JAX's compilation cache swapped between programs (they load, then fail) or
+    with flipped bytes (they do not decompress): the run still gives its numbers, says one
+    line, and leaves the cache whole again -- the next run has nothing to say."""
+    cache = tmp_path / "cache"
+    first, _ = _train(tmp_path / "a", cache)
+    programs = _entries(cache, "jit_call-")
+    assert len(programs) >= 2
+    blobs = [p.read_bytes() for p in programs]
+    for path, blob in zip(programs, blobs[1:] + blobs[:1]):  # each holds another's program
+        path.write_bytes(blob)
+    swapped, log = _train(tmp_path / "b", cache)
+    assert swapped["final_value"] == first["final_value"]
+    assert sum(line.startswith("note:") for line in log.splitlines()) == 1, log
+    for path in _entries(cache):  # 64 bytes flipped in the middle of every entry
+        blob = bytearray(path.read_bytes())
+        middle = len(blob) // 2
+        blob[middle : middle + 64] = bytes(b ^ 0xFF for b in blob[middle : middle + 64])
+        path.write_bytes(bytes(blob))
+    flipped, log = _train(tmp_path / "c", cache)
+    assert flipped["final_value"] == first["final_value"]
+    assert sum(line.startswith("note:") for line in log.splitlines()) == 1, log
+    again, log = _train(tmp_path / "d", cache)
+    assert again["final_value"] == first["final_value"] and "note:" not in log, log
