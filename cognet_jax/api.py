@@ -38,6 +38,7 @@ from cognet_jax.config import (
     section_from_dict,
 )
 from cognet_jax.envs.base import check_simulator
+from cognet_jax.errors import UsageError
 from cognet_jax.memory import budget_bytes
 from cognet_jax.prng import make_key
 from cognet_jax.registry import (
@@ -89,7 +90,23 @@ def build(config: Config, env=None, env_params=None, lanes: int = 1) -> Built:
     entry = algorithm_entry(config.experiment.algorithm)
     memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
     algorithm = entry.build(config, env, env_params, memory)
+    _check_search(algorithm, config.experiment.algorithm, entry.build)
     return Built(config, env, env_params, algorithm, params_of(config, env_params), seconds)
+
+
+#: what the driver calls on every search (``algorithms.engine``'s protocol)
+SEARCH_MEMBERS = ("init", "ask", "tell", "best_policy", "rollouts_per_iteration")
+
+
+def _check_search(algorithm, name: str, build_fn) -> None:
+    """Refuse, naming the registration's code, a ``build`` that returned no search."""
+    missing = [m for m in SEARCH_MEMBERS if not hasattr(algorithm, m)]
+    if missing:
+        where = f"{getattr(build_fn, '__module__', '?')}.{getattr(build_fn, '__qualname__', '?')}"
+        raise UsageError(
+            f"algorithm {name!r}: its build ({where}) returned {type(algorithm).__name__}, "
+            f"not a search (missing {', '.join(missing)}; see cognet_jax.algorithms.engine)"
+        )
 
 
 def build_algorithm(config: Config, env=None, env_params=None, lanes: int = 1):

@@ -26,7 +26,7 @@ COUNTS = {
     "folders": 48,
     "check-train": 100,
     "modules": 60,
-    "simulators": 10,
+    "simulators": 14,
     "cache": 30,
     "writers": 8,
 }
@@ -368,6 +368,14 @@ SIMULATOR_FAULTS = [
         "return state.at[:2].set(pos), obs, reward * 1e38",
         "infinite return",
     ),
+    (
+        "    def step(self, u, state, actions, params):",
+        "    def stepp(self, u, state, actions, params):",
+        "missing step",
+    ),
+    ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = (10.0, -10.0)", "obs_range"),
+    ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = (-10.0, float('inf'))", "obs_range"),
+    ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = 'wide'", "obs_range"),
 ]
 
 

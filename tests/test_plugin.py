@@ -195,3 +195,21 @@ def test_an_error_in_a_plugin_algorithm_names_its_code(tmp_path, capsys):
     )
     assert f"the code of --import {module} failed in ask() at {module}:{line + 1}" in err[0]
     assert "TypeError" in err[0] and "got (2,) and (3,)" in err[0], err[0]
+
+
+def test_a_build_that_returns_no_search_is_named(tmp_path, capsys):
+    """A plug-in's ``build`` that returns something other than a search: ``check`` and
+    ``train`` both end in one line naming the algorithm and its build function, exit 2."""
+    module = tmp_path / "broken_search.py"
+    source = THRESHOLD_SEARCH.replace(
+        "    return ThresholdSearch(env, config.algorithm, memory)", "    return None"
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-none"')
+    module.write_text(source)
+    toml = tmp_path / "none.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-none"\n')
+    for command in (["check"], ["train", "--out", str(tmp_path / "run"), "--no-progress"]):
+        capsys.readouterr()
+        assert main(["--import", str(module), command[0], str(toml), *command[1:]]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "thresholds-none" in err[0], err
+        assert "broken_search.build" in err[0] and "not a search" in err[0], err

@@ -24,6 +24,7 @@ inverse CDF (``normal_from_uniform``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import Any, Protocol
 
@@ -264,11 +265,44 @@ _CHECKED: dict = {}
 MAX_HORIZON = 1_000_000
 
 
+#: the static members every simulator declares (``Environment``)
+REQUIRED_MEMBERS = (
+    "num_agents",
+    "num_actions",
+    "action_counts",
+    "obs_shape",
+    "num_obs",
+    "horizon",
+    "obs_range",
+    "reset_noise",
+    "step_noise",
+)
+
+
 def _check_sizes(env, owner: str) -> None:
     """Refuse declared sizes no search can run with: a horizon that is not an integer in
     ``1 .. MAX_HORIZON``, action counts that are not one positive integer per agent, or a
     ``num_actions`` other than the largest of them (the policies' action tables are that wide:
-    a larger count would never be drawn)."""
+    a larger count would never be drawn); a missing member of ``Environment``, and an
+    ``obs_range`` that is not two finite numbers, low below high."""
+    missing = [m for m in REQUIRED_MEMBERS if not hasattr(env, m)]
+    missing += [m for m in ("reset", "step") if not callable(getattr(env, m, None))]
+    if missing:
+        raise SimulatorError(
+            f"{owner}: missing {', '.join(missing)} (a simulator has the members of "
+            "cognet_jax.envs.base.Environment)"
+        )
+    obs_range = env.obs_range
+    if obs_range is not None:
+        try:
+            low, high = (float(v) for v in obs_range)
+        except (TypeError, ValueError):
+            low = high = math.nan
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise SimulatorError(
+                f"{owner}: obs_range must be None or (low, high), two finite numbers with "
+                f"low < high, got {obs_range!r}"
+            )
     horizon = env.horizon
     if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
         raise SimulatorError(f"{owner}: horizon must be an integer, got {horizon!r}")
