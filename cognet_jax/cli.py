@@ -158,6 +158,14 @@ def _sweep(args) -> int:
                 f"--first-seed {first} with --seeds {n}: seeds must be in 0 .. "
                 f"2147483647, got {first} .. {first + n - 1}",
             )
+        runs = n * math.prod(len(v) for v in grid.values())
+        if runs > MAX_RUNS:  # before any list of them is made
+            raise ConfigError(
+                "seeds" if n >= runs // n else "grid",  # the larger factor
+                f"the sweep has {runs} runs (settings x seeds); a sweep prepares each run in "
+                f"Python (config, keys, folder) and holds at most {MAX_RUNS}: split it "
+                "(--first-seed, fewer --grid values)",
+            )
         seeds = list(range(first, first + n))
         check_out(args.out)
         out = Path(args.out or f"runs/sweep-{Path(experiment).stem}")
@@ -189,6 +197,9 @@ def _sweep(args) -> int:
 
 #: a sweep of more runs than this is announced with its estimate before it is prepared
 MANY_RUNS = 1000
+#: a sweep of more runs than this is refused before it is prepared: each run is prepared in
+#: Python (its config, keys and folder), about a millisecond each
+MAX_RUNS = 100_000
 
 
 def _duration(seconds: float) -> str:

@@ -243,6 +243,13 @@ def test_second_hostile_round_refusals(capsys, tmp_path):
     bad = ["--grid", "algorithm.alpha=0.1,2.0", "--out", str(out)]
     one_line_error(capsys, ["sweep", "tagging-thesis-n3", *bad], "algorithm.alpha")
     assert not out.exists()
+    # more runs than a sweep prepares: refused before any per-run list exists (2**31 seeds
+    # took 23 GB before), naming the seeds, or the grid when it is the grid that is large
+    huge = ["--seeds", str(2**31), "--out", str(out)]
+    one_line_error(capsys, ["sweep", "tagging-thesis-n3", *huge], "'seeds'")
+    wide = ["--grid", "algorithm.alpha=" + ",".join(f"0.{k:03d}" for k in range(1, 501))]
+    one_line_error(capsys, ["sweep", "tagging-thesis-n3", "--seeds", "201", *wide], "'grid'")
+    assert not out.exists()
 
 
 def test_a_closed_standard_output_is_an_error_not_silence():
