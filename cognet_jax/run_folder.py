@@ -94,6 +94,10 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         _check_writable(out)
+        for sub in ("runs", "sweep-state"):  # a sweep's folders, where they are already
+            if (out / sub).is_dir():
+                _check_writable(out / sub)
+        _refuse_linked_runs(out)
         replaced = _replaced_files(out, kind) if found and overwrite else {}
         yield out
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
@@ -134,14 +138,28 @@ def _check_writable(out: Path) -> None:
         raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
 
 
+def _refuse_linked_runs(out: Path) -> None:
+    """``UsageError`` for a sweep's run folder that is a symbolic link: the sweep writes its
+    run folders itself, and writing through a link would replace files outside ``out``."""
+    for path in sorted((out / "runs").glob("setting*")) if (out / "runs").is_dir() else []:
+        if path.is_symlink():
+            raise UsageError(
+                f"{path} is a symbolic link (to {os.readlink(path)}); a sweep writes its run "
+                "folders itself: remove the link"
+            )
+
+
 def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
     """The files and run folders describing the run ``--overwrite`` replaces
     (``STALE_FILES``, its policy and checkpoint, a sweep's ``runs/setting*`` and group states),
     with their modification times."""
     paths = [out / n for n in (*STALE_FILES, "policy.msgpack", "checkpoint.msgpack")]
-    if kind == "sweep":
-        paths += sorted((out / "runs").glob("setting*"))
-        paths += sorted((out / "sweep-state").glob("group*"))
+    # a sweep's run folders and state, whatever replaces it: a `train` written over a sweep
+    # leaves no sweep for `sweep --resume` to continue over the new run
+    paths += sorted((out / "runs").glob("setting*"))
+    paths += sorted((out / "sweep-state").glob("group*"))
+    if kind != "sweep":
+        paths += [out / "sweep-state", out / "runs"]
     return {p: _mtime(p) for p in paths if p.exists()}
 
 

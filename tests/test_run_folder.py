@@ -348,3 +348,37 @@ def test_a_sweeps_run_folder_points_to_the_sweep(tmp_path):
     with pytest.raises(UsageError, match=r"a run of the sweep in .*sweep --resume"):
         with claim(run):
             pass
+
+
+def test_a_sweep_never_writes_through_a_linked_run_folder(tmp_path, capsys):
+    """A sweep folder whose run folder is a symbolic link to another run: ``--overwrite``
+    replaces the sweep, never the linked run (it was overwritten through the link)."""
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "results.json").write_text('{"mine": true}')
+    sweep = tmp_path / "sweep"
+    (sweep / "runs").mkdir(parents=True)
+    (sweep / "runs.json").write_text("{}")
+    (sweep / "runs" / "setting0-seed0").symlink_to(precious)
+    capsys.readouterr()
+    argv = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--out", str(sweep), "--overwrite"]
+    assert cli.main([*argv, *TINY_TRAIN]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "symbolic link" in err[0] and "setting0-seed0" in err[0], err
+    assert (precious / "results.json").read_text() == '{"mine": true}'
+
+
+def test_a_train_over_a_sweep_leaves_no_sweep_to_resume(tmp_path, capsys):
+    """``train --overwrite`` into a sweep's folder replaces the whole sweep: its run folders
+    and state go, so ``sweep --resume`` cannot write its tables over the new run."""
+    out = tmp_path / "both"
+    assert (
+        cli.main(["sweep", "tagging-thesis-n3", "--seeds", "2", "--out", str(out), *TINY_TRAIN])
+        == 0
+    )
+    assert cli.main(["train", "--out", str(out), "--overwrite", *TINY_TRAIN]) == 0
+    assert not (out / "runs").exists() and not (out / "sweep-state").exists()
+    assert not (out / "runs.json").exists() and (out / "results.json").is_file()
+    capsys.readouterr()
+    assert cli.main(["sweep", "--resume", str(out)]) == 2
+    assert "sweep.json" in capsys.readouterr().err
