@@ -5,6 +5,7 @@ recorded as foreign code (``registry.note_foreign_code``). Also the one-line for
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib
 import importlib.util
 import math
@@ -16,7 +17,7 @@ import traceback
 from pathlib import Path
 
 from cognet_jax.errors import UsageError
-from cognet_jax.registry import note_foreign_code
+from cognet_jax.registry import LATE_IMPORTS, note_foreign_code
 
 
 def one_line(err: BaseException) -> str:
@@ -143,6 +144,8 @@ def import_plugin(name: str) -> None:
             origin = spec.origin
             path = Path(origin or name)
         before = set(sys.modules)
+        if not LATE_IMPORTS:  # the modules a user module imports later are its helpers too
+            LATE_IMPORTS.append(functools.partial(_note_helpers, frozenset(before)))
         with _guarded_import(name):
             _import(name, path, origin if name.endswith(".py") else None)
         note_foreign_code(name, origin)
@@ -214,6 +217,13 @@ def _module_name(path: Path) -> str:
     if other is not None or stem in sys.stdlib_module_names:
         return f"cognet_import_{stem}"
     return stem
+
+
+def _note_helpers(before: frozenset) -> None:
+    """Note every user module loaded since the first ``--import`` (``before``: the modules
+    loaded then) as foreign code, with its digest now."""
+    for helper, file in _user_modules(set(sys.modules) - before, None):
+        note_foreign_code(helper, file)
 
 
 def _user_modules(names, origin: str | None) -> list[tuple[str, str]]:

@@ -139,8 +139,16 @@ def note_foreign_code(name: str, origin: str | None) -> None:
     _FOREIGN_CODE[Path(origin).name if origin else name] = digest
 
 
+#: called by ``foreign_code`` first: note the user modules imported since (``plugins``: the
+#: helpers a user module imports only when its simulator is built or traced)
+LATE_IMPORTS: list[Callable[[], None]] = []
+
+
 def foreign_code() -> dict[str, str]:
-    """Modules imported from outside the package, with their digests (``note_foreign_code``)."""
+    """Modules imported from outside the package, with their digests (``note_foreign_code``),
+    those imported by a user module after its own import included (``LATE_IMPORTS``)."""
+    for note_late in LATE_IMPORTS:
+        note_late()
     return dict(_FOREIGN_CODE)
 
 

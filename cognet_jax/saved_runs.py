@@ -83,7 +83,6 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
     ran = with_added_fields(results["config"])  # results.json as written: the fingerprint's
-    trained = fingerprint(config_from_dict(ran), results["config"])
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
     if ("problem", "path") in named:
@@ -108,6 +107,8 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     template = jax.eval_shape(
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
+    # after the build and a trace: a user module may import its helpers only then
+    trained = fingerprint(config_from_dict(ran), results["config"])
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
     _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
     for name, file in kept.items():

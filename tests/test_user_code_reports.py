@@ -39,6 +39,21 @@ def test_helper_modules_of_an_import_are_recorded_with_their_digests(tmp_path, m
     assert "uses_helper_x.py" in recorded and "seek_helper_x.py" in recorded
 
 
+def test_a_helper_imported_only_when_the_module_runs_is_recorded_too(tmp_path, monkeypatch):
+    """A helper that an ``--import`` module imports inside a function (when its simulator is
+    built or traced), after its own import: recorded all the same, with its digest then."""
+    (tmp_path / "late_helper_y.py").write_text("HIT = 1.0\n")
+    main = tmp_path / "uses_late_helper_y.py"
+    main.write_text("def build():\n    import late_helper_y\n    return late_helper_y.HIT\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import_plugin(str(main))
+    assert "late_helper_y.py" not in foreign_code()
+    sys.modules["uses_late_helper_y"].build()
+    before = foreign_code()["late_helper_y.py"]
+    (tmp_path / "late_helper_y.py").write_text("HIT = 2.0\n")
+    assert foreign_code()["late_helper_y.py"] != before  # a policy then refuses the change
+
+
 def test_stop_handlers_replaced_by_a_module_are_put_back():
     install_stop_handlers()
     before = signal.getsignal(signal.SIGTERM)
