@@ -208,15 +208,26 @@ def _import(name: str, path: Path, origin: str | None) -> None:
 
 def _module_name(path: Path) -> str:
     """The name a ``.py`` file is imported under: its stem, unless that names another module
-    (a standard-library one such as ``json``, or one already imported from elsewhere), which
-    the file must not replace for the rest of the process: then ``cognet_import_<stem>``."""
+    (a standard-library one such as ``json``, one already imported from elsewhere, or an
+    installed one not imported yet, such as ``matplotlib``), which the file must not replace
+    for the rest of the process: then ``cognet_import_<stem>``."""
     stem = path.stem
     other = sys.modules.get(stem)
     if other is not None and Path(getattr(other, "__file__", "") or "").resolve() == path.resolve():
         return stem  # the same file again
-    if other is not None or stem in sys.stdlib_module_names:
+    if other is not None or stem in sys.stdlib_module_names or _installed(stem, path):
         return f"cognet_import_{stem}"
     return stem
+
+
+def _installed(name: str, path: Path) -> bool:
+    """Whether another file than ``path`` is importable as the top-level module ``name``."""
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return False
+    found = getattr(spec, "origin", None) or ""
+    return spec is not None and Path(found).resolve() != path.resolve()
 
 
 def _note_helpers(before: frozenset) -> None:

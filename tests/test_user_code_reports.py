@@ -27,6 +27,22 @@ def test_a_module_named_like_the_standard_library_does_not_replace_it(tmp_path):
     assert sys.modules["cognet_import_json"].VALUE == 7
 
 
+def test_a_module_named_like_an_installed_package_not_imported_yet_does_not_hide_it(tmp_path):
+    """A user file named like an installed package the process has not imported yet (a
+    ``matplotlib.py`` broke the figures after the search): imported under a private name."""
+    import importlib.util
+
+    names = ("pygments", "idna", "certifi", "docutils", "pyparsing", "cycler", "kiwisolver")
+    free = [n for n in names if n not in sys.modules and importlib.util.find_spec(n)]
+    if not free:
+        pytest.skip("no installed package left unimported to be named like")
+    module = tmp_path / f"{free[0]}.py"
+    module.write_text("VALUE = 7\n")
+    import_plugin(str(module))
+    assert sys.modules[f"cognet_import_{free[0]}"].VALUE == 7
+    assert free[0] not in sys.modules  # the installed package is still the one to import
+
+
 def test_helper_modules_of_an_import_are_recorded_with_their_digests(tmp_path, monkeypatch):
     """A module that an ``--import`` file imports from beside it changes its numbers too: its
     digest is recorded with the file's (a policy then refuses a changed helper)."""
