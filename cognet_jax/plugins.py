@@ -44,6 +44,8 @@ def where_raised(err: BaseException, path: str | None) -> str:
 #: seconds an ``--import`` module may take to import (``COGNET_JAX_IMPORT_TIMEOUT`` sets
 #: another); a module still importing then is reported as hanging
 IMPORT_TIMEOUT_S = 120.0
+#: seconds after that time when a watchdog thread ends the process (a module ignoring SIGALRM)
+IMPORT_GRACE_S = 5.0
 
 
 class _ImportEnded(BaseException):
@@ -111,11 +113,19 @@ def _guarded_import(name: str):
             if signal.getsignal(sig) not in (signal.SIG_IGN, None):
                 stops[sig] = signal.signal(sig, stop)
     os._exit = exit_instead
+    # the last resort, which no module can turn off (it may ignore SIGALRM): a thread that
+    # ends the process a little after the alarm's time
+    watchdog = threading.Timer(
+        timeout + IMPORT_GRACE_S, _end_process, (f"error: {said}", 2, real_exit)
+    )
+    watchdog.daemon = True
+    watchdog.start()
     try:
         if main:  # repeats, so a module that catches the first alarm meets the next one
             signal.setitimer(signal.ITIMER_REAL, timeout, 1.0)
         yield
     finally:
+        watchdog.cancel()
         os._exit = real_exit
         if main:
             try:

@@ -155,6 +155,17 @@ def test_a_module_that_ends_the_process_or_hangs_at_import_is_named(tmp_path, ca
     import os
 
     assert os._exit.__module__ == "posix"  # given back after the import
+    # a module that turns the alarm off and hangs: a watchdog thread ends the process
+    import subprocess
+    import sys
+
+    (tmp_path / "deaf.py").write_text(
+        "import signal, time\nsignal.signal(signal.SIGALRM, signal.SIG_IGN)\ntime.sleep(60)\n"
+    )
+    argv = [sys.executable, "-m", "cognet_jax", "--import", str(tmp_path / "deaf.py"), "list"]
+    env = dict(os.environ, COGNET_JAX_IMPORT_TIMEOUT="0.5")
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=50)
+    assert proc.returncode == 2 and "still importing after 0.5 s" in proc.stderr, proc.stderr
 
 
 def test_a_thread_left_running_by_a_module_does_not_keep_the_command_alive(tmp_path):
