@@ -26,7 +26,7 @@ COUNTS = {
     "folders": 48,
     "check-train": 100,
     "modules": 60,
-    "simulators": 14,
+    "simulators": 15,
     "cache": 30,
     "writers": 8,
 }
@@ -376,6 +376,7 @@ SIMULATOR_FAULTS = [
     ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = (10.0, -10.0)", "obs_range"),
     ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = (-10.0, float('inf'))", "obs_range"),
     ("obs_range: tuple = (-10.0, 10.0)", "obs_range: tuple = 'wide'", "obs_range"),
+    ("return 10.0 * u", "return (10.0 * u).astype(jnp.int32)", "cannot safely cast"),
 ]
 
 

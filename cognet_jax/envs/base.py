@@ -201,11 +201,15 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     actions = jax.ShapeDtypeStruct((env.num_agents,), jnp.int32)
 
     def traced(what, fn, *args):
-        """``(program, output shapes)`` of ``fn`` traced once on abstract values."""
+        """``(program, output shapes)`` of ``fn`` traced once on abstract values; a value
+        JAX casts unsafely (a float written into an integer state) is the simulator's error."""
         try:
-            return jax.make_jaxpr(fn, return_shape=True)(*args)
+            with warnings.catch_warnings():
+                warnings.filterwarnings("error", message=".*cannot safely cast")
+                return jax.make_jaxpr(fn, return_shape=True)(*args)
         except Exception as err:  # the simulator's own error
-            raise SimulatorError(f"{owner}: {what} raised {type(err).__name__}: {err}") from err
+            text = " ".join(str(err).split())[:300]
+            raise SimulatorError(f"{owner}: {what} raised {type(err).__name__}: {text}") from err
 
     _, state = traced("reset(u, params)", env.reset, u_reset, env_params)
     step_program, out = traced(
