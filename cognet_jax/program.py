@@ -406,8 +406,8 @@ def final_value_of(returns) -> dict:
     returns = np.asarray(returns, dtype=np.float64)
     if np.isnan(returns).any():
         raise InputError(
-            "the returns are NaN: the simulator's rewards are NaN on some states (or an "
-            "infinite reward met its negative)"
+            "the returns are NaN: the simulator's rewards or observations are NaN on some "
+            "states (or an infinite reward met its negative)"
         )
     if not np.isfinite(returns).all():
         raise InputError(

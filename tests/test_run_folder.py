@@ -139,6 +139,16 @@ def test_a_simulator_that_returns_wrong_shapes_is_named_not_an_internal_error(
     args = ["--import", str(late), "train", "beacon-n5", "--set", "env.name=late-nan-beacon-test"]
     assert cli.main([*args, "--out", str(tmp_path / "l"), *TINY_TRAIN]) == 2
     assert "NaN observation at step" in capsys.readouterr().err
+    rare = _beacon_plugin(  # NaN on 1 step in 100,000: past the check, met by the evaluation
+        tmp_path / "rarensim.py",
+        "Rare",
+        "rare-nan-beacon-test",
+        "return s, jnp.where(u[0] < 1e-5, jnp.nan, obs), r",
+    )
+    args = ["--import", str(rare), "train", "beacon-n5", "--set", "env.name=rare-nan-beacon-test"]
+    honest = ["--set", "evaluation.rollouts=20000"]  # 20,000 x 30 steps x 3 agents' draws
+    assert cli.main([*args, "--out", str(tmp_path / "rare"), *TINY_TRAIN, *honest]) == 2
+    assert "rewards or observations are NaN" in capsys.readouterr().err
     (tmp_path / "exits.py").write_text("import sys\nsys.exit(7)\n")
     assert cli.main(["--import", str(tmp_path / "exits.py"), "list"]) == 2
     assert "exited with status 7" in capsys.readouterr().err

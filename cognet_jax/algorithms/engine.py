@@ -69,6 +69,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
 )
 from cognet_jax.config import require, require_positive, require_probability
+from cognet_jax.envs.base import guard_observations
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
 
@@ -204,8 +205,10 @@ class Search:
         )
 
     def returns(self, key, policy, num: int, params: SearchParams, batch: int = 10_000):
-        """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time)."""
-        return many_returns(self.env, self.controller, key, params.env, policy, num, batch)
+        """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time): the honest
+        evaluation's, where a NaN observation makes its episode's return NaN (refused)."""
+        env = guard_observations(self.env)
+        return many_returns(env, self.controller, key, params.env, policy, num, batch)
 
     def fresh_value(self, key, policy, params: SearchParams) -> jax.Array:
         """Mean return ``[]`` of one policy over ``best_rollouts`` fresh rollouts."""

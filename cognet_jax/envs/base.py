@@ -262,6 +262,32 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     _CHECKED[key] = (env, env_params)  # held, so the ids stay theirs
 
 
+@dataclasses.dataclass(frozen=True)
+class ObservationsInReturns:
+    """``env`` whose step adds ``0 * sum(observation)`` to its reward: an observation that is
+    NaN (or infinite) makes the episode's return NaN, which the honest evaluation refuses
+    (``program.final_value_of``), as it refuses NaN rewards; every finite return is the
+    same to the bit (``x + 0.0 == x``). ``guard_observations`` wraps continuous simulators only
+    (discrete observations are integers)."""
+
+    env: Any
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def reset(self, u, params):
+        return self.env.reset(u, params)
+
+    def step(self, u, state, actions, params):
+        state, obs, reward = self.env.step(u, state, actions, params)
+        return state, obs, reward + 0.0 * jnp.sum(obs).astype(reward.dtype)
+
+
+def guard_observations(env):
+    """``env`` wrapped in ``ObservationsInReturns`` when its observations are continuous."""
+    return env if env.num_obs is not None else ObservationsInReturns(env)
+
+
 #: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
 _CHECKED: dict = {}
 #: the longest horizon a simulator may declare: beyond it one rollout is already millions of
