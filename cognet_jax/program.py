@@ -407,7 +407,8 @@ def final_value_of(returns) -> dict:
     if np.isnan(returns).any():
         raise InputError(
             "the returns are NaN: the simulator's rewards or observations are NaN on some "
-            "states (or an infinite reward met its negative)"
+            "states (or an infinite reward met its negative), or the policy chose an action "
+            "its agent lacks"
         )
     if not np.isfinite(returns).all():
         raise InputError(

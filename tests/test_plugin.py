@@ -213,3 +213,20 @@ def test_a_build_that_returns_no_search_is_named(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "thresholds-none" in err[0], err
         assert "broken_search.build" in err[0] and "not a search" in err[0], err
+
+
+def test_actions_a_plugin_draws_outside_the_agents_are_refused(tmp_path, capsys):
+    """A plug-in whose controller acts with indices past its agents' actions (JAX would clamp
+    them and give a number of another policy): the honest evaluation refuses the run."""
+    module = tmp_path / "wild_actions.py"
+    source = THRESHOLD_SEARCH.replace(
+        "        return policy.actions[jnp.arange(self.num_agents), nodes]",
+        "        return policy.actions[jnp.arange(self.num_agents), nodes] + 5",
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-wild"')
+    module.write_text(source)
+    toml = tmp_path / "wild.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-wild"\n[evaluation]\nrollouts = 200\n')
+    capsys.readouterr()
+    argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
+    assert main([*argv, "--no-progress"]) == 2
+    assert "an action its agent lacks" in capsys.readouterr().err

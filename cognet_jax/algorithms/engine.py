@@ -69,7 +69,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
 )
 from cognet_jax.config import require, require_positive, require_probability
-from cognet_jax.envs.base import guard_observations
+from cognet_jax.envs.base import guarded_steps
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
 
@@ -206,8 +206,9 @@ class Search:
 
     def returns(self, key, policy, num: int, params: SearchParams, batch: int = 10_000):
         """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time): the honest
-        evaluation's, where a NaN observation makes its episode's return NaN (refused)."""
-        env = guard_observations(self.env)
+        evaluation's, where a NaN observation or an action its agent lacks makes the episode's
+        return NaN (refused, ``envs.base.GuardedSteps``)."""
+        env = guarded_steps(self.env)
         return many_returns(env, self.controller, key, params.env, policy, num, batch)
 
     def fresh_value(self, key, policy, params: SearchParams) -> jax.Array:

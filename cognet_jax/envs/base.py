@@ -263,12 +263,12 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
 
 
 @dataclasses.dataclass(frozen=True)
-class ObservationsInReturns:
-    """``env`` whose step adds ``0 * sum(observation)`` to its reward: an observation that is
-    NaN (or infinite) makes the episode's return NaN, which the honest evaluation refuses
-    (``program.final_value_of``), as it refuses NaN rewards; every finite return is the
-    same to the bit (``x + 0.0 == x``). ``guard_observations`` wraps continuous simulators only
-    (discrete observations are integers)."""
+class GuardedSteps:
+    """``env`` whose step adds ``0 * sum(observation)`` to its reward, and NaN when an action
+    is outside its agent's ``action_counts``: an observation that is NaN (or infinite), or an
+    action the agent lacks (a search of one's own drew it; JAX would clamp it silently), makes
+    the episode's return NaN, which the honest evaluation refuses (``program.final_value_of``),
+    as it refuses NaN rewards. Every other return is the same to the bit (``x + 0.0 == x``)."""
 
     env: Any
 
@@ -280,12 +280,15 @@ class ObservationsInReturns:
 
     def step(self, u, state, actions, params):
         state, obs, reward = self.env.step(u, state, actions, params)
-        return state, obs, reward + 0.0 * jnp.sum(obs).astype(reward.dtype)
+        counts = jnp.asarray(self.env.action_counts)
+        lacking = jnp.any((actions < 0) | (actions >= counts))
+        guard = jnp.where(lacking, jnp.nan, 0.0 * jnp.sum(obs).astype(reward.dtype))
+        return state, obs, reward + guard.astype(reward.dtype)
 
 
-def guard_observations(env):
-    """``env`` wrapped in ``ObservationsInReturns`` when its observations are continuous."""
-    return env if env.num_obs is not None else ObservationsInReturns(env)
+def guarded_steps(env):
+    """``env`` wrapped in ``GuardedSteps`` (the honest evaluation's simulator)."""
+    return GuardedSteps(env)
 
 
 #: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
