@@ -93,7 +93,13 @@ def _removed_on_failure(out: Path):
 
 def _refuse_with_resume(args, flags: dict) -> None:
     """``UsageError`` naming the first of ``flags`` (flag -> value given, ``None`` or ``[]``
-    when not given) that ``--resume`` contradicts: the run continues as it was started."""
+    when not given) that ``--resume`` contradicts: the run continues as it was started, and
+    nothing of it is replaced (``--overwrite``)."""
+    if getattr(args, "overwrite", False):
+        raise UsageError(
+            f"--overwrite cannot be given with --resume: {args.resume} is continued, not "
+            "replaced (to replace it, give --out with --overwrite)"
+        )
     for flag, value in flags.items():
         if value not in (None, []):
             raise UsageError(

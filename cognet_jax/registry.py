@@ -218,6 +218,8 @@ def register_algorithm(
 
 
 def _check_section(section: type, name: str, kind: str) -> None:
+    if not isinstance(name, str) or not name.strip() or name != name.strip():
+        raise TypeError(f"register {kind} {name!r}: the name must be a non-empty string")
     if not dataclasses.is_dataclass(section):
         raise TypeError(f"register {kind} {name!r}: section must be a dataclass, got {section!r}")
     for f in dataclasses.fields(section):

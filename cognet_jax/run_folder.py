@@ -156,7 +156,8 @@ def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
     paths = [out / n for n in (*STALE_FILES, "policy.msgpack", "checkpoint.msgpack")]
     # a sweep's run folders and state, whatever replaces it: a `train` written over a sweep
     # leaves no sweep for `sweep --resume` to continue over the new run
-    paths += sorted((out / "runs").glob("setting*"))
+    # (a run folder: one that holds a run's files; a folder of the user's own there stays)
+    paths += [p for p in sorted((out / "runs").glob("setting*")) if held_run(p)]
     paths += sorted((out / "sweep-state").glob("group*"))
     if kind != "sweep":
         paths += [out / "sweep-state", out / "runs"]
@@ -175,7 +176,10 @@ def _remove_unwritten(replaced: dict[Path, float]) -> None:
     for path, mtime in replaced.items():
         if not path.exists() or _mtime(path) != mtime:
             continue
-        if path.is_dir():
+        if path.name == "runs":  # the sweep's run folders went above; a user's stays
+            with contextlib.suppress(OSError):
+                path.rmdir()
+        elif path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
         else:
             path.unlink(missing_ok=True)

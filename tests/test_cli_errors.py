@@ -239,6 +239,9 @@ def test_second_hostile_round_refusals(capsys, tmp_path):
         capsys, ["sweep", "tagging-thesis-n3", *grid, "--out", str(tmp_path / "g")], "run.prng_impl"
     )
     one_line_error(capsys, ["sweep", "tagging-thesis-n3", "--first-seed", "-1"], "--first-seed")
+    for command in ("train", "sweep"):  # a run continued is never replaced at the same time
+        resumed = [command, "--resume", str(tmp_path), "--overwrite"]
+        one_line_error(capsys, resumed, "--overwrite cannot be given with --resume")
     out = tmp_path / "alpha"
     bad = ["--grid", "algorithm.alpha=0.1,2.0", "--out", str(out)]
     one_line_error(capsys, ["sweep", "tagging-thesis-n3", *bad], "algorithm.alpha")

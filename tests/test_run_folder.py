@@ -403,3 +403,17 @@ def test_a_train_over_a_sweep_leaves_no_sweep_to_resume(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["sweep", "--resume", str(out)]) == 2
     assert "sweep.json" in capsys.readouterr().err
+
+
+def test_a_folder_of_the_users_among_a_sweeps_run_folders_survives_overwrite(tmp_path):
+    """``sweep --overwrite`` replaces the sweep's run folders, not a folder of the user's own
+    that only looks like one (``runs/setting9-seed9`` holding notes)."""
+    out = tmp_path / "sweep"
+    argv = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--out", str(out), *TINY_TRAIN]
+    assert cli.main(argv) == 0
+    mine = out / "runs" / "setting9-seed9"
+    mine.mkdir()
+    (mine / "mine.txt").write_text("notes")
+    assert cli.main([*argv, "--overwrite", "--set", "env.obs_noise=0.5"]) == 0
+    assert (mine / "mine.txt").read_text() == "notes"
+    assert (out / "runs" / "setting0-seed0" / "results.json").is_file()
