@@ -49,6 +49,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from tqdm.auto import tqdm
 
+from cognet_jax import status
 from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
 from cognet_jax.driver import GroupOptions, run_group
@@ -111,14 +112,21 @@ class Group:
 PLAN_BAR = 200
 
 
-def plan(experiment: str, grid: dict[str, list], overrides: list[str]) -> list[Group]:
-    """Validated settings (every grid combination), grouped by their static fields."""
+def plan(
+    experiment: str, grid: dict[str, list], overrides: list[str], progress: bool = True
+) -> list[Group]:
+    """Validated settings (every grid combination), grouped by their static fields; a bar
+    for many settings unless ``progress`` is off."""
     names = list(grid)
     groups: dict[str, Group] = {}
     combos = itertools.product(*(grid[n] for n in names)) if names else [()]
     count = math.prod(len(grid[n]) for n in names)
     shown = tqdm(  # loading and validating a setting takes milliseconds: a bar for many
-        combos, total=count, disable=count < PLAN_BAR, desc="preparing settings", leave=False
+        combos,
+        total=count,
+        disable=not progress or count < PLAN_BAR,
+        desc="preparing settings",
+        leave=False,
     )
     for index, combo in enumerate(shown):
         values = dict(zip(names, combo, strict=True))
@@ -231,8 +239,14 @@ def run_sweep(
         raise ConfigError("seeds", "a sweep needs at least one seed")
     t0 = time.perf_counter()
     grid = grid or {}
-    groups = plan(experiment, grid, [*(overrides or []), *run_overrides])
+    groups = plan(experiment, grid, [*(overrides or []), *run_overrides], progress)
     total = assign_runs(groups, seeds, jax.process_index(), jax.process_count())
+    if len(groups) > 1:  # said before the first compiles: each group is a program of its own
+        status.say(
+            f"sweep: {sum(len(g.settings) for g in groups)} settings in {len(groups)} compiled "
+            "groups (settings whose fields change shapes compile a program each, one group "
+            "after another)"
+        )
     if out is not None:
         spec = {"experiment": experiment, "seeds": seeds, "grid": grid, "overrides": overrides}
         atomic_write_text(Path(out) / STATE_DIR / SWEEP_SPEC, json.dumps(spec, indent=1))
