@@ -75,8 +75,28 @@ def same_tree(a, b) -> bool:
     )
 
 
+#: ``_stack`` stacks at most this many arrays in one operation
+STACK_CHUNK = 64
+
+
 def _stack(trees):
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+    """The leaves of ``trees`` stacked along a new leading axis (``_stacked``)."""
+    return jax.tree.map(lambda *xs: _stacked(xs), *trees)
+
+
+def _stacked(xs) -> jax.Array:
+    """``jnp.stack(xs)``, at most ``STACK_CHUNK`` arrays at a time: one stack of thousands
+    of arrays compiles a program that grows with them (seconds per thousand runs of a
+    sweep), while a chunk's program is compiled once and reused. The same array."""
+    parts = [
+        jnp.stack([jnp.asarray(x) for x in xs[i : i + STACK_CHUNK]])
+        for i in range(0, len(xs), STACK_CHUNK)
+    ]
+    while len(parts) > 1:
+        parts = [
+            jnp.concatenate(parts[i : i + STACK_CHUNK]) for i in range(0, len(parts), STACK_CHUNK)
+        ]
+    return parts[0]
 
 
 def take(tree, r: int):
@@ -225,7 +245,12 @@ class Program:
         # one run: its params are constants of its programs, except the largest arrays
         self.held, self._rebuild = hoist_large(self.params)
         # every run's params (envs: ``build_env``'s); the first run's are the build's
-        self.run_params = [self.params] + [params_of(r.config) for r in runs[1:]]
+        # (built once per config object: a sweep's seeds of one setting share theirs)
+        made = {id(config): self.params}
+        for r in runs[1:]:
+            if id(r.config) not in made:
+                made[id(r.config)] = params_of(r.config)
+        self.run_params = [made[id(r.config)] for r in runs]
         self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
         # the first run's init and run keys (what a single-run program uses)
         self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
@@ -234,7 +259,7 @@ class Program:
         if self.batched:
             padded_params = self.run_params + [self.run_params[-1]] * (len(padded) - len(runs))
             self.shared_env = all(same_tree(p.env, self.params.env) for p in self.run_params)
-            keys = jnp.stack([seed_key(r.config, r.seed) for r in padded])
+            keys = _stacked(self.seed_keys + [self.seed_keys[-1]] * (len(padded) - len(runs)))
             hyper = _stack([p.hyper for p in padded_params])
             env = _stack([p.env for p in padded_params])
             self.data = jax.device_put((keys, hyper, env), self.sharding)

@@ -376,3 +376,25 @@ def test_summary_reports_exact_values_of_tabular_runs(tmp_path):
     assert "| in-loop best | exact | exact_infinite |" in summary
     assert "| 32.165667 [30.999000, 33.499000] | 32.166667 [31.000000, 33.500000] |" in summary
     assert "| 5.000000 [5.000000, 5.000000] |" in summary
+
+
+def test_many_runs_are_stacked_in_chunks_to_the_same_arrays():
+    """A sweep's per-run arrays (keys, hyper-parameters, simulator params) are stacked in
+    chunks (``program._stacked``: one stack of thousands compiled for seconds): the same
+    array, dtype and weak type as one ``jnp.stack``, typed PRNG keys included."""
+    import jax.numpy as jnp
+
+    from cognet_jax.program import STACK_CHUNK, _stacked
+
+    n = STACK_CHUNK * 3 + 5
+    for xs in (
+        [jax.random.key(s) for s in range(n)],
+        [0.1 * s for s in range(n)],
+        [jnp.full((2, 3), s, jnp.int32) for s in range(n)],
+    ):
+        whole, chunked = jnp.stack([jnp.asarray(x) for x in xs]), _stacked(xs)
+        assert chunked.dtype == whole.dtype and chunked.shape == whole.shape
+        assert getattr(chunked, "weak_type", 0) == getattr(whole, "weak_type", 0)
+        if jax.dtypes.issubdtype(whole.dtype, jax.dtypes.prng_key):
+            whole, chunked = jax.random.key_data(whole), jax.random.key_data(chunked)
+        np.testing.assert_array_equal(np.asarray(chunked), np.asarray(whole))
