@@ -673,6 +673,14 @@ EXTRA.update(
             "distinct_actions; the row paper-budget-1of64 ran before the rule)",
             "paper-budget-1of64",
         ),
+        "paper-budget-1of8-now": (
+            "tagging-paper-auto",
+            ["algorithm.budget=3.75e10", "run.probe_seconds=10"],
+            3,
+            "1/8 of the paper's 3e11 agent-steps under the defaults of now (the row "
+            "paper-budget-1of8 ran before the horizon rule)",
+            "paper-budget-1of8",
+        ),
     }
 )
 #: rows run under the horizon rule, or setting all its fields
@@ -687,6 +695,7 @@ AFTER_RULE = (
     "readme-seek-refine-half",
     "plume-refine-half-fixed",
     "paper-budget-1of64-now",
+    "paper-budget-1of8-now",
 )
 
 
