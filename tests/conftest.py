@@ -160,7 +160,8 @@ def _foreign_code_per_test():
     the test's own, so later tests of the worker keep their programs as a fresh process does."""
     from cognet_jax import registry
 
-    saved = dict(registry._FOREIGN_CODE)
+    saved, late = dict(registry._FOREIGN_CODE), list(registry.LATE_IMPORTS)
     yield
     registry._FOREIGN_CODE.clear()
     registry._FOREIGN_CODE.update(saved)
+    registry.LATE_IMPORTS[:] = late  # (the scan of modules imported after an --import)
