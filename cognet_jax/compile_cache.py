@@ -11,6 +11,7 @@ import os
 import re
 import shutil
 import sys
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
@@ -124,8 +125,10 @@ def cache_note(text: str) -> None:
         print(f"note: {text}", file=sys.stderr)
 
 
-#: the compilation cache's keys JAX looked up in this process, in order (``_watch_lookups``)
-_LOOKED_UP: list[str] = []
+#: the compilation cache's keys JAX looked up last in this process, in order, and how many it
+#: looked up in all (``_watch_lookups``)
+_LOOKED_UP: deque[str] = deque(maxlen=256)
+_LOOKUPS = [0]
 _LOOKUP = re.compile(r"Cache (?:hit|miss) for key: '([^']+)'")
 
 
@@ -139,6 +142,7 @@ def _watch_lookups() -> None:
         found = _LOOKUP.match(str(record.msg))
         if found:
             _LOOKED_UP.append(found.group(1))
+            _LOOKUPS[0] += 1
         return record.levelno >= shown
 
     logger.addFilter(record_key)
@@ -164,12 +168,13 @@ def compiled_despite_cache(compile: Callable[[], T]) -> T:
     removed with one note and it compiles once more: the cache never blocks a program."""
     import jax
 
-    start = len(_LOOKED_UP)
+    start = _LOOKUPS[0]
     try:
         return compile()
     except Exception as err:
         folder = jax.config.jax_compilation_cache_dir
-        looked_up = _LOOKED_UP[start:]
+        count = min(_LOOKUPS[0] - start, len(_LOOKED_UP))
+        looked_up = list(_LOOKED_UP)[len(_LOOKED_UP) - count :]
         if not folder or not looked_up:
             raise
         for key in looked_up:
