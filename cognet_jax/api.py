@@ -94,8 +94,9 @@ def build(config: Config, env=None, env_params=None, lanes: int = 1) -> Built:
     return Built(config, env, env_params, algorithm, params_of(config, env_params), seconds)
 
 
-#: what the driver calls on every search (``algorithms.engine``'s protocol)
-SEARCH_MEMBERS = ("init", "ask", "tell", "best_policy", "rollouts_per_iteration")
+#: what the driver calls on every search (``algorithms.engine``'s protocol; ``Search`` has
+#: ``step``, ``returns`` and the hooks)
+SEARCH_MEMBERS = ("init", "step", "best_policy", "returns", "rollouts_per_iteration")
 
 
 def _check_search(algorithm, name: str, build_fn) -> None:

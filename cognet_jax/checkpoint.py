@@ -225,10 +225,15 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
 
 def _known(stored: dict, expected) -> dict:
     """``expected`` (a dict) without the names ``stored`` lacks, except ``imported`` (modules
-    imported now and not at training are a difference)."""
+    imported now and not at training are a difference); ``imported_late`` keeps the modules
+    loaded at both times, with the stored digests of those not loaded now (they never ran)."""
     if not isinstance(expected, dict):
         return expected
-    return {k: v for k, v in expected.items() if k in stored or k == "imported"}
+    known = {k: v for k, v in expected.items() if k in stored or k == "imported"}
+    late, now = stored.get("imported_late"), known.get("imported_late")
+    if isinstance(late, dict) and isinstance(now, dict):
+        known["imported_late"] = {n: now.get(n, d) for n, d in late.items()}
+    return known
 
 
 def _shape(x) -> tuple:

@@ -129,17 +129,17 @@ def cache_note(text: str) -> None:
 #: looked up in all (``_watch_lookups``)
 _LOOKED_UP: deque[str] = deque(maxlen=256)
 _LOOKUPS = [0]
-_LOOKUP = re.compile(r"Cache (?:hit|miss) for key: '([^']+)'")
+_LOOKUP = re.compile(r"Cache hit for key: '([^']+)'")
 
 
 def _watch_lookups() -> None:
-    """Record every key JAX's compilation cache looks up (its ``lru_cache`` logger's debug
-    lines, which go no further than they went before), so an entry that fails is known."""
+    """Record every key JAX's compilation cache finds an entry for (its ``lru_cache`` logger's
+    debug lines, which go no further than they went before), so an entry that fails is known."""
     logger = logging.getLogger("jax._src.lru_cache")
     shown = logger.getEffectiveLevel()
 
     def record_key(record: logging.LogRecord) -> bool:
-        found = _LOOKUP.match(str(record.msg))
+        found = _LOOKUP.match(record.getMessage())
         if found:
             _LOOKED_UP.append(found.group(1))
             _LOOKUPS[0] += 1

@@ -222,7 +222,7 @@ class Config:
     def input_files(self) -> list[str]:
         """The files the run reads: every non-empty field named ``path`` or ``*_path`` of any
         section (a model, a VAE), as written. A simulator or algorithm that reads a file names
-        its field so; the programs kept and the policies saved are keyed by those files' bytes."""
+        its field so; the programs kept are keyed by those files' bytes."""
         return [
             value
             for section in self.to_dict().values()

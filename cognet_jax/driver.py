@@ -409,7 +409,8 @@ def train(
     config = built.config if built else config
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    opts = GroupOptions(out / CHECKPOINT_NAME, resume, progress, log, resume_dir=out)
-    opts = dataclasses.replace(opts, announce=True, built=built)
+    opts = GroupOptions(
+        out / CHECKPOINT_NAME, resume, progress, log, resume_dir=out, announce=True, built=built
+    )
     records, _ = run_group([Run(config, seed, out)], opts)
     return records[0]

@@ -11,6 +11,7 @@ import importlib.util
 import math
 import os
 import signal
+import site
 import sys
 import threading
 import traceback
@@ -119,7 +120,8 @@ def _guarded_import(name: str):
         timeout + IMPORT_GRACE_S, _end_process, (f"error: {said}", 2, real_exit)
     )
     watchdog.daemon = True
-    watchdog.start()
+    if main:  # (as the alarm: an import in another thread is the host program's to time)
+        watchdog.start()
     try:
         if main:  # repeats, so a module that catches the first alarm meets the next one
             signal.setitimer(signal.ITIMER_REAL, timeout, 1.0)
@@ -244,13 +246,14 @@ def _note_helpers(before: frozenset) -> None:
     """Note every user module loaded since the first ``--import`` (``before``: the modules
     loaded then) as foreign code, with its digest now."""
     for helper, file in _user_modules(set(sys.modules) - before, None):
-        note_foreign_code(helper, file)
+        note_foreign_code(helper, file, late=True)
 
 
 def _user_modules(names, origin: str | None) -> list[tuple[str, str]]:
     """``(name, file)`` of the modules of ``names`` loaded from a ``.py`` file outside the
     Python installation and this package (a user's helper modules), ``origin`` aside."""
-    installed = {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    roots = [sys.prefix, sys.base_prefix, sys.exec_prefix, *site.getsitepackages()]
+    installed = {Path(p).resolve() for p in [*roots, site.getusersitepackages()]}
     package = Path(__file__).resolve().parent
     skip = Path(origin).resolve() if origin else None
     found = []
@@ -261,6 +264,8 @@ def _user_modules(names, origin: str | None) -> list[tuple[str, str]]:
         path = Path(file).resolve()
         inside = [package, *installed]
         if path == skip or any(path.is_relative_to(root) for root in inside):
+            continue
+        if {"site-packages", "dist-packages"} & set(path.parts):  # installed elsewhere
             continue
         found.append((name, str(path)))
     return found

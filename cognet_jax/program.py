@@ -187,6 +187,8 @@ def file_digest(path: Path) -> str:
         stat = path.stat()
     except OSError:
         return ""
+    if not path.is_file():  # a folder a field names: no bytes of its own
+        return "not a file"
     return _digest_of(path, stat.st_size, stat.st_mtime_ns)
 
 

@@ -31,16 +31,25 @@ from cognet_jax.checkpoint import (
     stack_history,
 )
 from cognet_jax.config import Config, with_added_fields
-from cognet_jax.errors import CorruptFileError, MismatchError
+from cognet_jax.errors import CorruptFileError, MismatchError, UsageError
 from cognet_jax.program import Program, Run, file_digest
 from cognet_jax.registry import (
     env_entry,
     foreign_code,
+    late_code,
 )
 from cognet_jax.reporting import write_plots
 
 #: version of results.json (2: one schema for train and sweep runs; see ``run_record``)
 RESULTS_SCHEMA = 2
+#: the files of a run folder that a search's ``run_files`` may not name
+RUN_OWN_FILES = (
+    "results.json",
+    "policy.msgpack",
+    "checkpoint.msgpack",
+    "evaluations.jsonl",
+    ".lock",
+)
 
 
 def _meta(runs: list[Run]) -> dict:
@@ -200,12 +209,13 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
         "best_per_iteration": np.asarray(h.best_value).tolist(),
     }
     # the cross-entropy figures, where the search reports them (``SearchMetrics``)
-    if h.threshold is not None:
-        fields["threshold_per_iteration"] = np.asarray(h.threshold).tolist()
-    if h.kept is not None:
-        fields["kept_per_iteration"] = np.asarray(h.kept).tolist()
-    if h.injected is not None:
-        fields["entropy_injections"] = int(np.sum(h.injected))
+    threshold, kept, injected = (getattr(h, f, None) for f in ("threshold", "kept", "injected"))
+    if threshold is not None:
+        fields["threshold_per_iteration"] = np.asarray(threshold).tolist()
+    if kept is not None:
+        fields["kept_per_iteration"] = np.asarray(kept).tolist()
+    if injected is not None:
+        fields["entropy_injections"] = int(np.sum(injected))
     return fields
 
 
@@ -228,12 +238,15 @@ def fingerprint(config: Config, written: dict | None = None) -> dict:
 def numeric_settings() -> dict:
     """What besides the config changes a policy's numbers: JAX's 64-bit mode, default PRNG and
     threefry layout, and the modules imported from outside the package (``--import`` and the
-    modules it imported) with their digests."""
+    modules it imported) with their digests; ``imported_late``: the helpers a user module
+    imported only when it ran (compared where loaded at both times: one an evaluation never
+    loads never ran in it)."""
     return {
         "x64": bool(jax.config.jax_enable_x64),
         "prng": str(jax.config.jax_default_prng_impl),
         "threefry_partitionable": bool(jax.config.jax_threefry_partitionable),
-        "imported": foreign_code(),
+        "imported": foreign_code(late=False),
+        "imported_late": late_code(),
     }
 
 
@@ -250,7 +263,12 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
     # the file's digest: ``evaluate`` refuses a policy file replaced since (another run's)
     record = {**record, "policy_sha256": hashlib.sha256(policy_file).hexdigest()}
     kept = {}
-    for name, (field, data) in algorithm.run_files().items():
+    for name, (field, data) in getattr(algorithm, "run_files", dict)().items():
+        if name != Path(name).name or name in RUN_OWN_FILES:
+            raise UsageError(
+                f"run_files of {type(algorithm).__name__}: {name!r} is not a file name of its "
+                "own in the run folder"
+            )
         atomic_write_bytes(run.folder / name, data)
         kept[name] = {"field": field, "sha256": hashlib.sha256(data).hexdigest()}
     if kept:  # checked as the policy's digest is

@@ -124,9 +124,11 @@ _ENVS: dict[str, EnvEntry] = {}
 _ALGORITHMS: dict[str, AlgorithmEntry] = {}
 #: modules imported from outside the package (``--import``): file name -> SHA-256 of its bytes
 _FOREIGN_CODE: dict[str, str] = {}
+#: of those, the ones a user module imported after its own import (``LATE_IMPORTS``)
+_LATE_CODE: dict[str, str] = {}
 
 
-def note_foreign_code(name: str, origin: str | None) -> None:
+def note_foreign_code(name: str, origin: str | None, late: bool = False) -> None:
     """Record that the module ``name`` (file ``origin``) was imported from outside the package:
     its code may change any simulator or algorithm, so no program of this process is kept
     between processes, and policies record its digest (``foreign_code``)."""
@@ -136,7 +138,11 @@ def note_foreign_code(name: str, origin: str | None) -> None:
             digest = hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
         except OSError:
             pass
-    _FOREIGN_CODE[Path(origin).name if origin else name] = digest
+    key = Path(origin).name if origin else name
+    if late and key not in _FOREIGN_CODE:
+        _LATE_CODE[key] = digest
+    else:
+        _FOREIGN_CODE[key] = digest
 
 
 #: called by ``foreign_code`` first: note the user modules imported since (``plugins``: the
@@ -144,12 +150,19 @@ def note_foreign_code(name: str, origin: str | None) -> None:
 LATE_IMPORTS: list[Callable[[], None]] = []
 
 
-def foreign_code() -> dict[str, str]:
-    """Modules imported from outside the package, with their digests (``note_foreign_code``),
-    those imported by a user module after its own import included (``LATE_IMPORTS``)."""
+def foreign_code(late: bool = True) -> dict[str, str]:
+    """Modules imported from outside the package, with their digests (``note_foreign_code``);
+    with ``late``, also those a user module imported after its own import (``LATE_IMPORTS``:
+    a helper imported when the simulator is built or traced)."""
     for note_late in LATE_IMPORTS:
         note_late()
-    return dict(_FOREIGN_CODE)
+    return {**_FOREIGN_CODE, **_LATE_CODE} if late else dict(_FOREIGN_CODE)
+
+
+def late_code() -> dict[str, str]:
+    """The modules of ``foreign_code`` that were imported late, with their digests."""
+    foreign_code()
+    return dict(_LATE_CODE)
 
 
 def is_builtin(entry: EnvEntry | AlgorithmEntry) -> bool:

@@ -94,10 +94,10 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         _check_writable(out)
+        _refuse_linked_runs(out)
         for sub in ("runs", "sweep-state"):  # a sweep's folders, where they are already
             if (out / sub).is_dir():
                 _check_writable(out / sub)
-        _refuse_linked_runs(out)
         replaced = _replaced_files(out, kind) if found and overwrite else {}
         yield out
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
@@ -141,6 +141,12 @@ def _check_writable(out: Path) -> None:
 def _refuse_linked_runs(out: Path) -> None:
     """``UsageError`` for a sweep's run folder that is a symbolic link: the sweep writes its
     run folders itself, and writing through a link would replace files outside ``out``."""
+    for sub in ("runs", "sweep-state"):
+        if (out / sub).is_symlink():
+            raise UsageError(
+                f"{out / sub} is a symbolic link (to {os.readlink(out / sub)}); a sweep writes "
+                "its folders itself: remove the link"
+            )
     for path in sorted((out / "runs").glob("setting*")) if (out / "runs").is_dir() else []:
         if path.is_symlink():
             raise UsageError(

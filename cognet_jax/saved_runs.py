@@ -35,7 +35,7 @@ from cognet_jax.config import (
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
 from cognet_jax.observations import legacy_run_files
 from cognet_jax.program import final_value
-from cognet_jax.records import current_meta, fingerprint
+from cognet_jax.records import RUN_OWN_FILES, current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,
 )
@@ -93,7 +93,7 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         )
     # the files the run kept (an encoder, ...), read from the folder unless a field is given
     recorded = "run_files" if "run_files" in results else "vae_sha256"  # before run_files
-    kept = results.get("run_files") or legacy_run_files(results, run_dir)
+    kept = _run_files(results, run_dir, results_path)
     kept = {n: f for n, f in kept.items() if tuple(f["field"].split(".")) not in named}
     for name, file in kept.items():
         overrides.insert(0, f"{file['field']}={json.dumps(str(run_dir / name))}")
@@ -115,6 +115,29 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
         _check_digest(run_dir / name, file["sha256"], recorded)
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
+
+
+def _run_files(results: dict, run_dir: Path, results_path: Path) -> dict:
+    """results.json's ``run_files`` (``{name: {"field", "sha256"}}``), checked: plain file
+    names of the folder that are not the run's own files; ``CorruptFileError`` otherwise."""
+    kept = results.get("run_files")
+    if kept is None:
+        return legacy_run_files(results, run_dir)
+    ok = isinstance(kept, dict) and all(
+        isinstance(name, str)
+        and name == Path(name).name
+        and name not in RUN_OWN_FILES
+        and isinstance(file, dict)
+        and isinstance(file.get("field"), str)
+        and file["field"].count(".") == 1
+        and isinstance(file.get("sha256"), str | None)
+        for name, file in kept.items()
+    )
+    if not ok:
+        raise CorruptFileError(
+            results_path, "its run_files is not a table {file name: {field, sha256}}"
+        )
+    return kept
 
 
 def _check_digest(path: Path, digest, field: str) -> None:

@@ -49,7 +49,6 @@ import numpy as np
 from jax.experimental import multihost_utils
 from tqdm.auto import tqdm
 
-from cognet_jax import status
 from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, parse_override
 from cognet_jax.driver import GroupOptions, run_group
@@ -242,7 +241,7 @@ def run_sweep(
     groups = plan(experiment, grid, [*(overrides or []), *run_overrides], progress)
     total = assign_runs(groups, seeds, jax.process_index(), jax.process_count())
     if len(groups) > 1:  # said before the first compiles: each group is a program of its own
-        status.say(
+        log(
             f"sweep: {sum(len(g.settings) for g in groups)} settings in {len(groups)} compiled "
             "groups (settings whose fields change shapes compile a program each, one group "
             "after another)"
@@ -314,7 +313,11 @@ def added_fields(rows: list[dict]) -> list[str]:
         k
         for k in first
         if k not in FINAL_VALUE_FIELDS
-        and all(isinstance(r["final_value"].get(k), (int, float)) for r in rows)
+        and all(
+            isinstance(r["final_value"].get(k), (int, float))
+            and not isinstance(r["final_value"].get(k), bool)
+            for r in rows
+        )
     ]
 
 

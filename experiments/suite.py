@@ -1136,6 +1136,8 @@ def refine_half_note() -> str:
                 f"{what} {sum(a) / len(a):.3f} (worst {min(a):.3f}) against "
                 f"{sum(b) / len(b):.3f} ({min(b):.3f})"
             )
+    if not parts:
+        return ""
     return (
         "Half of the iterations refining instead of a quarter (`algorithm.refine=0.5`, rows "
         '"-refine-half", 8 seeds each, against the defaults): ' + "; ".join(parts) + ". Not "

@@ -161,7 +161,10 @@ def _foreign_code_per_test():
     from cognet_jax import registry
 
     saved, late = dict(registry._FOREIGN_CODE), list(registry.LATE_IMPORTS)
+    saved_late = dict(registry._LATE_CODE)
     yield
     registry._FOREIGN_CODE.clear()
     registry._FOREIGN_CODE.update(saved)
+    registry._LATE_CODE.clear()
+    registry._LATE_CODE.update(saved_late)
     registry.LATE_IMPORTS[:] = late  # (the scan of modules imported after an --import)

@@ -325,6 +325,12 @@ def test_cli_train_then_evaluate_under_observation_noise(tmp_path, capsys):
     capsys.readouterr()
     assert main(["evaluate", str(out)]) == 2
     assert "vae_sha256" in capsys.readouterr().err
+    # a run_files entry that names a file outside the folder, or the policy: a corrupt file
+    for name in ("../vae.msgpack", "policy.msgpack"):
+        results["run_files"] = {name: {"field": "network.vae_path", "sha256": None}}
+        (out / "results.json").write_text(json.dumps(results))
+        assert main(["evaluate", str(out)]) == 2
+        assert "run_files" in capsys.readouterr().err
 
 
 def test_random_value_by_dp_matches_monte_carlo():

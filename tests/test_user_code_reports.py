@@ -70,6 +70,23 @@ def test_a_helper_imported_only_when_the_module_runs_is_recorded_too(tmp_path, m
     assert foreign_code()["late_helper_y.py"] != before  # a policy then refuses the change
 
 
+def test_a_late_helper_counts_where_it_was_loaded_at_both_times(tmp_path):
+    """``imported_late`` (helpers a user module imported when it ran): compared where loaded
+    at training and now; one the evaluation never loads never ran in it."""
+    import json as js
+
+    trained = {"numerics": {"imported": {"sim.py": "1"}, "imported_late": {"helper.py": "a"}}}
+    stored = js.dumps(trained)
+    unloaded = {"numerics": {"imported": {"sim.py": "1"}, "imported_late": {}}}
+    _check_fingerprint(tmp_path, stored, unloaded)  # never loaded now: no difference
+    changed = {"numerics": {"imported": {"sim.py": "1"}, "imported_late": {"helper.py": "b"}}}
+    with pytest.raises(MismatchError, match="imported_late"):
+        _check_fingerprint(tmp_path, stored, changed)
+    missing = {"numerics": {"imported": {}, "imported_late": {"helper.py": "a"}}}
+    with pytest.raises(MismatchError, match="sim.py"):  # the --import itself: always compared
+        _check_fingerprint(tmp_path, stored, missing)
+
+
 def test_stop_handlers_replaced_by_a_module_are_put_back():
     install_stop_handlers()
     before = signal.getsignal(signal.SIGTERM)

@@ -264,8 +264,8 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class GuardedSteps:
-    """``env`` whose step adds ``0 * sum(observation)`` to its reward, and NaN when an action
-    is outside its agent's ``action_counts``: an observation that is NaN (or infinite), or an
+    """``env`` whose step adds 0 to its reward, or NaN when an observation is not finite or an
+    action is outside its agent's ``action_counts``: an observation that is NaN (or infinite), or an
     action the agent lacks (a search of one's own drew it; JAX would clamp it silently), makes
     the episode's return NaN, which the honest evaluation refuses (``program.final_value_of``),
     as it refuses NaN rewards. Every other return is the same to the bit (``x + 0.0 == x``)."""
@@ -273,6 +273,8 @@ class GuardedSteps:
     env: Any
 
     def __getattr__(self, name):
+        if name == "env" or name.startswith("__"):  # (copy and pickle before ``env`` is set)
+            raise AttributeError(name)
         return getattr(self.env, name)
 
     def reset(self, u, params):
@@ -281,9 +283,8 @@ class GuardedSteps:
     def step(self, u, state, actions, params):
         state, obs, reward = self.env.step(u, state, actions, params)
         counts = jnp.asarray(self.env.action_counts)
-        lacking = jnp.any((actions < 0) | (actions >= counts))
-        guard = jnp.where(lacking, jnp.nan, 0.0 * jnp.sum(obs).astype(reward.dtype))
-        return state, obs, reward + guard.astype(reward.dtype)
+        bad = jnp.any((actions < 0) | (actions >= counts)) | ~jnp.all(jnp.isfinite(obs))
+        return state, obs, reward + jnp.where(bad, jnp.nan, 0.0).astype(reward.dtype)
 
 
 def guarded_steps(env):
