@@ -277,10 +277,9 @@ def _evaluate(args) -> int:
         parse_override(o)[0] == ["evaluation", "rollouts"] for o in args.overrides
     ):
         raise UsageError("--rollouts and --set evaluation.rollouts both set the rollouts; give one")
-    announce = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     # in a worker thread: a stop signal ends the command at once, not after the evaluation
     value = in_background(
-        lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, announce)
+        lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, status.say)
     )
     print(
         f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
