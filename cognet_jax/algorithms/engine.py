@@ -69,7 +69,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
 )
 from cognet_jax.config import require, require_positive, require_probability
-from cognet_jax.envs.base import guarded_steps
+from cognet_jax.envs.base import GuardedSteps
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
 
@@ -208,7 +208,7 @@ class Search:
         """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time): the honest
         evaluation's, where a NaN observation or an action its agent lacks makes the episode's
         return NaN (refused, ``envs.base.GuardedSteps``)."""
-        env = guarded_steps(self.env)
+        env = GuardedSteps(self.env)
         return many_returns(env, self.controller, key, params.env, policy, num, batch)
 
     def fresh_value(self, key, policy, params: SearchParams) -> jax.Array:

@@ -264,11 +264,11 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class GuardedSteps:
-    """``env`` whose step adds 0 to its reward, or NaN when an observation is not finite or an
-    action is outside its agent's ``action_counts``: an observation that is NaN (or infinite), or an
-    action the agent lacks (a search of one's own drew it; JAX would clamp it silently), makes
-    the episode's return NaN, which the honest evaluation refuses (``program.final_value_of``),
-    as it refuses NaN rewards. Every other return is the same to the bit (``x + 0.0 == x``)."""
+    """The honest evaluation's simulator: ``env`` whose step adds NaN to its reward when an
+    observation is not finite or an action is outside its agent's ``action_counts`` (a search
+    of one's own drew it; JAX would clamp it silently), and 0 otherwise. Such an episode's
+    return is NaN, which the honest evaluation refuses (``program.final_value_of``) as it
+    refuses NaN rewards; every other return is the same to the bit (``x + 0.0 == x``)."""
 
     env: Any
 
@@ -285,11 +285,6 @@ class GuardedSteps:
         counts = jnp.asarray(self.env.action_counts)
         bad = jnp.any((actions < 0) | (actions >= counts)) | ~jnp.all(jnp.isfinite(obs))
         return state, obs, reward + jnp.where(bad, jnp.nan, 0.0).astype(reward.dtype)
-
-
-def guarded_steps(env):
-    """``env`` wrapped in ``GuardedSteps`` (the honest evaluation's simulator)."""
-    return GuardedSteps(env)
 
 
 #: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
