@@ -435,7 +435,7 @@ def final_value_of(returns) -> dict:
         raise InputError(
             "the returns are NaN: the simulator's rewards or observations are NaN on some "
             "states (or an infinite reward met its negative), or the policy chose an action "
-            "its agent lacks"
+            "its agent lacks or a node its controller lacks"
         )
     if not np.isfinite(returns).all():
         raise InputError(

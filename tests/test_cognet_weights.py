@@ -147,6 +147,7 @@ def test_cognet_dice_learns_to_use_observations_on_tagging():
         ("action_floor", -0.1),
         ("best_rollouts", 0),
         ("vote_std", float("nan")),
+        ("refine_redraw", 1.5),
     ],
 )
 def test_bad_settings_name_the_field(field, value):
@@ -637,3 +638,41 @@ def test_a_run_folder_written_before_distinct_actions_evaluates_to_its_own_value
     run = load_run(folder)  # its results.json has no distinct_actions: false, as it ran
     assert run.config.algorithm.distinct_actions is False
     assert evaluate_run(folder, rollouts=1000)["mean"] == pytest.approx(13.5, abs=0.3)
+
+
+def test_refine_redraw_changes_one_unit_of_the_network_a_candidate_runs():
+    """Centred on a policy with ``refine_redraw = 1``, every candidate differs from the draws
+    without it in exactly one hidden unit (input weights, bias, target, vote) of one agent's
+    network -- node 0's where that agent's nodes are tied -- and in nothing else; with the
+    share at 0 the draws are those of before, and the exploring distribution redraws none."""
+    alg, params = small_algorithm(refine=0.5, refine_redraw=1.0, distinct_actions=False)
+    plain, _ = small_algorithm(refine=0.5, distinct_actions=False)
+    assert alg.init_distribution().redraw is not None
+    assert plain.init_distribution().redraw is None
+    state = alg.init(jax.random.key(0), params)
+    centred = alg.centered_distribution(state.best_policy)
+    assert float(centred.redraw) == 1.0
+    never = centred.replace(redraw=jnp.float32(0.0))
+    key = jax.random.key(3)
+    got, want = alg.draw(key, centred, 32), alg.draw(key, never, 32)
+    kept = plain.draw(key, plain.centered_distribution(state.best_policy), 32)
+    for name in ("w1", "b1", "unit_targets", "m", "actions", "default", "bias"):
+        np.testing.assert_array_equal(getattr(want, name), getattr(kept, name))
+    for name in ("actions", "default", "bias", "node_tie", "agent_tie"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    b1_changed = np.asarray(got.b1) != np.asarray(want.b1)  # [32, agents, Q, H]
+    node_tie = np.asarray(got.node_tie)
+    agent_tie = np.asarray(got.agent_tie)
+    for c in range(32):
+        agents, nodes, units = np.nonzero(b1_changed[c])
+        # one unit: in every node of a tied agent (node 0's copied), in every agent if tied
+        assert len(set(units)) == 1
+        q = b1_changed.shape[2]
+        assert len(set(agents)) == (2 if agent_tie[c] == 1 else 1)
+        for a in set(agents):
+            assert len([n for n, x in zip(nodes, agents) if x == a]) == (
+                q if node_tie[c, a] == 1 else 1
+            )
+    explore = alg.draw(key, alg.init_distribution(), 32)
+    base = plain.draw(key, plain.init_distribution(), 32)
+    np.testing.assert_array_equal(explore.w1, base.w1)  # the exploring searches redraw none

@@ -230,3 +230,21 @@ def test_actions_a_plugin_draws_outside_the_agents_are_refused(tmp_path, capsys)
     argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
     assert main([*argv, "--no-progress"]) == 2
     assert "an action its agent lacks" in capsys.readouterr().err
+
+
+def test_nodes_a_plugin_moves_to_outside_its_controller_are_refused(tmp_path, capsys):
+    """A plug-in whose ``next_node`` leads past its ``num_nodes`` (JAX would clamp the
+    controller's gathers and give a number of another policy): refused the same way."""
+    module = tmp_path / "wild_nodes.py"
+    source = THRESHOLD_SEARCH.replace(
+        "    def next_node(self, u, policy, nodes, obs):\n        return ",
+        "    def next_node(self, u, policy, nodes, obs):\n        return 7 + ",
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-far"')
+    assert "return 7 + " in source
+    module.write_text(source)
+    toml = tmp_path / "far.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-far"\n[evaluation]\nrollouts = 200\n')
+    capsys.readouterr()
+    argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
+    assert main([*argv, "--no-progress"]) == 2
+    assert "a node its controller lacks" in capsys.readouterr().err

@@ -152,6 +152,7 @@ from cognet_jax.algorithms.weight_space import (
     centered,
     distinct_draw,
     draw_actions,
+    redraw_unit,
     refit,
     sample_of,
     tie,
@@ -171,6 +172,8 @@ from cognet_jax.registry import env_description, fields_from, register_algorithm
 #: (with partitionable threefry, folding with ``i`` gives ``split(key, n)[i]``: a small number
 #: would reuse a stream of ``draw``)
 DISTINCT_STREAM = 0x64697374
+#: the stream of the refine phase's unit redraws (``refine_redraw``), likewise
+REDRAW_STREAM = 0x72647277
 
 
 @struct.dataclass
@@ -180,6 +183,8 @@ class WeightsState:
     progress: Progress
     pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
     searches: jax.Array | None = None  # [] int32 restarts so far (``vote_alternate``)
+    refines: jax.Array | None = None  # [] int32 starts of the refine phase so far
+    # (``refine_levels`` > 1)
 
 
 @struct.dataclass
@@ -246,6 +251,7 @@ class CognetWeights(NeuralSearch):
                 [0.5, 0.5] if self._agents_can_tie else [1.0, 0.0], jnp.float32
             ),
             distinct_probs=full((a, 2), 0.5) if s.distinct_actions else None,
+            redraw=full((), 0.0) if s.refine_redraw > 0 and s.refine > 0 else None,
         )
 
     @property
@@ -287,6 +293,9 @@ class CognetWeights(NeuralSearch):
             agent_tie=categorical(ks[8], dist.agent_tie_probs) if ties else untied[1],
             distinct=distinct,
         )
+        if dist.redraw is not None:  # the refine phase's redrawn units, on their own stream
+            redraw_key = jax.random.fold_in(fast_key(key), REDRAW_STREAM)
+            sample = redraw_unit(redraw_key, sample, self.init_distribution(), dist.redraw)
         return tie(sample) if ties else sample
 
     def mode(self, dist: WeightDistribution) -> WeightSample:
@@ -371,6 +380,7 @@ class CognetWeights(NeuralSearch):
             progress=Progress.create(1),
             pool=BestPool.create(first, size) if size else None,
             searches=searches,
+            refines=jnp.int32(0) if self.settings.refine_levels > 1 else None,
         )
 
     def search_distribution(self, searches) -> WeightDistribution:
@@ -455,7 +465,8 @@ class CognetWeights(NeuralSearch):
             best_policy = pool.member(pool.best())
             progress = progress.replace(best_value=pool.means()[pool.best()])
         start = refine_start(s)
-        converged = self.converged(dist, progress.iteration > start, state.searches)
+        level = self.refine_level(state.refines)
+        converged = self.converged(dist, progress.iteration > start, state.searches, level)
         metrics = WeightsMetrics(
             value=value,
             best_value=progress.best_value,
@@ -473,18 +484,39 @@ class CognetWeights(NeuralSearch):
             searches = searches + restart.astype(jnp.int32)
         if s.restart_tol > 0 or s.starts > 1:  # afresh; the anytime best stays
             dist = select_tree(restart, self.search_distribution(searches), dist)
+        refines = state.refines
         if start < s.iterations:  # the last iterations search around the kept policy
             done = progress.iteration
             recentre = (done == start) | ((done > start) & converged)
-            dist = select_tree(recentre, self.centered_distribution(best_policy), dist)
-        state = WeightsState(dist, best_policy, progress, pool, searches)
+            if refines is not None:
+                refines = refines + recentre.astype(jnp.int32)
+            centred = self.centered_distribution(best_policy, self.refine_level(refines))
+            dist = select_tree(recentre, centred, dist)
+        state = WeightsState(dist, best_policy, progress, pool, searches, refines)
         return state, metrics
 
-    def centered_distribution(self, policy: NeuralPolicy) -> WeightDistribution:
+    def refine_level(self, refines) -> jax.Array | int:
+        """The level of the refine phase's search number ``refines`` (``[]`` int32 starts so
+        far, ``None``: one level): ``refine_levels`` finer and finer spreads in turn, level
+        ``l`` at ``refine_tol ** l`` of the first's."""
+        if refines is None:
+            return 0
+        return jnp.maximum(refines - 1, 0) % self.settings.refine_levels
+
+    def refine_scale_at(self, level) -> jax.Array | float:
+        """The spread, as a share of the initial one, the refine phase starts from at
+        ``level`` (``refine_level``)."""
+        s = self.settings
+        if isinstance(level, int) and level == 0:
+            return s.refine_scale
+        return s.refine_scale * jnp.float32(s.refine_tol) ** level
+
+    def centered_distribution(self, policy: NeuralPolicy, level=0) -> WeightDistribution:
         """A distribution around ``policy`` (the refine phase): Gaussian means at its weights
-        and votes with ``refine_scale`` times the initial spreads, and every categorical on the
-        policy's choice mixed with ``refine_scale`` of the uniform one (the tie flags on whether
-        the policy is tied)."""
+        and votes with ``refine_scale`` times the initial spreads (times ``refine_tol ** level``
+        at a finer ``level``, ``refine_levels``), and every categorical on the policy's choice
+        mixed with that share of the uniform one (the tie flags on whether the policy is
+        tied)."""
         s = self.settings
         layers = policy.net_params["params"]
         w1, b1 = layers["Dense_0"]["kernel"], layers["Dense_0"]["bias"]
@@ -505,13 +537,14 @@ class CognetWeights(NeuralSearch):
         return centered(
             sample,
             self.init_distribution(),
-            s.refine_scale,
+            self.refine_scale_at(level),
             action_support(self.env),
             s.tie_structure,
             self._agents_can_tie,
+            s.refine_redraw,
         )
 
-    def converged(self, dist: WeightDistribution, refining: jax.Array, searches=None):
+    def converged(self, dist: WeightDistribution, refining: jax.Array, searches=None, level=0):
         """Whether the hidden layer's Gaussians shrank below ``restart_tol`` of their initial
         spread (``vote_restart_tol`` in a search at ``default_vote_scale`` when set; the
         search's number ``searches``, ``[]`` int32, or ``None``), or in the refine phase
@@ -522,7 +555,7 @@ class CognetWeights(NeuralSearch):
         tol = jnp.float32(s.restart_tol)
         if searches is not None and s.vote_restart_tol > 0:
             tol = jnp.where(self.voting_search(searches), s.vote_restart_tol, tol)
-        tol = jnp.where(refining, s.refine_tol * s.refine_scale, tol)
+        tol = jnp.where(refining, s.refine_tol * self.refine_scale_at(level), tol)
         return jnp.mean(dist.w1_std) < tol * initial
 
 

@@ -49,9 +49,9 @@ class CognetWeightsSection:
     under the random controller; ``paired_best``: the best policy so far is re-evaluated on the
     challengers' fresh rollouts and replaced only when a challenger beats it there;
     ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
-    ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol`` and
-    ``starts``: tied candidates, restarts, the refine phase and independent starts
-    (``cognet_weights``); ``distinct_actions``: candidates may draw their nodes' actions
+    ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol``,
+    ``refine_levels``, ``refine_redraw`` and ``starts``: tied candidates, restarts, the refine
+    phase and independent starts (``cognet_weights``); ``distinct_actions``: candidates may draw their nodes' actions
     without repeats until every action has a node (``weight_space.distinct_draw``; "auto":
     ``covers_rarely``). The hidden width is ``network.hidden``."""
 
@@ -84,6 +84,8 @@ class CognetWeightsSection:
     refine: float = 0.25
     refine_scale: float = 0.1
     refine_tol: float | Literal["auto"] = "auto"
+    refine_redraw: float = 0.0
+    refine_levels: int = 1
     starts: int = 1
 
     def rollouts_per_iteration(self) -> int:
@@ -152,6 +154,12 @@ class CognetWeightsSection:
             require(v == "auto" or 0 <= v < 1, f"algorithm.{name}", f"in [0, 1) or 'auto', got {v}")
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        require_probability(self, "algorithm", "refine_redraw")
+        require(
+            1 <= self.refine_levels <= 8,
+            "algorithm.refine_levels",
+            f"in 1 .. 8, got {self.refine_levels}",
+        )
         require(
             0 <= self.vote_restart_tol < 1,
             "algorithm.vote_restart_tol",

@@ -69,6 +69,7 @@ from cognet_jax.algorithms.cross_entropy import (
     select_tree,
 )
 from cognet_jax.config import require, require_positive, require_probability
+from cognet_jax.controllers.base import guarded_nodes
 from cognet_jax.envs.base import GuardedSteps
 from cognet_jax.rollout import evaluate_candidates, many_returns, rollouts
 
@@ -206,10 +207,11 @@ class Search:
 
     def returns(self, key, policy, num: int, params: SearchParams, batch: int = 10_000):
         """Returns ``[num]`` of one ``policy`` (``batch`` rollouts at a time): the honest
-        evaluation's, where a NaN observation or an action its agent lacks makes the episode's
-        return NaN (refused, ``envs.base.GuardedSteps``)."""
-        env = GuardedSteps(self.env)
-        return many_returns(env, self.controller, key, params.env, policy, num, batch)
+        evaluation's, where a NaN observation, an action its agent lacks or a node its
+        controller lacks makes the episode's return NaN (refused, ``envs.base.GuardedSteps``,
+        ``controllers.base.guarded_nodes``)."""
+        env, controller = GuardedSteps(self.env), guarded_nodes(self.controller)
+        return many_returns(env, controller, key, params.env, policy, num, batch)
 
     def fresh_value(self, key, policy, params: SearchParams) -> jax.Array:
         """Mean return ``[]`` of one policy over ``best_rollouts`` fresh rollouts."""

@@ -32,6 +32,9 @@ class WeightDistribution:
     #: [agents, 2]: (independent actions, distinct actions until every action has a node);
     #: None where not searched (``distinct_actions``)
     distinct_probs: jax.Array | None = None
+    #: [] probability that a candidate redraws one hidden unit from the initial distribution
+    #: (``redraw_unit``); None where the search has no such draws (``refine_redraw`` 0)
+    redraw: jax.Array | None = None
 
 
 @struct.dataclass
@@ -162,6 +165,7 @@ def refit(dist: WeightDistribution, elites: WeightSample, alpha, floors, agent_f
         distinct_probs=None
         if dist.distinct_probs is None
         else categorical(dist.distinct_probs, elites.distinct, 2, category_floor),
+        redraw=dist.redraw,
     )
 
 
@@ -172,13 +176,16 @@ def centered(
     support,
     tie_nodes: bool,
     tie_agents: bool,
+    redraw: float = 0.0,
 ) -> WeightDistribution:
     """A distribution around one candidate's draws ``sample`` (the refine phase of
     ``cognet_weights``): Gaussian means at its weights and votes, spreads ``scale`` times those
     of the initial distribution ``init``; every categorical on the sample's choice mixed with
     ``scale`` of the uniform one (actions within ``support``); the tie flags too where tying is
-    searched (``tie_nodes`` / ``tie_agents``), else ``init``'s."""
-    rate = min(1.0, scale)
+    searched (``tie_nodes`` / ``tie_agents``), else ``init``'s; ``redraw`` the share of
+    candidates that redraw one hidden unit from ``init`` (``redraw_unit``; kept as ``init``'s
+    when it has none)."""
+    rate = jnp.minimum(1.0, scale)
 
     def peaked(choice, k, allowed=None):
         return inject_entropy(jax.nn.one_hot(choice, k, dtype=jnp.float32), rate, allowed)
@@ -201,6 +208,52 @@ def centered(
         distinct_probs=None
         if init.distinct_probs is None
         else peaked(reproduces_distinct(sample.actions, support), 2),
+        redraw=None if init.redraw is None else jnp.float32(redraw),
+    )
+
+
+def redraw_unit(key: jax.Array, sample: WeightSample, init: WeightDistribution, rate):
+    """``sample`` (leading ``[num]`` candidate axis, before ``tie``) where each candidate,
+    with probability ``rate`` (``[]``), redraws one hidden unit -- its input weights, bias,
+    target node and vote -- from the initial distribution ``init``: the unit of a uniform
+    agent, node and index, in agent 0 where the candidate ties agents and in node 0 where it
+    ties that agent's nodes (the network every node then runs).
+
+    **[choice]** A converged controller leaves most of its units without a say (their vote
+    never wins); around it, narrow Gaussians cannot add a region the controller lacks (the
+    chase's "step back along x" on both ends of the bearing's range needs a unit past 2.4 rad
+    voting for that node). A unit drawn from the broad initial distribution can, while the
+    other candidates keep tuning the thresholds (experiments/NOTES.md)."""
+    num, agents, q, f, h = sample.w1.shape
+    ks = jax.random.split(key, 8)
+    pick = jax.random.uniform(ks[0], (num,)) < rate
+    agent = jnp.where(sample.agent_tie == 1, 0, jax.random.randint(ks[1], (num,), 0, agents))
+    tied = jnp.take_along_axis(sample.node_tie, agent[:, None], 1)[:, 0] == 1
+    node = jnp.where(tied, 0, jax.random.randint(ks[2], (num,), 0, q))
+    unit = jax.random.randint(ks[3], (num,), 0, h)
+    c = jnp.arange(num)
+
+    def normal(k, mean, std, shape=()):
+        return mean + std * jax.random.normal(k, (num,) + shape, jnp.float32)
+
+    w1 = normal(ks[4], init.w1_mean[0, 0, :, 0], init.w1_std[0, 0, :, 0], (f,))
+    b1 = normal(ks[5], init.b1_mean[0, 0, 0], init.b1_std[0, 0, 0])
+    target_probs = jnp.broadcast_to(init.unit_target_probs[0, 0, 0], (num, q))
+    target = sample_categorical(jax.random.uniform(ks[6], (num,)), target_probs)
+    m = normal(ks[7], init.m_mean[0, 0, 0], init.m_std[0, 0, 0])
+
+    def put(x, value, with_inputs=False):
+        old = x[c, agent, node, :, unit] if with_inputs else x[c, agent, node, unit]
+        new = jnp.where(pick[:, None] if with_inputs else pick, value, old)
+        if with_inputs:
+            return x.at[c, agent, node, :, unit].set(new)
+        return x.at[c, agent, node, unit].set(new)
+
+    return sample.replace(
+        w1=put(sample.w1, w1, True),
+        b1=put(sample.b1, b1),
+        unit_targets=put(sample.unit_targets, target),
+        m=put(sample.m, m),
     )
 
 

@@ -15,7 +15,9 @@ All agents start in node 0.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -58,3 +60,37 @@ def action_support(env) -> jax.Array:
     masked out (e.g. for the uniform part of an entropy injection)."""
     counts = jnp.asarray(env.action_counts)
     return (jnp.arange(env.num_actions)[None, :] < counts[:, None])[:, None, :]
+
+
+@dataclasses.dataclass(frozen=True)
+class GuardedNodes:
+    """The honest evaluation's controller: ``controller`` whose ``act`` gives action ``-1``
+    in a node outside ``0 .. num_nodes - 1`` (a plug-in's ``next_node`` led there; JAX would
+    clamp the gather silently), which ``envs.base.GuardedSteps`` turns into a NaN return;
+    in every other node the same actions to the bit."""
+
+    controller: Any
+
+    def __getattr__(self, name):
+        if name == "controller" or name.startswith("__"):  # (copy and pickle)
+            raise AttributeError(name)
+        return getattr(self.controller, name)
+
+    def act(self, u, policy, nodes):
+        n = self.controller.num_nodes
+        actions = self.controller.act(u, policy, jnp.clip(nodes, 0, n - 1))
+        inside = (nodes >= 0) & (nodes < n)
+        return jnp.where(inside, actions, -1).astype(actions.dtype)
+
+    def next_node(self, u, policy, nodes, obs):
+        return self.controller.next_node(u, policy, nodes, obs)
+
+
+def guarded_nodes(controller):
+    """``controller`` for the honest evaluation: wrapped in ``GuardedNodes`` where it declares
+    ``num_nodes`` and runs the rollouts-first layout; the built-in written-out networks
+    (``agents_major``, which hold node and action packed in one number) pass as they are:
+    their nodes come from an argmax over ``num_nodes`` logits."""
+    if getattr(controller, "agents_major", False) or not hasattr(controller, "num_nodes"):
+        return controller
+    return GuardedNodes(controller)
