@@ -361,13 +361,15 @@ def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it
     assert config_from_dict(data).algorithm.paired_best
 
 
-@pytest.mark.parametrize("standardize", [False, True, "tied-votes"])
+@pytest.mark.parametrize("standardize", [False, True, "tied-votes", "sharp"])
 def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standardize):
     """The refine phase's distribution around a policy (``centered_distribution``): its mode
-    runs exactly the policy (tied and untied draws, raw and standardised inputs), and its
-    spreads are ``refine_scale`` of the initial ones."""
+    runs exactly the policy (tied and untied draws, raw and standardised inputs, votes scaled),
+    and its spreads are ``refine_scale`` of the initial ones."""
     if standardize == "tied-votes":  # tied candidates' default votes x 10
         alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0)
+    elif standardize == "sharp":  # every vote x 10 (and the tied default votes x 10 more)
+        alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0, vote_sharpness=10.0)
     elif standardize:
         alg = heatmap_algorithm(standardize_inputs=True, hidden=5, refine_scale=0.2)
     else:
@@ -676,3 +678,17 @@ def test_refine_redraw_changes_one_unit_of_the_network_a_candidate_runs():
     explore = alg.draw(key, alg.init_distribution(), 32)
     base = plain.draw(key, plain.init_distribution(), 32)
     np.testing.assert_array_equal(explore.w1, base.w1)  # the exploring searches redraw none
+
+
+def test_sharper_votes_run_the_same_argmax_with_every_vote_scaled():
+    """``vote_sharpness`` multiplies the policy's output layer (unit votes and default votes)
+    and nothing else: the same draws give the same first layer and actions."""
+    plain, _ = small_algorithm()
+    sharp, _ = small_algorithm(vote_sharpness=10.0)
+    samples = plain.draw(jax.random.key(2), plain.init_distribution(), 4)
+    a, b = plain.to_policy(samples), sharp.to_policy(samples)
+    la, lb = a.net_params["params"], b.net_params["params"]
+    np.testing.assert_array_equal(la["Dense_0"]["kernel"], lb["Dense_0"]["kernel"])
+    np.testing.assert_array_equal(a.action_probs, b.action_probs)
+    for name in ("kernel", "bias"):
+        np.testing.assert_allclose(10.0 * la["Dense_1"][name], lb["Dense_1"][name], rtol=1e-6)

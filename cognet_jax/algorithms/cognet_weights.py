@@ -330,10 +330,12 @@ class CognetWeights(NeuralSearch):
             shift = (input_mean / input_scale).reshape(scale.shape)
             b1 = b1 - jnp.sum(shift * w1, axis=-2)
             w1 = w1 / scale
-        w2 = sample.m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
-        bias = sample.bias
+        m, bias = sample.m, sample.bias
         if self.settings.tied_vote_scale != 1.0:  # else the same numbers as without the field
             bias = bias * self.tied_scale(sample.node_tie)
+        if self.settings.vote_sharpness != 1.0:  # likewise
+            m, bias = m * self.settings.vote_sharpness, bias * self.settings.vote_sharpness
+        w2 = m[..., None] * jax.nn.one_hot(sample.unit_targets, q, dtype=jnp.float32)
         b2 = bias[..., None] * jax.nn.one_hot(sample.default, q, dtype=jnp.float32)
         params = {
             "params": {
@@ -532,7 +534,11 @@ class CognetWeights(NeuralSearch):
             layers["Dense_1"]["bias"],
             policy.action_probs,
         )
-        if s.tied_vote_scale != 1.0:  # the draws of its default votes, before the factor
+        if s.vote_sharpness != 1.0:  # the draws of its votes, before the factors
+            sample = sample.replace(
+                m=sample.m / s.vote_sharpness, bias=sample.bias / s.vote_sharpness
+            )
+        if s.tied_vote_scale != 1.0:
             sample = sample.replace(bias=sample.bias / self.tied_scale(sample.node_tie))
         return centered(
             sample,

@@ -51,9 +51,11 @@ class CognetWeightsSection:
     ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
     ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol``,
     ``refine_levels``, ``refine_redraw`` and ``starts``: tied candidates, restarts, the refine
-    phase and independent starts (``cognet_weights``); ``distinct_actions``: candidates may draw their nodes' actions
-    without repeats until every action has a node (``weight_space.distinct_draw``; "auto":
-    ``covers_rarely``). The hidden width is ``network.hidden``."""
+    phase and independent starts (``cognet_weights``); ``distinct_actions``: candidates may
+    draw their nodes' actions without repeats until every action has a node
+    (``weight_space.distinct_draw``; "auto": ``covers_rarely``); ``vote_sharpness``
+    multiplies every vote of the policies the search runs (the softmax over next nodes is
+    that much sharper, the argmax the same). The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -75,6 +77,7 @@ class CognetWeightsSection:
     vote_first: bool = False
     vote_restart_tol: float = 0.0
     tied_vote_scale: float = 1.0
+    vote_sharpness: float = 1.0
     standardize_inputs: bool | Literal["auto"] = "auto"
     paired_best: bool = False
     best_pool: int = 4
@@ -144,6 +147,11 @@ class CognetWeightsSection:
             v = getattr(self, name)
             require(v == "auto" or v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
+        require(
+            0 < self.vote_sharpness <= 1e4,
+            "algorithm.vote_sharpness",
+            f"in (0, 1e4], got {self.vote_sharpness}",
+        )
         require(
             self.best_pool == 0 or 2 <= self.best_pool <= 64,
             "algorithm.best_pool",
