@@ -361,7 +361,7 @@ def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it
     assert config_from_dict(data).algorithm.paired_best
 
 
-@pytest.mark.parametrize("standardize", [False, True, "tied-votes", "sharp"])
+@pytest.mark.parametrize("standardize", [False, True, "tied-votes", "sharp", "kept-sharp"])
 def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standardize):
     """The refine phase's distribution around a policy (``centered_distribution``): its mode
     runs exactly the policy (tied and untied draws, raw and standardised inputs, votes scaled),
@@ -370,6 +370,8 @@ def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standard
         alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0)
     elif standardize == "sharp":  # every vote x 10 (and the tied default votes x 10 more)
         alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0, vote_sharpness=10.0)
+    elif standardize == "kept-sharp":  # the kept policy's votes x 100
+        alg, _ = small_algorithm(refine_scale=0.2, vote_sharpness=10.0, kept_sharpness=100.0)
     elif standardize:
         alg = heatmap_algorithm(standardize_inputs=True, hidden=5, refine_scale=0.2)
     else:
@@ -385,9 +387,9 @@ def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standard
         )
         samples = alg.draw(jax.random.key(3), dist, 2)
         for c in range(2):
-            policy = alg.to_policy(jax.tree.map(lambda x: x[c], samples))  # noqa: B023
+            policy = alg.kept_policy(jax.tree.map(lambda x: x[c], samples))  # noqa: B023
             centred = alg.centered_distribution(policy)
-            back = alg.to_policy(alg.mode(centred))
+            back = alg.kept_policy(alg.mode(centred))
             for got, want in zip(jax.tree.leaves(back), jax.tree.leaves(policy)):
                 np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-4)
             assert np.asarray(jnp.argmax(centred.node_tie_probs, -1)).tolist() == [int(mix)] * 2

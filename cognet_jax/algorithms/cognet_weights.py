@@ -348,6 +348,19 @@ class CognetWeights(NeuralSearch):
             net_params=params,
         )
 
+    def kept_policy(self, sample: WeightSample) -> NeuralPolicy:
+        """The policy of ``sample`` as the anytime best may keep it: ``to_policy`` with its
+        votes times ``kept_sharpness`` (the controller handed back picks the argmax next
+        node where the candidates' softmax still draws near a threshold; the same policy
+        otherwise)."""
+        policy = self.to_policy(sample)
+        k = self.settings.kept_sharpness
+        if k == 1.0:
+            return policy
+        layers = policy.net_params["params"]
+        out = {name: value * k for name, value in layers["Dense_1"].items()}
+        return policy.replace(net_params={"params": {**layers, "Dense_1": out}})
+
     def tied_scale(self, node_tie: jax.Array) -> jax.Array:
         """``[..., agents, 1]``: the factor of each agent's default votes, ``tied_vote_scale``
         where its nodes are tied (``node_tie [..., agents]`` 1), else 1."""
@@ -374,7 +387,7 @@ class CognetWeights(NeuralSearch):
         """Initial state; its ``best_policy`` is one draw of the initial distribution."""
         searches = jnp.int32(0) if self.settings.vote_alternate else None
         dist = self.search_distribution(searches)
-        first = self.to_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
+        first = self.kept_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
         size = pool_size(self.settings)
         return WeightsState(
             distribution=dist,
@@ -435,8 +448,8 @@ class CognetWeights(NeuralSearch):
         elites = jax.tree.map(lambda x: x[elite_idx], samples)
         dist = self.update_distribution(state.distribution, elites, hyper)
 
-        winner = self.to_policy(jax.tree.map(lambda x: x[0], elites))
-        mode = self.to_policy(self.mode(dist))
+        winner = self.kept_policy(jax.tree.map(lambda x: x[0], elites))
+        mode = self.kept_policy(self.mode(dist))
         stack = lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
         pool = state.pool
         if pool is not None:  # winner, mode and the pool's members on the same fresh rollouts
@@ -534,10 +547,9 @@ class CognetWeights(NeuralSearch):
             layers["Dense_1"]["bias"],
             policy.action_probs,
         )
-        if s.vote_sharpness != 1.0:  # the draws of its votes, before the factors
-            sample = sample.replace(
-                m=sample.m / s.vote_sharpness, bias=sample.bias / s.vote_sharpness
-            )
+        factor = s.vote_sharpness * s.kept_sharpness
+        if factor != 1.0:  # the draws of its votes, before the factors
+            sample = sample.replace(m=sample.m / factor, bias=sample.bias / factor)
         if s.tied_vote_scale != 1.0:
             sample = sample.replace(bias=sample.bias / self.tied_scale(sample.node_tie))
         return centered(

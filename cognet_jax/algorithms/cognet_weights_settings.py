@@ -55,7 +55,8 @@ class CognetWeightsSection:
     draw their nodes' actions without repeats until every action has a node
     (``weight_space.distinct_draw``; "auto": ``covers_rarely``); ``vote_sharpness``
     multiplies every vote of the policies the search runs (the softmax over next nodes is
-    that much sharper, the argmax the same). The hidden width is ``network.hidden``."""
+    that much sharper, the argmax the same), ``kept_sharpness`` those of the policies the
+    anytime best keeps only. The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -78,6 +79,7 @@ class CognetWeightsSection:
     vote_restart_tol: float = 0.0
     tied_vote_scale: float = 1.0
     vote_sharpness: float = 1.0
+    kept_sharpness: float = 1.0
     standardize_inputs: bool | Literal["auto"] = "auto"
     paired_best: bool = False
     best_pool: int = 4
@@ -147,11 +149,9 @@ class CognetWeightsSection:
             v = getattr(self, name)
             require(v == "auto" or v >= 0, f"algorithm.{name}", f"must be >= 0, got {v}")
         require(self.init_scale > 0, "algorithm.init_scale", "must be > 0")
-        require(
-            0 < self.vote_sharpness <= 1e4,
-            "algorithm.vote_sharpness",
-            f"in (0, 1e4], got {self.vote_sharpness}",
-        )
+        for name in ("vote_sharpness", "kept_sharpness"):
+            v = getattr(self, name)
+            require(0 < v <= 1e4, f"algorithm.{name}", f"in (0, 1e4], got {v}")
         require(
             self.best_pool == 0 or 2 <= self.best_pool <= 64,
             "algorithm.best_pool",
