@@ -365,7 +365,11 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 #: per algorithm, fields added after configs were written whose default changes the search they
 #: were added to, with the value that keeps it: a stored config (a checkpoint's, a results.json)
 #: that did not write one resumes and evaluates as it ran (``with_added_fields``)
-ADDED_FIELDS = {"cognet-dice": {"algorithm": {"distinct_actions": False}}}
+ADDED_FIELDS = {
+    "cognet-dice": {
+        "algorithm": {"distinct_actions": False, "refine_redraw": 0.0, "kept_sharpness": 1.0}
+    }
+}
 
 
 def with_added_fields(data: dict) -> dict:

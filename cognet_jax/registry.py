@@ -68,7 +68,7 @@ BUILTIN_ENVS = {
 }
 #: built-in algorithm name -> the module that registers it
 BUILTIN_ALGORITHMS = {
-    "cognet-dice": "cognet_jax.algorithms.cognet_weights",
+    "cognet-dice": "cognet_jax.algorithms.cognet_weights_entry",
     "cognet-dice-thesis": "cognet_jax.algorithms.cognet_thesis",
     "gdice": "cognet_jax.algorithms.gdice",
     "cogdice": "cognet_jax.algorithms.cogdice",

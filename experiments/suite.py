@@ -703,13 +703,101 @@ def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with the fields of ``BEFORE_RULE`` it does not set, on an
     experiment that leaves the search to the defaults: the command that reproduces a row
     measured before the horizon rule."""
-    if experiment in PINNED or name in AFTER_RULE:
+    if experiment in PINNED or name in AFTER_RULE or name in AFTER_REDRAW:
         return overrides
     return replaced(BEFORE_RULE, overrides)
 
 
+#: the refine phase's redrawn units and the kept policies' sharper votes as they were before
+#: they became defaults: every row measured before pins them (``before_redraw``)
+BEFORE_REDRAW = ["algorithm.refine_redraw=0.0", "algorithm.kept_sharpness=1.0"]
+#: the library's defaults on the experiments that pin the search (their TOMLs pin
+#: ``kept_sharpness = 1``): ``NEW`` with the kept policies' sharper votes
+NEWEST = [*NEW, "algorithm.kept_sharpness=10"]
+#: rows of the sweeps that chose them (this session's); ``cognet-ROW`` rows are the defaults
+AFTER_REDRAW = {
+    "bearing-chase-redraw-only": (
+        "bearing-chase-n5",
+        ["algorithm.kept_sharpness=1.0"],
+        SEEDS,
+        "candidate: the refine phase with refine_redraw 0.5 alone (kept policies as they were)",
+        "cognet-bearing-chase-before-redraw",
+    ),
+    "tagging-thesis-n3-sharp10": (
+        "tagging-thesis-n3",
+        [*NEW, "algorithm.refine_redraw=0.0", "algorithm.vote_sharpness=10"],
+        SEEDS,
+        "candidate: every candidate's votes x 10 (vote_sharpness), no redrawn units",
+        "tagging-thesis-n3-defaults",
+    ),
+    "tagging-thesis-n3-kept10": (
+        "tagging-thesis-n3",
+        [*NEW, "algorithm.refine_redraw=0.0", "algorithm.kept_sharpness=10"],
+        SEEDS,
+        "candidate: the kept policies' votes x 10 (kept_sharpness), no redrawn units",
+        "tagging-thesis-n3-defaults",
+    ),
+    **{
+        f"paper-budget-1of64-{suffix}": (
+            "tagging-paper-auto",
+            ["algorithm.budget=4.6875e9", "run.probe_seconds=10", *replaced(BEFORE_REDRAW, extra)],
+            3,
+            f"1/64 of the paper's budget, {what}",
+            "paper-budget-1of64-now",
+        )
+        for suffix, extra, what in (
+            ("levels3", ["algorithm.refine_levels=3"], "candidate: refine_levels 3"),
+            ("sharp10", ["algorithm.vote_sharpness=10"], "candidate: vote_sharpness 10"),
+            ("kept10", ["algorithm.kept_sharpness=10"], "candidate: kept_sharpness 10"),
+        )
+    },
+    **{
+        f"{experiment}-defaults-now": (experiment, [*NEWEST, *paired], SEEDS, what, experiment)
+        for experiment, paired in (
+            ("tagging-thesis-n3", []),
+            ("tagging-thesis-n6", []),
+            ("heatmap-2d-n4", UNPAIRED),
+        )
+        for what in ("the library's defaults (with refine_redraw and kept_sharpness)",)
+    },
+    **{
+        f"paper-budget-{frac}-redraw": (
+            "tagging-paper-auto",
+            [f"algorithm.budget={budget}", "run.probe_seconds=10"],
+            3,
+            f"{what} of the paper's 3e11 agent-steps under the defaults with refine_redraw and "
+            "kept_sharpness",
+            f"paper-budget-{frac}-now",
+        )
+        for frac, budget, what in (("1of64", "4.6875e9", "1/64"), ("1of8", "3.75e10", "1/8"))
+    },
+    **{
+        f"cognet-{row}-before-redraw": (
+            experiment,
+            [],
+            SEEDS,
+            "the defaults before refine_redraw and kept_sharpness",
+            None,
+        )
+        for row, (experiment, _) in ROWS.items()
+    },
+}
+
+
+def before_redraw(name: str, overrides: list[str]) -> list[str]:
+    """``overrides`` of row ``name`` with ``BEFORE_REDRAW``'s fields it does not set, for the
+    rows measured before those fields became defaults."""
+    if name in AFTER_REDRAW and not name.endswith("-before-redraw"):
+        return overrides
+    return replaced(BEFORE_REDRAW, overrides)
+
+
 EXTRA = {
     name: (experiment, before_rule(name, experiment, overrides), *rest)
+    for name, (experiment, overrides, *rest) in {**EXTRA, **AFTER_REDRAW}.items()
+}
+EXTRA = {
+    name: (experiment, before_redraw(name, overrides), *rest)
     for name, (experiment, overrides, *rest) in EXTRA.items()
 }
 
@@ -770,7 +858,11 @@ def _search_cell(path: Path, hand: float | None) -> str:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
         verdict = " (holds)" if ok else " (**below**)"
     before_cell = ""
-    for suffix, what in (("-before-rule", "the horizon rule"), ("-before-distinct", "distinct")):
+    for suffix, what in (
+        ("-before-rule", "the horizon rule"),
+        ("-before-distinct", "distinct"),
+        ("-before-redraw", "redraw"),
+    ):
         before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
         if before:
             before_cell += f"; before {what} {sum(before) / len(before):.3f}"

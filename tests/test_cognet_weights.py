@@ -7,15 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cognet_jax.algorithms.cognet_weights import (
-    CognetWeights,
-    WeightsHyper,
-    WeightsSettings,
-    input_statistics,
-)
+from cognet_jax.algorithms.cognet_weights import CognetWeights
 from cognet_jax.algorithms.cognet_weights_settings import (
     SEARCH_LONG_HORIZON,
     SEARCH_SHORT_HORIZON,
+    WeightsHyper,
+    WeightsSettings,
     cover_probability,
     covers_rarely,
     narrow_inputs,
@@ -25,6 +22,7 @@ from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw, repr
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
 from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
+from cognet_jax.observations import input_statistics
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import load_config
 
@@ -165,7 +163,7 @@ def test_thesis_algorithm_keeps_its_own_name():
 
 def heatmap_algorithm(**kw):
     """The weight search on the heatmap; with ``standardize_inputs`` the input statistics of
-    the default params (as ``cognet_weights.build`` computes them)."""
+    the default params (as ``cognet_weights_entry.build`` computes them)."""
     from cognet_jax.envs.heatmap import make_heatmap
 
     env, env_params = make_heatmap("default")
@@ -281,7 +279,8 @@ def reactive_tagging_policy(alg):
 
 
 def test_auto_sizes_grow_with_the_budget_and_keep_given_settings():
-    from cognet_jax.algorithms.cognet_weights import CognetWeightsSection, sized
+    from cognet_jax.algorithms.cognet_weights_settings import CognetWeightsSection
+    from cognet_jax.algorithms.sizing import sized
     from cognet_jax.envs.tagging import make_tagging
 
     env, _ = make_tagging("cogdice-paper")
@@ -348,7 +347,7 @@ def test_a_converged_distribution_restarts_and_the_best_policy_stays():
 def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it():
     """results.json configs of paired-best runs have no ``best_pool``: the default pool must
     not make them invalid or change their search (``paired_best`` replaces the pool)."""
-    from cognet_jax.algorithms.cognet_weights import pool_size, rollouts_per_iteration
+    from cognet_jax.algorithms.cognet_weights_settings import pool_size, rollouts_per_iteration
 
     alg, params = small_algorithm(paired_best=True, best_rollouts=200, elites=2)
     assert pool_size(alg.settings) == 0 and alg.init(jax.random.key(0), params).pool is None
@@ -650,7 +649,7 @@ def test_refine_redraw_changes_one_unit_of_the_network_a_candidate_runs():
     network -- node 0's where that agent's nodes are tied -- and in nothing else; with the
     share at 0 the draws are those of before, and the exploring distribution redraws none."""
     alg, params = small_algorithm(refine=0.5, refine_redraw=1.0, distinct_actions=False)
-    plain, _ = small_algorithm(refine=0.5, distinct_actions=False)
+    plain, _ = small_algorithm(refine=0.5, refine_redraw=0.0, distinct_actions=False)
     assert alg.init_distribution().redraw is not None
     assert plain.init_distribution().redraw is None
     state = alg.init(jax.random.key(0), params)
@@ -694,3 +693,12 @@ def test_sharper_votes_run_the_same_argmax_with_every_vote_scaled():
     np.testing.assert_array_equal(a.action_probs, b.action_probs)
     for name in ("kernel", "bias"):
         np.testing.assert_allclose(10.0 * la["Dense_1"][name], lb["Dense_1"][name], rtol=1e-6)
+
+
+def test_refine_redraw_auto_redraws_units_on_scalar_observations_only():
+    from cognet_jax.algorithms.cognet_weights_settings import REDRAW_SCALAR, redraw_share
+
+    assert redraw_share(()) == REDRAW_SCALAR and redraw_share((1,)) == REDRAW_SCALAR
+    assert redraw_share((2,)) == 0.0 and redraw_share((9,)) == 0.0
+    alg, _ = small_algorithm(refine=0.25)  # tagging: a scalar observation
+    assert alg.settings.refine_redraw == REDRAW_SCALAR

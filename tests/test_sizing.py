@@ -46,7 +46,7 @@ def _env():
 
 @pytest.mark.parametrize("noise", [None, Noise(1.0, 1.0), Noise(10.0, 1.0), Noise(0.1, 1.0)])
 def test_every_size_grows_with_the_budget_and_the_budget_is_spent(noise):
-    from cognet_jax.algorithms.cognet_weights import CognetWeightsSection
+    from cognet_jax.algorithms.cognet_weights_settings import CognetWeightsSection
 
     env = _env()
     per_rollout = env.horizon * env.num_agents
@@ -69,7 +69,7 @@ def test_every_size_grows_with_the_budget_and_the_budget_is_spent(noise):
 def test_noise_only_moves_the_budget_from_rollouts_to_candidates():
     """A quiet simulator (few rollouts tell candidates apart) gets a larger population with
     fewer rollouts each; a noisy one the budget's own split, never fewer iterations."""
-    from cognet_jax.algorithms.cognet_weights import CognetWeightsSection
+    from cognet_jax.algorithms.cognet_weights_settings import CognetWeightsSection
 
     env = _env()
     section = CognetWeightsSection(budget=1e10)

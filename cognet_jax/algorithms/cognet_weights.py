@@ -77,6 +77,22 @@ show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
+**Redrawn units** (``refine_redraw``, **[choice]**, 0.5): in the refine phase that share of
+the candidates redraws one hidden unit (input weights, bias, target node, vote) from the
+initial distribution (``weight_space.redraw_unit``). Narrow Gaussians around the kept policy
+tune its thresholds but cannot add a region it lacks; most of a converged controller's units
+have no say, and a broad redraw of one of them can give it one (the chase's "step back along
+x" at both ends of the bearing's range: 8-seed sweeps in experiments/NOTES.md).
+``refine_levels`` (1) would restart the refine phase at finer and finer spreads; it changed
+nothing where measured (the refine phase rarely converges).
+
+**Kept policies decide** (``kept_sharpness``, **[choice]**, 10): the policies the anytime
+best keeps (winner, mode, pool) have their votes multiplied, so the controller handed back
+takes the argmax next node where a candidate's softmax still draws near a threshold (about
+a tenth of an observation unit): the thresholds a hand-written controller puts exactly at an
+integer distance (tagging's paper setting) then hold. ``vote_sharpness`` does the same for
+every candidate (off: it changes the search's landscape, experiments/NOTES.md).
+
 **Input standardisation** (``standardize_inputs``, **[choice]**, "auto" by default: on where
 the inputs are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
@@ -130,22 +146,17 @@ from flax import struct
 
 from cognet_jax.algorithms.best_pool import BestPool, race
 from cognet_jax.algorithms.cognet_weights_settings import (
-    CognetWeightsSection,
     WeightsHyper,
-    WeightsSettings,
     fresh_start,
-    minutes_to_budget,
     pool_size,
     refine_start,
     resolve_search,
-    resolve_standardize,
     rollouts_per_iteration,
 )
 from cognet_jax.algorithms.cross_entropy import Progress, select_tree
 from cognet_jax.algorithms.engine import SearchParams, streams
 from cognet_jax.algorithms.neural_search import NeuralSearch
-from cognet_jax.algorithms.noise_pilot import measure_noise_cached
-from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
+from cognet_jax.algorithms.sizing import sized
 from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
     WeightSample,
@@ -161,12 +172,9 @@ from cognet_jax.controllers.base import action_support, sample_categorical, unif
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.observations import (
     ObservationPipeline,
-    build_pipeline,
-    input_statistics,
     neural_controller,
 )
 from cognet_jax.prng import fast_key
-from cognet_jax.registry import env_description, fields_from, register_algorithm
 
 #: the stream of the ``distinct_actions`` flags: the iteration's key folded with this number
 #: (with partitionable threefry, folding with ``i`` gives ``split(key, n)[i]``: a small number
@@ -575,68 +583,3 @@ class CognetWeights(NeuralSearch):
             tol = jnp.where(self.voting_search(searches), s.vote_restart_tol, tol)
         tol = jnp.where(refining, s.refine_tol * self.refine_scale_at(level), tol)
         return jnp.mean(dist.w1_std) < tol * initial
-
-
-# ---------------------------------------------------------------------------------------------
-# the registry entry: config -> algorithm, hyper-parameters
-# ---------------------------------------------------------------------------------------------
-def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
-    """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
-    ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics are those of
-    ``env_params`` (``input_statistics``)."""
-    settings = fields_from(WeightsSettings, config.algorithm, config.network)
-    pipeline, controller = neural_controller(
-        env, settings.nodes, settings.hidden, build_pipeline(config, env)
-    )
-    if settings.standardize_inputs == "auto":  # not resolved: a config made in code
-        decided = resolve_standardize(config, env, env_params).standardize_inputs
-        settings = dataclasses.replace(settings, standardize_inputs=decided)
-    stats = None
-    if settings.standardize_inputs:
-        stats = input_statistics(env, controller, pipeline, env_params, memory)
-    return CognetWeights(env, settings, memory, pipeline, stats)
-
-
-def resolve(config, env, env_params) -> CognetWeightsSection:
-    """``config.algorithm`` with its "auto" sizes filled in (``sizing.sized``). When
-    ``eval_rollouts`` is "auto", the sizes read the simulator's noise under the initial
-    distribution (``noise_pilot``, measured once per simulator and distribution in a process),
-    so rollouts per candidate follow what tells candidates apart on this simulator. With
-    ``budget_minutes`` the budget is those minutes at the pilot's measured rate
-    (``minutes_to_budget``)."""
-    config = dataclasses.replace(config, algorithm=resolve_search(config.algorithm, env))
-    section = resolve_standardize(config, env, env_params)
-    config = dataclasses.replace(config, algorithm=section)
-    minutes = section.budget_minutes > 0
-    if section.eval_rollouts != "auto" and not minutes:
-        return sized(section, env)
-    shown = {
-        k: v
-        for k, v in dataclasses.asdict(section).items()
-        if k not in (*SIZE_FIELDS, "budget", "budget_minutes")
-    }
-    network = dataclasses.asdict(config.network) if config.network is not None else None
-    noise = measure_noise_cached(
-        [env_description(config), shown, network],
-        lambda: (build(config, env, env_params), env_params),
-    )
-    if minutes:
-        section = minutes_to_budget(section, noise)
-    return sized(section, env, noise if section.eval_rollouts == "auto" else None)
-
-
-def hyper(config) -> WeightsHyper:
-    """The dynamic hyper-parameters of ``config.algorithm``."""
-    return fields_from(WeightsHyper, config.algorithm)
-
-
-register_algorithm(
-    "cognet-dice",
-    CognetWeightsSection,
-    build,
-    hyper,
-    dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
-    reads=("network",),
-    overwrite=False,
-    resolve=resolve,
-)

@@ -1,0 +1,84 @@
+"""The registry entry of the default ``cognet-dice`` (the search: ``algorithms.cognet_weights``):
+config -> search (``build``), the "auto" settings decided before a run (``resolve``: the
+horizon rule, input standardisation, the noise pilot's sizes, a budget in minutes) and the
+dynamic hyper-parameters (``hyper``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from cognet_jax.algorithms.cognet_weights import CognetWeights
+from cognet_jax.algorithms.cognet_weights_settings import (
+    CognetWeightsSection,
+    WeightsHyper,
+    WeightsSettings,
+    minutes_to_budget,
+    resolve_search,
+    resolve_standardize,
+)
+from cognet_jax.algorithms.noise_pilot import measure_noise_cached
+from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
+from cognet_jax.observations import build_pipeline, input_statistics, neural_controller
+from cognet_jax.registry import env_description, fields_from, register_algorithm
+
+
+def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
+    """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
+    ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics are those of
+    ``env_params`` (``input_statistics``)."""
+    settings = fields_from(WeightsSettings, config.algorithm, config.network)
+    pipeline, controller = neural_controller(
+        env, settings.nodes, settings.hidden, build_pipeline(config, env)
+    )
+    if settings.standardize_inputs == "auto":  # not resolved: a config made in code
+        decided = resolve_standardize(config, env, env_params).standardize_inputs
+        settings = dataclasses.replace(settings, standardize_inputs=decided)
+    stats = None
+    if settings.standardize_inputs:
+        stats = input_statistics(env, controller, pipeline, env_params, memory)
+    return CognetWeights(env, settings, memory, pipeline, stats)
+
+
+def resolve(config, env, env_params) -> CognetWeightsSection:
+    """``config.algorithm`` with its "auto" sizes filled in (``sizing.sized``). When
+    ``eval_rollouts`` is "auto", the sizes read the simulator's noise under the initial
+    distribution (``noise_pilot``, measured once per simulator and distribution in a process),
+    so rollouts per candidate follow what tells candidates apart on this simulator. With
+    ``budget_minutes`` the budget is those minutes at the pilot's measured rate
+    (``minutes_to_budget``)."""
+    config = dataclasses.replace(config, algorithm=resolve_search(config.algorithm, env))
+    section = resolve_standardize(config, env, env_params)
+    config = dataclasses.replace(config, algorithm=section)
+    minutes = section.budget_minutes > 0
+    if section.eval_rollouts != "auto" and not minutes:
+        return sized(section, env)
+    shown = {
+        k: v
+        for k, v in dataclasses.asdict(section).items()
+        if k not in (*SIZE_FIELDS, "budget", "budget_minutes")
+    }
+    network = dataclasses.asdict(config.network) if config.network is not None else None
+    noise = measure_noise_cached(
+        [env_description(config), shown, network],
+        lambda: (build(config, env, env_params), env_params),
+    )
+    if minutes:
+        section = minutes_to_budget(section, noise)
+    return sized(section, env, noise if section.eval_rollouts == "auto" else None)
+
+
+def hyper(config) -> WeightsHyper:
+    """The dynamic hyper-parameters of ``config.algorithm``."""
+    return fields_from(WeightsHyper, config.algorithm)
+
+
+register_algorithm(
+    "cognet-dice",
+    CognetWeightsSection,
+    build,
+    hyper,
+    dynamic=("algorithm.alpha", "algorithm.action_floor", "algorithm.category_floor"),
+    reads=("network",),
+    overwrite=False,
+    resolve=resolve,
+)
