@@ -53,6 +53,7 @@ from cognet_jax.errors import InputError, OneLineWarning, UsageError, callback_f
 from cognet_jax.hosts import (
     backend_error,
     check_jax_settings,
+    check_xla_flags,
     init_distributed,
     set_cpu_devices,
 )
@@ -545,6 +546,7 @@ def main(argv: list[str] | None = None) -> int:
             _after_imports(args.imports)
         if args.command not in ("list", "inspect"):
             check_jax_settings()
+            check_xla_flags()
         if args.command in ("train", "sweep", "evaluate"):
             use_compile_cache(args)
         return {

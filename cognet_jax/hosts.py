@@ -5,6 +5,7 @@ devices."""
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 
@@ -120,6 +121,26 @@ def check_jax_settings() -> None:
             f"JAX_NUMPY_RANK_PROMOTION={jax.config.jax_numpy_rank_promotion}: cognet-jax "
             "broadcasts arrays of different ranks; unset it (or set 'allow')"
         )
+
+
+def check_xla_flags() -> None:
+    """``UsageError`` when XLA refuses the environment's ``XLA_FLAGS`` (an unknown flag):
+    XLA aborts the process that starts a backend with them, so a child process starts one
+    first and its last line is the report. Nothing is started without ``XLA_FLAGS``."""
+    flags = os.environ.get("XLA_FLAGS", "").strip()
+    if not flags:
+        return
+    probe = [sys.executable, "-c", "import jax; jax.devices()"]
+    try:
+        done = subprocess.run(probe, capture_output=True, text=True, timeout=300)
+    except (OSError, subprocess.TimeoutExpired):
+        return  # no verdict: the command itself will tell
+    if done.returncode == 0:
+        return
+    lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
+    said = next((line for line in lines if "XLA_FLAGS" in line), lines[-1] if lines else "")
+    said = said.split("] ", 1)[-1]  # without XLA's log prefix
+    raise UsageError(f"XLA_FLAGS={flags!r}: XLA refuses it ({said})")
 
 
 def backend_error(failed: BaseException | None = None) -> str | None:

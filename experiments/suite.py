@@ -723,6 +723,14 @@ AFTER_REDRAW = {
         "candidate: the refine phase with refine_redraw 0.5 alone (kept policies as they were)",
         "cognet-bearing-chase-before-redraw",
     ),
+    "plume-redraw-kept10": (
+        "plume-n5",
+        ["algorithm.refine_redraw=0.5"],
+        SEEDS,
+        "candidate: refine_redraw 0.5 on the 3 x 3 patch (the rule's 'auto' gives 0 there), "
+        "kept_sharpness 10",
+        "cognet-plume-before-redraw",
+    ),
     "tagging-thesis-n3-sharp10": (
         "tagging-thesis-n3",
         [*NEW, "algorithm.refine_redraw=0.0", "algorithm.vote_sharpness=10"],
@@ -948,6 +956,11 @@ def table() -> list[str]:
             if h["bound"]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
+        earlier = RESULTS / f"cognet-{row}-before-redraw" / "runs.json"
+        if cognet == "not run" and earlier.is_file():  # not swept under the defaults of now
+            cognet = "not yet re-run under refine_redraw and kept_sharpness; before them: " + (
+                _search_cell(earlier, hand)
+            )
         cogdice = _search_cell(RESULTS / f"cogdice-{row}" / "runs.json", hand)
         name = Path(experiment).name if row in IMPORTS else experiment
         rows.append(
@@ -988,7 +1001,13 @@ d3ca24d, drew the flags on the stream of the hidden weights: every row here ran 
 code, except plume-refine-half). The COG-DICE column
 runs COG-DICE's defaults (`--set experiment.algorithm=cogdice`, `python experiments/suite.py
 cogdice ROW`) on the rows with a scalar observation; its Dec-Tiger sweep shared the machine with
-another sweep and the test suite for most of its hour, so its wall time is an upper bound."""
+another sweep and the test suite for most of its hour, so its wall time is an upper bound.
+The defaults of now also keep policies with their votes x 10 (`kept_sharpness`: the argmax
+next node) and, on scalar observations, let half of the refine phase's candidates redraw one
+hidden unit from the initial distribution (`refine_redraw` "auto", `redraw_share` in
+cognet_jax/algorithms/cognet_weights_settings.py); "before redraw" gives the 8-seed mean of the
+defaults before both (rows "-before-redraw" of the next table, the sweeps of this table's
+earlier version)."""
 
 
 EXTRA_NOTES = """\

@@ -342,3 +342,24 @@ def test_a_failed_command_keeps_only_what_can_be_continued(tmp_path):
     assert not _worth_keeping(out)
     (out / "runs" / "setting0-seed0" / "results.json").write_text("{}")
     assert _worth_keeping(out)
+
+
+def test_xla_flags_xla_refuses_are_one_line_not_an_abort():
+    """An unknown flag in ``XLA_FLAGS`` makes XLA abort the process that starts a backend:
+    the command says so in one line (exit 2) instead."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "XLA_FLAGS": "--xla_no_such_flag=1"}
+    done = subprocess.run(
+        [sys.executable, "-m", "cognet_jax", "check", "tagging-thesis-n3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: XLA_FLAGS='--xla_no_such_flag=1'")
+    assert "xla_no_such_flag" in lines[0].split("refuses it")[1]
