@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from pathlib import Path
 
 import jax
@@ -31,7 +32,13 @@ from cognet_jax.checkpoint import (
     stack_history,
 )
 from cognet_jax.config import Config, with_added_fields
-from cognet_jax.errors import CorruptFileError, MismatchError, UsageError
+from cognet_jax.errors import (
+    CorruptFileError,
+    MismatchError,
+    OneLineWarning,
+    UsageError,
+)
+from cognet_jax.plugins import one_line
 from cognet_jax.program import Program, Run, file_digest
 from cognet_jax.registry import (
     env_entry,
@@ -275,4 +282,12 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
         record["run_files"] = kept
     atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
     if plots and record.get("status") == "complete":
-        write_plots(run.config, algorithm, policy, record, run.folder)
+        try:
+            write_plots(run.config, algorithm, policy, record, run.folder)
+        except OSError as err:  # the run's results stand; figures of a run replaced go
+            warnings.warn(  # (``run_folder.claim``), so no older figure stays beside them
+                f"{run.folder}: the figures could not be written ({one_line(err)}); the run's "
+                "results are saved",
+                OneLineWarning,
+                stacklevel=2,
+            )

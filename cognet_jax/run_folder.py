@@ -160,6 +160,8 @@ def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
     (``STALE_FILES``, its policy and checkpoint, a sweep's ``runs/setting*`` and group states),
     with their modification times."""
     paths = [out / n for n in (*STALE_FILES, "policy.msgpack", "checkpoint.msgpack")]
+    # its figures: a run that writes none (or fails to) leaves none of the old run's behind
+    paths += [p for p in sorted(out.glob("*.png")) if p.is_file() and not p.is_symlink()]
     # a sweep's run folders and state, whatever replaces it: a `train` written over a sweep
     # leaves no sweep for `sweep --resume` to continue over the new run
     # (a run folder: one that holds a run's files; a folder of the user's own there stays)

@@ -417,3 +417,27 @@ def test_a_folder_of_the_users_among_a_sweeps_run_folders_survives_overwrite(tmp
     assert cli.main([*argv, "--overwrite", "--set", "env.obs_noise=0.5"]) == 0
     assert (mine / "mine.txt").read_text() == "notes"
     assert (out / "runs" / "setting0-seed0" / "results.json").is_file()
+
+
+def test_figures_of_a_replaced_run_never_stay_beside_another_runs_results(tmp_path, capsys):
+    """``--overwrite`` by a run without figures removes the old run's; a figure that cannot be
+    written is one warning line, the run's results are saved, and no old figure stays."""
+    out = tmp_path / "run"
+    with_plots = [*TINY_TRAIN, "--set", "run.plots=true"]  # the later setting holds
+    assert cli.main(["train", "--out", str(out), *with_plots]) == 0
+    old = sorted(p.name for p in out.glob("*.png"))
+    assert "values.png" in old and len(old) > 1
+    (out / "values.png").unlink()
+    (out / "values.png").mkdir()  # the first figure cannot be written
+    capsys.readouterr()
+    argv = ["train", "--out", str(out), "--seed", "1", "--overwrite", *TINY_TRAIN]
+    assert cli.main([*argv, "--set", "run.plots=true"]) == 0
+    err = capsys.readouterr().err
+    assert "figures could not be written" in err and "results are saved" in err
+    assert json.loads((out / "results.json").read_text())["seed"] == 1
+    assert [p.name for p in out.glob("*.png") if p.is_file()] == []  # no old figure
+    assert (out / "values.png").is_dir()  # a folder of the user's is not removed
+    (out / "values.png").rmdir()
+    assert cli.main([*argv, "--set", "run.plots=true", "--seed", "2"]) == 0
+    assert cli.main([*argv, "--set", "run.plots=false", "--seed", "3"]) == 0
+    assert list(out.glob("*.png")) == []
