@@ -702,3 +702,28 @@ def test_refine_redraw_auto_redraws_units_on_scalar_observations_only():
     assert redraw_share((2,)) == 0.0 and redraw_share((9,)) == 0.0
     alg, _ = small_algorithm(refine=0.25)  # tagging: a scalar observation
     assert alg.settings.refine_redraw == REDRAW_SCALAR
+
+
+def test_refine_levels_split_the_refine_phase_coarse_to_fine():
+    """``refine_levels = 2`` with 4 of 8 iterations refining: the step that ends iteration 4
+    centres on the kept policy at ``refine_scale`` of the initial spreads, the one that ends
+    iteration 6 at ``refine_tol`` of that."""
+    alg, params = small_algorithm(
+        iterations=8,
+        refine=0.5,
+        refine_levels=2,
+        refine_scale=0.2,
+        refine_tol=0.1,
+        restart_tol=0.0,
+    )
+    init = alg.init_distribution()
+    step = jax.jit(alg.step)
+    state = alg.init(jax.random.key(0), params)
+    spreads = []
+    for k in range(6):
+        state, _ = step(jax.random.key(k + 1), state, params)
+        spreads.append(float(state.distribution.b1_std.mean() / init.b1_std.mean()))
+    assert spreads[3] == pytest.approx(0.2, rel=1e-5)  # after iteration 4: level 0
+    assert spreads[4] != pytest.approx(0.2, rel=1e-3)  # refit within the level
+    assert spreads[5] == pytest.approx(0.02, rel=1e-5)  # after iteration 6: level 1
+    assert [int(alg.refine_level(jnp.int32(d))) for d in range(3, 9)] == [0, 0, 0, 1, 1, 1]

@@ -83,8 +83,8 @@ initial distribution (``weight_space.redraw_unit``). Narrow Gaussians around the
 tune its thresholds but cannot add a region it lacks; most of a converged controller's units
 have no say, and a broad redraw of one of them can give it one (the chase's "step back along
 x" at both ends of the bearing's range: 8-seed sweeps in experiments/NOTES.md).
-``refine_levels`` (1) would restart the refine phase at finer and finer spreads; it changed
-nothing where measured (the refine phase rarely converges).
+``refine_levels`` (1) splits the refine phase into that many parts, each centred on the kept
+policy at ``refine_tol`` of the spread of the one before (coarse to fine).
 
 **Kept policies decide** (``kept_sharpness``, **[choice]**, 10): the policies the anytime
 best keeps (winner, mode, pool) have their votes multiplied, so the controller handed back
@@ -191,8 +191,6 @@ class WeightsState:
     progress: Progress
     pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
     searches: jax.Array | None = None  # [] int32 restarts so far (``vote_alternate``)
-    refines: jax.Array | None = None  # [] int32 starts of the refine phase so far
-    # (``refine_levels`` > 1)
 
 
 @struct.dataclass
@@ -403,7 +401,6 @@ class CognetWeights(NeuralSearch):
             progress=Progress.create(1),
             pool=BestPool.create(first, size) if size else None,
             searches=searches,
-            refines=jnp.int32(0) if self.settings.refine_levels > 1 else None,
         )
 
     def search_distribution(self, searches) -> WeightDistribution:
@@ -487,9 +484,9 @@ class CognetWeights(NeuralSearch):
             pool = race(pool, fresh[2:], candidate, value)
             best_policy = pool.member(pool.best())
             progress = progress.replace(best_value=pool.means()[pool.best()])
-        start = refine_start(s)
-        level = self.refine_level(state.refines)
-        converged = self.converged(dist, progress.iteration > start, state.searches, level)
+        start, done = refine_start(s), progress.iteration
+        level = self.refine_level(done - 1)  # the level of the distribution just refit
+        converged = self.converged(dist, done > start, state.searches, level)
         metrics = WeightsMetrics(
             value=value,
             best_value=progress.best_value,
@@ -507,24 +504,26 @@ class CognetWeights(NeuralSearch):
             searches = searches + restart.astype(jnp.int32)
         if s.restart_tol > 0 or s.starts > 1:  # afresh; the anytime best stays
             dist = select_tree(restart, self.search_distribution(searches), dist)
-        refines = state.refines
         if start < s.iterations:  # the last iterations search around the kept policy
-            done = progress.iteration
             recentre = (done == start) | ((done > start) & converged)
-            if refines is not None:
-                refines = refines + recentre.astype(jnp.int32)
-            centred = self.centered_distribution(best_policy, self.refine_level(refines))
+            if s.refine_levels > 1:  # and each finer level starts around it
+                finer = self.refine_level(done) != level
+                recentre = recentre | ((done > start) & finer)
+            centred = self.centered_distribution(best_policy, self.refine_level(done))
             dist = select_tree(recentre, centred, dist)
-        state = WeightsState(dist, best_policy, progress, pool, searches, refines)
+        state = WeightsState(dist, best_policy, progress, pool, searches)
         return state, metrics
 
-    def refine_level(self, refines) -> jax.Array | int:
-        """The level of the refine phase's search number ``refines`` (``[]`` int32 starts so
-        far, ``None``: one level): ``refine_levels`` finer and finer spreads in turn, level
-        ``l`` at ``refine_tol ** l`` of the first's."""
-        if refines is None:
+    def refine_level(self, done) -> jax.Array | int:
+        """The level of the refine phase's distribution after ``done`` iterations (``[]``
+        int32): its iterations in ``refine_levels`` equal parts, part ``l`` searching at
+        ``refine_tol ** l`` of the first's spread (coarse to fine); 0 with one level."""
+        s = self.settings
+        if s.refine_levels == 1:
             return 0
-        return jnp.maximum(refines - 1, 0) % self.settings.refine_levels
+        start = refine_start(s)
+        length = max(1, s.iterations - start)
+        return jnp.clip((done - start) * s.refine_levels // length, 0, s.refine_levels - 1)
 
     def refine_scale_at(self, level) -> jax.Array | float:
         """The spread, as a share of the initial one, the refine phase starts from at
