@@ -754,7 +754,6 @@ AFTER_REDRAW = {
             "paper-budget-1of64-now",
         )
         for suffix, extra, what in (
-            ("levels3", ["algorithm.refine_levels=3"], "candidate: refine_levels 3"),
             ("sharp10", ["algorithm.vote_sharpness=10"], "candidate: vote_sharpness 10"),
             ("kept10", ["algorithm.kept_sharpness=10"], "candidate: kept_sharpness 10"),
         )
@@ -768,6 +767,14 @@ AFTER_REDRAW = {
         )
         for what in ("the library's defaults (with refine_redraw and kept_sharpness)",)
     },
+    "paper-budget-1of64-levels3": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10", "algorithm.refine_levels=3"],
+        3,
+        "1/64 of the paper's budget, candidate: the defaults with the refine phase in 3 parts, "
+        "coarse to fine (refine_levels 3)",
+        "paper-budget-1of64-redraw",
+    ),
     **{
         f"paper-budget-{frac}-redraw": (
             "tagging-paper-auto",
