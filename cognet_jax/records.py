@@ -216,13 +216,17 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
         "best_per_iteration": np.asarray(h.best_value).tolist(),
     }
     # the cross-entropy figures, where the search reports them (``SearchMetrics``)
-    threshold, kept, injected = (getattr(h, f, None) for f in ("threshold", "kept", "injected"))
+    threshold, kept, injected, restarted = (
+        getattr(h, f, None) for f in ("threshold", "kept", "injected", "restarted")
+    )
     if threshold is not None:
         fields["threshold_per_iteration"] = np.asarray(threshold).tolist()
     if kept is not None:
         fields["kept_per_iteration"] = np.asarray(kept).tolist()
     if injected is not None:
         fields["entropy_injections"] = int(np.sum(injected))
+    if restarted is not None:  # (``entropy_injections`` in files of cognet-dice before 2026-11-29)
+        fields["restarts"] = int(np.sum(restarted))
     return fields
 
 

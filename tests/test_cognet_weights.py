@@ -337,10 +337,10 @@ def test_a_converged_distribution_restarts_and_the_best_policy_stays():
     shrunk = state.distribution.replace(w1_std=state.distribution.w1_std * 0.1)
     state = state.replace(distribution=shrunk)
     after, metrics = jax.jit(alg.step)(jax.random.key(1), state, params)
-    assert bool(metrics.injected)
+    assert bool(metrics.restarted)
     np.testing.assert_array_equal(after.distribution.w1_std, alg.init_distribution().w1_std)
     kept, m2 = jax.jit(alg.step)(jax.random.key(2), after, params)  # not converged: refit
-    assert not bool(m2.injected)
+    assert not bool(m2.restarted)
     assert not np.array_equal(kept.distribution.w1_mean, after.distribution.w1_mean)
 
 
@@ -496,7 +496,7 @@ def test_vote_first_and_the_voting_searches_own_restart_tolerance():
     assert not bool(alg.converged(shrunk, refining, jnp.int32(1)))  # search 1: at scale 1
     step = jax.jit(alg.step)
     after, metrics = step(jax.random.key(1), state.replace(distribution=shrunk), params)
-    assert bool(metrics.injected) and int(after.searches) == 1
+    assert bool(metrics.restarted) and int(after.searches) == 1
     assert np.allclose(np.asarray(after.distribution.bias_mean), 5.0)  # search 1 at scale 1
 
 
@@ -727,3 +727,18 @@ def test_refine_levels_split_the_refine_phase_coarse_to_fine():
     assert spreads[4] != pytest.approx(0.2, rel=1e-3)  # refit within the level
     assert spreads[5] == pytest.approx(0.02, rel=1e-5)  # after iteration 6: level 1
     assert [int(alg.refine_level(jnp.int32(d))) for d in range(3, 9)] == [0, 0, 0, 1, 1, 1]
+
+
+def test_results_count_the_searches_restarts_under_their_own_name(tmp_path):
+    """A cognet-dice run's results.json counts restarts as ``restarts`` (its distribution
+    started afresh), not as entropy injections, which it never makes."""
+    import json
+
+    from shared_files import TINY_TRAIN
+
+    from cognet_jax import cli
+
+    out = tmp_path / "run"
+    assert cli.main(["train", "--out", str(out), *TINY_TRAIN]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert isinstance(results["restarts"], int) and "entropy_injections" not in results

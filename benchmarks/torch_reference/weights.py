@@ -290,7 +290,7 @@ class TorchWeightsSearch:
     # ---------------------------------------------------------------- one iteration
     def step(self) -> dict:
         """One iteration; returns ``value`` (the challenger's fresh value), ``best_value``,
-        ``mean_value``, ``top_value`` and ``injected``."""
+        ``mean_value``, ``top_value`` and ``restarted``."""
         s = self.s
         samples = self.draw(self.dist, s.candidates)
         values = self.returns(samples, s.eval_rollouts, s.common_random_numbers).mean(-1)
@@ -318,15 +318,15 @@ class TorchWeightsSearch:
             self.best_value = float(self.pool["mean"][kept])
         elif value > self.best_value:
             self.best, self.best_value = challenger, value
-        injected = self.converged(dist)
-        self.dist = self.initial_distribution() if injected else dist
+        restarted = self.converged(dist)
+        self.dist = self.initial_distribution() if restarted else dist
         self.iteration += 1
         return dict(
             value=value,
             best_value=self.best_value,
             mean_value=float(values.mean()),
             top_value=float(top[0]),
-            injected=injected,
+            restarted=restarted,
         )
 
     def run(self, iterations: int) -> float:

@@ -62,7 +62,8 @@ have shrunk below ``restart_tol`` of their initial spread the distribution has c
 elites agree and the search draws nearly one controller); the next iteration starts from the
 initial distribution again, the anytime best kept. A larger budget then buys further
 independent searches instead of iterations of a frozen one; a seed stuck in a poor optimum gets
-another start (metrics ``injected`` marks the iterations that restarted). Shorter searches fit
+another start (metrics ``restarted`` marks the iterations that restarted; results.json
+``restarts`` counts them). Shorter searches fit
 more of them before the refine phase, which the long-horizon problems need and tagging's
 thesis setting does not (experiments/NOTES.md).
 
@@ -202,7 +203,7 @@ class WeightsMetrics:
     top_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
     threshold: jax.Array  # [] smallest elite value
     kept: jax.Array  # [] number of elites
-    injected: jax.Array  # [] the distribution converged: restarted (``restart_tol``)
+    restarted: jax.Array  # [] the distribution converged: restarted (``restart_tol``)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -494,7 +495,7 @@ class CognetWeights(NeuralSearch):
             top_value=elite_values[0],
             threshold=elite_values[-1],
             kept=jnp.int32(s.elites),
-            injected=converged,
+            restarted=converged,
         )
         restart = converged if s.restart_tol > 0 else jnp.bool_(False)
         if s.starts > 1:  # independent searches before the refine phase

@@ -161,7 +161,8 @@ class SearchMetrics:
     # cross-entropy searches only (None where a search has no such figure):
     threshold: jax.Array | None = None  # [] V_w after this iteration
     kept: jax.Array | None = None  # [] number of elites
-    injected: jax.Array | None = None  # [] bool: entropy injected (a restart) this iteration
+    injected: jax.Array | None = None  # [] bool: entropy injected this iteration
+    restarted: jax.Array | None = None  # [] bool: the distribution started afresh this iteration
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
