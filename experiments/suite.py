@@ -723,6 +723,17 @@ AFTER_REDRAW = {
         "candidate: the refine phase with refine_redraw 0.5 alone (kept policies as they were)",
         "cognet-bearing-chase-before-redraw",
     ),
+    **{
+        f"{row}-redraw-quarter": (
+            ROWS[row][0],
+            ["algorithm.refine_redraw=0.25"],
+            SEEDS,
+            "candidate: a quarter of the refine phase's candidates redraw a unit (the rule's "
+            "half on scalar observations)",
+            f"cognet-{row}",
+        )
+        for row in ("bearing-chase", "hearing-tiger-noisy", "box-push")
+    },
     "plume-redraw-kept10": (
         "plume-n5",
         ["algorithm.refine_redraw=0.5"],
