@@ -78,9 +78,10 @@ show.
 ``starts`` (1 by default) splits the iterations before it into that many independent searches
 of equal length, each from the initial distribution.
 
-**Redrawn units** (``refine_redraw``, **[choice]**, 0.5): in the refine phase that share of
-the candidates redraws one hidden unit (input weights, bias, target node, vote) from the
-initial distribution (``weight_space.redraw_unit``). Narrow Gaussians around the kept policy
+**Redrawn units** (``refine_redraw``, **[choice]**, "auto": 0.5 on a scalar observation, 0
+otherwise, ``redraw_share``): in the refine phase that share of the candidates redraws one
+hidden unit (input weights, bias, target node, vote) from the initial distribution
+(``weight_space.redraw_unit``). Narrow Gaussians around the kept policy
 tune its thresholds but cannot add a region it lacks; most of a converged controller's units
 have no say, and a broad redraw of one of them can give it one (the chase's "step back along
 x" at both ends of the bearing's range: 8-seed sweeps in experiments/NOTES.md).

@@ -242,18 +242,17 @@ def redraw_unit(key: jax.Array, sample: WeightSample, init: WeightDistribution, 
     target = sample_categorical(jax.random.uniform(ks[6], (num,)), target_probs)
     m = normal(ks[7], init.m_mean[0, 0, 0], init.m_std[0, 0, 0])
 
-    def put(x, value, with_inputs=False):
-        old = x[c, agent, node, :, unit] if with_inputs else x[c, agent, node, unit]
-        new = jnp.where(pick[:, None] if with_inputs else pick, value, old)
-        if with_inputs:
-            return x.at[c, agent, node, :, unit].set(new)
-        return x.at[c, agent, node, unit].set(new)
+    unit_at = (c, agent, node, unit)  # one unit of each candidate ([num] indices)
+    inputs_at = (c, agent, node, slice(None), unit)  # its input weights ([num, F])
+
+    def put(x, at, value, chosen):
+        return x.at[at].set(jnp.where(chosen, value, x[at]))
 
     return sample.replace(
-        w1=put(sample.w1, w1, True),
-        b1=put(sample.b1, b1),
-        unit_targets=put(sample.unit_targets, target),
-        m=put(sample.m, m),
+        w1=put(sample.w1, inputs_at, w1, pick[:, None]),
+        b1=put(sample.b1, unit_at, b1, pick),
+        unit_targets=put(sample.unit_targets, unit_at, target, pick),
+        m=put(sample.m, unit_at, m, pick),
     )
 
 
