@@ -6,6 +6,7 @@ import json
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from cognet_jax.cli import main
 from cognet_jax.controllers.step import controller_step
@@ -215,36 +216,38 @@ def test_a_build_that_returns_no_search_is_named(tmp_path, capsys):
         assert "broken_search.build" in err[0] and "not a search" in err[0], err
 
 
-def test_actions_a_plugin_draws_outside_the_agents_are_refused(tmp_path, capsys):
-    """A plug-in whose controller acts with indices past its agents' actions (JAX would clamp
-    them and give a number of another policy): the honest evaluation refuses the run."""
-    module = tmp_path / "wild_actions.py"
-    source = THRESHOLD_SEARCH.replace(
+#: (code of THRESHOLD_SEARCH, its replacement, what the refusal says): a controller that acts
+#: past its agents' actions, and one whose ``next_node`` leads past its ``num_nodes``
+OUT_OF_RANGE = {
+    "actions": (
         "        return policy.actions[jnp.arange(self.num_agents), nodes]",
         "        return policy.actions[jnp.arange(self.num_agents), nodes] + 5",
-    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-wild"')
-    module.write_text(source)
-    toml = tmp_path / "wild.toml"
-    toml.write_text('[experiment]\nalgorithm = "thresholds-wild"\n[evaluation]\nrollouts = 200\n')
-    capsys.readouterr()
-    argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
-    assert main([*argv, "--no-progress"]) == 2
-    assert "an action its agent lacks" in capsys.readouterr().err
-
-
-def test_nodes_a_plugin_moves_to_outside_its_controller_are_refused(tmp_path, capsys):
-    """A plug-in whose ``next_node`` leads past its ``num_nodes`` (JAX would clamp the
-    controller's gathers and give a number of another policy): refused the same way."""
-    module = tmp_path / "wild_nodes.py"
-    source = THRESHOLD_SEARCH.replace(
+        "an action its agent lacks",
+    ),
+    "nodes": (
         "    def next_node(self, u, policy, nodes, obs):\n        return ",
         "    def next_node(self, u, policy, nodes, obs):\n        return 7 + ",
-    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-far"')
-    assert "return 7 + " in source
+        "a node its controller lacks",
+    ),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(OUT_OF_RANGE))
+def test_actions_or_nodes_a_plugin_draws_out_of_range_are_refused(tmp_path, capsys, kind):
+    """A plug-in whose controller acts with indices past its agents' actions, or moves past
+    its ``num_nodes`` (JAX would clamp the gathers and give a number of another policy): the
+    honest evaluation refuses the run in one line."""
+    old, new, said = OUT_OF_RANGE[kind]
+    assert old in THRESHOLD_SEARCH
+    name = f"thresholds-wild-{kind}"
+    source = THRESHOLD_SEARCH.replace(old, new).replace(
+        'register_algorithm("thresholds"', f'register_algorithm("{name}"'
+    )
+    module = tmp_path / f"wild_{kind}.py"
     module.write_text(source)
-    toml = tmp_path / "far.toml"
-    toml.write_text('[experiment]\nalgorithm = "thresholds-far"\n[evaluation]\nrollouts = 200\n')
+    toml = tmp_path / "wild.toml"
+    toml.write_text(f'[experiment]\nalgorithm = "{name}"\n[evaluation]\nrollouts = 200\n')
     capsys.readouterr()
     argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
     assert main([*argv, "--no-progress"]) == 2
-    assert "a node its controller lacks" in capsys.readouterr().err
+    assert said in capsys.readouterr().err
