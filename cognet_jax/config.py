@@ -367,7 +367,12 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 #: that did not write one resumes and evaluates as it ran (``with_added_fields``)
 ADDED_FIELDS = {
     "cognet-dice": {
-        "algorithm": {"distinct_actions": False, "refine_redraw": 0.0, "kept_sharpness": 1.0}
+        "algorithm": {
+            "distinct_actions": False,
+            "refine_redraw": 0.0,
+            "kept_sharpness": 1.0,
+            "polish_share": 0.0,
+        }
     }
 }
 

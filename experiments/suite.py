@@ -703,7 +703,7 @@ def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with the fields of ``BEFORE_RULE`` it does not set, on an
     experiment that leaves the search to the defaults: the command that reproduces a row
     measured before the horizon rule."""
-    if experiment in PINNED or name in AFTER_RULE or name in AFTER_REDRAW:
+    if experiment in PINNED or name in AFTER_RULE or name in AFTER_REDRAW or name in AFTER_POLISH:
         return overrides
     return replaced(BEFORE_RULE, overrides)
 
@@ -813,17 +813,67 @@ AFTER_REDRAW = {
 def before_redraw(name: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with ``BEFORE_REDRAW``'s fields it does not set, for the
     rows measured before those fields became defaults."""
-    if name in AFTER_REDRAW and not name.endswith("-before-redraw"):
+    if name in AFTER_POLISH or (name in AFTER_REDRAW and not name.endswith("-before-redraw")):
         return overrides
     return replaced(BEFORE_REDRAW, overrides)
 
 
+#: the polish after the search as it was before it became a default: every row measured
+#: before pins it off (``before_polish``)
+BEFORE_POLISH = ["algorithm.polish_share=0.0"]
+#: the library's defaults on the experiments that pin the search, with the polish
+NEWEST_POLISHED = [*NEWEST, "algorithm.polish_share=0.25"]
+#: rows measured since the polish became a default (``polish_share`` 0.25)
+AFTER_POLISH = {
+    **{
+        f"{experiment}-defaults-polish": (
+            experiment,
+            [*NEWEST_POLISHED, *paired],
+            SEEDS,
+            what,
+            f"{experiment}-defaults-now",
+        )
+        for experiment, paired in (
+            ("tagging-thesis-n3", []),
+            ("tagging-thesis-n6", []),
+            ("heatmap-2d-n4", UNPAIRED),
+        )
+        for what in ("the library's defaults (with the polish after the search)",)
+    },
+    "paper-budget-1of64-polish": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+        3,
+        "1/64 of the paper's 3e11 agent-steps under the defaults with the polish",
+        "paper-budget-1of64-redraw",
+    ),
+    **{
+        f"cognet-{row}-before-polish": (
+            experiment,
+            [],
+            SEEDS,
+            "the defaults before the polish after the search",
+            None,
+        )
+        for row, (experiment, _) in ROWS.items()
+    },
+}
+
+
+def before_polish(name: str, overrides: list[str]) -> list[str]:
+    """``overrides`` of row ``name`` with ``BEFORE_POLISH``, for the rows measured before the
+    polish became a default."""
+    if name in AFTER_POLISH and not name.endswith("-before-polish"):
+        return overrides
+    return replaced(BEFORE_POLISH, overrides)
+
+
 EXTRA = {
     name: (experiment, before_rule(name, experiment, overrides), *rest)
-    for name, (experiment, overrides, *rest) in {**EXTRA, **AFTER_REDRAW}.items()
+    for name, (experiment, overrides, *rest) in {**EXTRA, **AFTER_REDRAW, **AFTER_POLISH}.items()
 }
 EXTRA = {
-    name: (experiment, before_redraw(name, overrides), *rest)
+    name: (experiment, before_polish(name, before_redraw(name, overrides)), *rest)
     for name, (experiment, overrides, *rest) in EXTRA.items()
 }
 
@@ -888,6 +938,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
         ("-before-rule", "the horizon rule"),
         ("-before-distinct", "distinct"),
         ("-before-redraw", "redraw"),
+        ("-before-polish", "the polish"),
     ):
         before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
         if before:
@@ -974,11 +1025,13 @@ def table() -> list[str]:
             if h["bound"]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
-        earlier = RESULTS / f"cognet-{row}-before-redraw" / "runs.json"
-        if cognet == "not run" and earlier.is_file():  # not swept under the defaults of now
-            cognet = "not yet re-run under refine_redraw and kept_sharpness; before them: " + (
-                _search_cell(earlier, hand)
-            )
+        for suffix, change in (
+            ("-before-polish", "the polish"),
+            ("-before-redraw", "refine_redraw and kept_sharpness"),
+        ):
+            earlier = RESULTS / f"cognet-{row}{suffix}" / "runs.json"
+            if cognet == "not run" and earlier.is_file():  # not swept under the defaults of now
+                cognet = f"not yet re-run under {change}; before: " + _search_cell(earlier, hand)
         cogdice = _search_cell(RESULTS / f"cogdice-{row}" / "runs.json", hand)
         name = Path(experiment).name if row in IMPORTS else experiment
         rows.append(

@@ -95,6 +95,11 @@ a tenth of an observation unit): the thresholds a hand-written controller puts e
 integer distance (tagging's paper setting) then hold. ``vote_sharpness`` does the same for
 every candidate (off: it changes the search's landscape, experiments/NOTES.md).
 
+**Polish** (``polish_share``, **[choice]**, 0.25): after the last iteration the kept policy
+is improved one entry at a time (a threshold, a vote's next node, an action), each move valued
+on the policy's own rollouts and applied when it also wins on fresh ones, within that share of
+the search's rollouts (``algorithms.weight_polish``; experiments/NOTES.md).
+
 **Input standardisation** (``standardize_inputs``, **[choice]**, "auto" by default: on where
 the inputs are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians
 are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
@@ -159,6 +164,7 @@ from cognet_jax.algorithms.cross_entropy import Progress, select_tree
 from cognet_jax.algorithms.engine import SearchParams, streams
 from cognet_jax.algorithms.neural_search import NeuralSearch
 from cognet_jax.algorithms.sizing import sized
+from cognet_jax.algorithms.weight_polish import PolishFinish, polish_seed
 from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
     WeightSample,
@@ -193,6 +199,8 @@ class WeightsState:
     progress: Progress
     pool: BestPool | None = None  # the race of the best policies (``best_pool`` > 0)
     searches: jax.Array | None = None  # [] int32 restarts so far (``vote_alternate``)
+    # [2] uint32: the polish's key, as bits (a checkpoint holds no typed key; ``polish_key``)
+    polish_seed: jax.Array | None = None
 
 
 @struct.dataclass
@@ -208,7 +216,7 @@ class WeightsMetrics:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class CognetWeights(NeuralSearch):
+class CognetWeights(PolishFinish, NeuralSearch):
     """COGNet-DICE with cross-entropy over node-network weights; ``init`` / ``ask`` /
     ``evaluate`` / ``tell`` / ``step`` are pure (the protocol of ``algorithms.engine``).
 
@@ -217,11 +225,13 @@ class CognetWeights(NeuralSearch):
     [agents, F]`` of the input features (``input_statistics``), needed with
     ``standardize_inputs`` -- a fixed reparametrisation of the search space, computed once
     under the config's env params (``build``), not a function of the params a search runs
-    with.
+    with. ``feature_scale [agents, F]``: the input features' spread the polish measures its
+    threshold shifts in (``input_statistics``' scale; None: 1).
     """
 
     pipeline: ObservationPipeline | None = None
     input_stats: tuple | None = None
+    feature_scale: jax.Array | None = None
 
     def __post_init__(self):
         s = resolve_search(sized(self.settings, self.env), self.env)  # settings made in code
@@ -397,12 +407,14 @@ class CognetWeights(NeuralSearch):
         dist = self.search_distribution(searches)
         first = self.kept_policy(jax.tree.map(lambda x: x[0], self.draw(key, dist, 1)))
         size = pool_size(self.settings)
+        polishing = self.polish_sweeps > 0
         return WeightsState(
             distribution=dist,
             best_policy=first,
             progress=Progress.create(1),
             pool=BestPool.create(first, size) if size else None,
             searches=searches,
+            polish_seed=polish_seed(key) if polishing else None,
         )
 
     def search_distribution(self, searches) -> WeightDistribution:
@@ -513,7 +525,7 @@ class CognetWeights(NeuralSearch):
                 recentre = recentre | ((done > start) & finer)
             centred = self.centered_distribution(best_policy, self.refine_level(done))
             dist = select_tree(recentre, centred, dist)
-        state = WeightsState(dist, best_policy, progress, pool, searches)
+        state = WeightsState(dist, best_policy, progress, pool, searches, state.polish_seed)
         return state, metrics
 
     def refine_level(self, done) -> jax.Array | int:

@@ -24,8 +24,9 @@ from cognet_jax.registry import env_description, fields_from, register_algorithm
 
 def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
-    ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics are those of
-    ``env_params`` (``input_statistics``)."""
+    ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics, and with
+    ``polish_share`` the features' spread, are those of ``env_params``
+    (``input_statistics``)."""
     settings = fields_from(WeightsSettings, config.algorithm, config.network)
     pipeline, controller = neural_controller(
         env, settings.nodes, settings.hidden, build_pipeline(config, env)
@@ -34,9 +35,11 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
         decided = resolve_standardize(config, env, env_params).standardize_inputs
         settings = dataclasses.replace(settings, standardize_inputs=decided)
     stats = None
-    if settings.standardize_inputs:
+    if settings.standardize_inputs or settings.polish_share > 0:
         stats = input_statistics(env, controller, pipeline, env_params, memory)
-    return CognetWeights(env, settings, memory, pipeline, stats)
+    scale = stats[1] if stats is not None else None
+    kept = stats if settings.standardize_inputs else None
+    return CognetWeights(env, settings, memory, pipeline, kept, scale)
 
 
 def resolve(config, env, env_params) -> CognetWeightsSection:

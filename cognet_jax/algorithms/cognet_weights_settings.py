@@ -56,7 +56,9 @@ class CognetWeightsSection:
     (``weight_space.distinct_draw``; "auto": ``covers_rarely``); ``vote_sharpness``
     multiplies every vote of the policies the search runs (the softmax over next nodes is
     that much sharper, the argmax the same), ``kept_sharpness`` those of the policies the
-    anytime best keeps only. The hidden width is ``network.hidden``."""
+    anytime best keeps only; ``polish_share``: the paired-rollout polish of the kept policy
+    after the search may simulate at most that share of the search's rollouts
+    (``algorithms.weight_polish``; 0: none). The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -92,6 +94,7 @@ class CognetWeightsSection:
     refine_redraw: float | Literal["auto"] = "auto"
     refine_levels: int = 1
     starts: int = 1
+    polish_share: float = 0.25
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
@@ -162,6 +165,11 @@ class CognetWeightsSection:
             require(v == "auto" or 0 <= v < 1, f"algorithm.{name}", f"in [0, 1) or 'auto', got {v}")
         require(0 <= self.refine < 1, "algorithm.refine", f"in [0, 1), got {self.refine}")
         require(self.refine_scale > 0, "algorithm.refine_scale", "must be > 0")
+        require(
+            0 <= self.polish_share <= 1,
+            "algorithm.polish_share",
+            f"in [0, 1] (0: no polish), got {self.polish_share}",
+        )
         require(
             self.refine_redraw == "auto" or 0 <= self.refine_redraw <= 1,
             "algorithm.refine_redraw",

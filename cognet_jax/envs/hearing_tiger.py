@@ -97,7 +97,11 @@ def upper_bound(horizon: int, discount: float) -> float:
 # the hand-written controller
 # ---------------------------------------------------------------------------------------------
 #: thresholds tried by the grid search: ``count`` clear hearings, ``margin`` for a clear one
-HAND_GRID = {"count": (1, 2, 3, 4), "margin": (0.0, 0.25, 0.5, 1.0, 1.5)}
+#: (wide enough that the tuned point is inside it at hearing noise 1 and 3)
+HAND_GRID = {
+    "count": (1, 2, 3, 4, 5),
+    "margin": (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0),
+}
 
 
 def hand_controller(env: HearingTiger, count: int, margin: float):

@@ -1,0 +1,296 @@
+"""Local search ("polish") of a kept neural controller by paired rollouts, after a
+``cognet-dice`` search (the default's ``finish``; ``algorithms.cognet_weights``).
+
+Why: a cross-entropy search over weights moves every threshold of a candidate at once, so the
+last few hundredths of one threshold -- what a practitioner's grid search over a hand-written
+controller's thresholds tunes -- are lost in the noise of the others' moves. On the bearing
+chase the kept policies of two seeds of eight were 0.12 and 0.23 below what one or two
+threshold shifts of a few hundredths of the observation's spread gave them
+(experiments/NOTES.md). Moves of one entry at a time, valued under common random numbers
+(a move changes only the rollouts whose trajectories it touches), show those.
+
+Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q`` nodes,
+``H`` hidden units):
+
+* ``SHIFT``: hidden unit ``unit`` of ``(agent, node)`` moves its threshold by
+  ``SHIFTS[arg]`` standard deviations of the input features along its weights (the bias
+  changes by that times ``|w * scale|``, ``scale [agents, F]`` the features' spread);
+* ``TARGET``: the unit votes for node ``(k + 1 + arg) % Q`` instead of its node ``k`` (the
+  vote's strength kept);
+* ``ACTION``: the node's action becomes ``(a + 1 + arg) % actions`` (a move to an action the
+  agent lacks leaves the policy as it is);
+* ``DEFAULT``: the node's default vote goes to ``(d + 1 + arg) % Q`` instead of ``d``.
+
+SHIFT and TARGET change every copy of the unit at once: a tied controller (``node_tie``,
+``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
+changing one copy alone would untie it.
+
+One sweep (:func:`sweep`): every move's mean return on ``rollouts`` rollouts of one key, the
+current policy's on the same rollouts; the ``CONFIRM_TOP`` moves with the largest gains are
+tried again against the current policy on ``CONFIRM_FACTOR`` times as many rollouts of a
+second key, and the one
+that wins there by most is applied if it wins by ``CONFIRM_Z`` standard errors of the paired
+difference (so a move picked for a lucky draw among hundreds is not kept on that draw). The polish
+stops at the first sweep whose best move gains nothing or is not confirmed, or after its
+sweeps.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from cognet_jax.controllers.base import action_support
+from cognet_jax.controllers.neural import NeuralPolicy
+from cognet_jax.rollout import evaluate_candidates, rollouts
+
+SHIFT, TARGET, ACTION, DEFAULT = 0, 1, 2, 3
+#: threshold shifts, in standard deviations of the input features along a unit's weights
+SHIFTS = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
+#: moves of a sweep tried again on the confirming rollouts (its best by the picking ones)
+CONFIRM_TOP = 4
+#: the confirming rollouts, as a multiple of the picking ones (``best_rollouts``): the picking
+#: evaluates hundreds of moves, the confirming a few, so a finer test costs little
+CONFIRM_FACTOR = 10
+#: standard errors of the paired difference by which a move must win on the confirming
+#: rollouts: of ``CONFIRM_TOP`` moves that change nothing one is kept in about 40 sweeps
+CONFIRM_Z = 2.5
+#: the stream of the polish's key: the search's init key folded with it
+POLISH_STREAM = 0x706F6C69
+#: most sweeps of a polish (each applies at most one move)
+POLISH_MAX_SWEEPS = 20
+
+
+def move_table(agents: int, nodes: int, hidden: int, actions: int) -> np.ndarray:
+    """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``."""
+    rows = []
+    for a in range(agents):
+        for n in range(nodes):
+            for h in range(hidden):
+                rows += [(SHIFT, a, n, h, i) for i in range(len(SHIFTS))]
+                rows += [(TARGET, a, n, h, i) for i in range(nodes - 1)]
+            rows += [(ACTION, a, n, 0, i) for i in range(actions - 1)]
+            rows += [(DEFAULT, a, n, 0, i) for i in range(nodes - 1)]
+    return np.asarray(rows, np.int32).reshape(-1, 5)
+
+
+def _layers(policy: NeuralPolicy):
+    p = policy.net_params["params"]
+    return (
+        p["Dense_0"]["kernel"],
+        p["Dense_0"]["bias"],
+        p["Dense_1"]["kernel"],
+        p["Dense_1"]["bias"],
+    )
+
+
+def _with(policy: NeuralPolicy, w1, b1, w2, b2, actions) -> NeuralPolicy:
+    params = {"Dense_0": {"kernel": w1, "bias": b1}, "Dense_1": {"kernel": w2, "bias": b2}}
+    return policy.replace(action_probs=actions, net_params={"params": params})
+
+
+def _shifted(index: int, size: int, arg) -> jax.Array:
+    """``(index + 1 + arg) % size``: every other category than ``index`` as ``arg`` runs."""
+    return (index + 1 + arg) % size
+
+
+def apply_move(policy: NeuralPolicy, move: jax.Array, scale: jax.Array, support: jax.Array):
+    """``policy`` changed by one move (``move [5]`` int32, module docstring); ``scale [agents,
+    F]``: the input features' spread; ``support [agents, actions]`` bool: the agents' actions.
+    Leaves: ``w1 [agents, Q, F, H]``, ``b1 [agents, Q, H]``, ``w2 [agents, Q, H, Q]``, ``b2
+    [agents, Q, Q]``, ``action_probs [agents, Q, actions]`` (one-hot)."""
+    w1, b1, w2, b2 = _layers(policy)
+    actions = policy.action_probs
+    kind, a, n, h, arg = move[0], move[1], move[2], move[3], move[4]
+    q, na = b2.shape[-1], actions.shape[-1]
+    # the unit's copies: equal input weights and bias in every (agent, node)
+    column = w1[a, n, :, h]
+    copies = jnp.all(w1[:, :, :, h] == column, -1) & (b1[:, :, h] == b1[a, n, h])  # [A, Q]
+    unit = jax.nn.one_hot(h, w1.shape[-1], dtype=bool)  # [H]
+    # SHIFT
+    norm = jnp.sqrt(jnp.sum((column * scale[a]) ** 2))
+    step = jnp.asarray(SHIFTS, jnp.float32)[jnp.clip(arg, 0, len(SHIFTS) - 1)] * norm
+    b1_new = jnp.where(copies[..., None] & unit, b1 + step, b1)
+    # TARGET: the vote's strength to another node
+    votes = w2[a, n, h]  # [Q]
+    target = jnp.argmax(jnp.abs(votes))
+    row = votes[target] * jax.nn.one_hot(_shifted(target, q, arg), q, dtype=w2.dtype)
+    w2_new = jnp.where((copies[..., None] & unit)[..., None], row, w2)
+    # ACTION of (a, n), to an action the agent has
+    current = jnp.argmax(actions[a, n])
+    new_action = _shifted(current, na, arg)
+    one_hot = jax.nn.one_hot(new_action, na, dtype=actions.dtype)
+    actions_new = actions.at[a, n].set(jnp.where(support[a, new_action], one_hot, actions[a, n]))
+    # DEFAULT vote of (a, n) to another node
+    default = jnp.argmax(jnp.abs(b2[a, n]))
+    b2_new = b2.at[a, n].set(b2[a, n, default] * jax.nn.one_hot(_shifted(default, q, arg), q))
+    pick = lambda k, new, old: jnp.where(kind == k, new, old)  # noqa: E731
+    return _with(
+        policy,
+        w1,
+        pick(SHIFT, b1_new, b1),
+        pick(TARGET, w2_new, w2),
+        pick(DEFAULT, b2_new, b2),
+        pick(ACTION, actions_new, actions),
+    )
+
+
+def polish_seed(init_key: jax.Array) -> jax.Array:
+    """``[2]`` uint32: bits of the init key's ``POLISH_STREAM`` (a search state keeps these,
+    not a typed key, so checkpoints can hold it)."""
+    return jax.random.bits(jax.random.fold_in(init_key, POLISH_STREAM), (2,), jnp.uint32)
+
+
+def polish_key(seed: jax.Array) -> jax.Array:
+    """The polish's key from ``polish_seed``'s bits."""
+    return jax.random.fold_in(jax.random.fold_in(jax.random.key(0), seed[0]), seed[1])
+
+
+@struct.dataclass
+class PolishWork:
+    """The polish in progress: the ``policy`` so far, the ``key`` of the next sweep, sweeps
+    run, moves applied, the summed gain of the applied moves on their confirming rollouts, and
+    whether it stopped (``[]`` each)."""
+
+    policy: NeuralPolicy
+    key: jax.Array
+    sweeps: jax.Array
+    applied: jax.Array
+    gain: jax.Array
+    stopped: jax.Array
+
+    @classmethod
+    def start(cls, policy: NeuralPolicy, key: jax.Array) -> PolishWork:
+        zero = jnp.int32(0)
+        return cls(policy, key, zero, zero, jnp.float32(0.0), jnp.bool_(False))
+
+
+def sweep(work: PolishWork, moves: jax.Array, values, paired, scale, support) -> PolishWork:
+    """One sweep (module docstring). ``values(key, policies) -> [P]``: mean returns of stacked
+    policies on the same rollouts of ``key`` (common random numbers); ``paired(key, policy,
+    others) -> (gains [K], stderrs [K])``: each of the stacked ``others``' mean return minus
+    ``policy``'s on the same rollouts of ``key``, and the standard errors of those paired
+    differences."""
+    k_pick, k_check, k_next = jax.random.split(work.key, 3)
+    policy = work.policy
+    changed = jax.vmap(lambda m: apply_move(policy, m, scale, support))(moves)
+    stack = jax.tree.map(lambda p, c: jnp.concatenate([p[None], c]), policy, changed)
+    means = values(k_pick, stack)
+    gains = jnp.where(jnp.isnan(means[1:]), -jnp.inf, means[1:] - means[0])
+    top_gains, top = jax.lax.top_k(gains, min(CONFIRM_TOP, moves.shape[0]))
+    chosen = jax.tree.map(lambda c: c[top], changed)
+    gain, stderr = paired(k_check, policy, chosen)
+    wins = (top_gains > 0) & (gain > 0) & (gain > CONFIRM_Z * stderr)
+    best = jnp.argmax(jnp.where(wins, gain, -jnp.inf))
+    confirmed = wins[best]
+    return PolishWork(
+        policy=jax.tree.map(lambda c, p: jnp.where(confirmed, c[best], p), chosen, policy),
+        key=k_next,
+        sweeps=work.sweeps + 1,
+        applied=work.applied + confirmed,
+        gain=work.gain + jnp.where(confirmed, gain[best], 0.0),
+        stopped=~confirmed,
+    )
+
+
+class PolishFinish:
+    """The polish as a search's ``finish`` (``algorithms.engine``; mixed into
+    ``cognet_weights.CognetWeights``): ``polish_sweeps`` sweeps at most, each valuing every
+    move on ``best_rollouts`` rollouts. Reads the search's ``settings`` (``polish_share``,
+    ``best_rollouts``, ``iterations``, ``nodes``, ``hidden``), ``env``, ``controller``,
+    ``memory``, ``feature_scale`` and ``rollouts_per_iteration``; its state's ``best_policy``
+    and ``polish_seed``."""
+
+    @property
+    def polish_moves(self) -> np.ndarray:
+        """``[moves, 5]``: the moves of one sweep (``move_table``)."""
+        s, c = self.settings, self.controller
+        return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions)
+
+    @property
+    def polish_sweeps(self) -> int:
+        """Sweeps the polish may run: ``polish_share`` of the search's rollouts over the
+        rollouts of one sweep (every move and the policy, the confirming ones), at most
+        ``POLISH_MAX_SWEEPS``; 0: no polish."""
+        s = self.settings
+        if s.polish_share <= 0:
+            return 0
+        total = s.polish_share * s.iterations * self.rollouts_per_iteration
+        return int(min(total // self.polish_sweep_rollouts, POLISH_MAX_SWEEPS))
+
+    @property
+    def polish_sweep_rollouts(self) -> int:
+        """Rollouts one sweep simulates: every move and the policy on ``best_rollouts``, the
+        confirming ones and the policy on ``CONFIRM_FACTOR`` times as many."""
+        moves = len(self.polish_moves)
+        return (moves + 1 + CONFIRM_FACTOR * (CONFIRM_TOP + 1)) * self.settings.best_rollouts
+
+    def _polish_parts(self, params):
+        n = self.settings.best_rollouts
+        n_check = CONFIRM_FACTOR * n
+
+        def values(key, policies):
+            return evaluate_candidates(
+                self.env, self.controller, key, n, params.env, policies, memory=self.memory
+            )
+
+        def paired(key, policy, others):
+            run = lambda p: rollouts(self.env, self.controller, key, n_check, params.env, p)  # noqa: E731
+            diff = jax.vmap(run)(others) - run(policy)  # [K, n_check]
+            return diff.mean(-1), diff.std(-1) / jnp.sqrt(jnp.float32(n_check))
+
+        agents, features = self.controller.num_agents, self.controller.in_features
+        scale = self.feature_scale
+        if scale is None:
+            scale = jnp.ones((agents, features), jnp.float32)
+        support = action_support(self.env)[:, 0, :]
+        return values, paired, jnp.asarray(scale, jnp.float32), support
+
+    def finish_start(self, state, params):
+        """The polish of the kept policy (``None`` without sweeps)."""
+        if self.polish_sweeps == 0 or state.polish_seed is None:
+            return None
+        return PolishWork.start(state.best_policy, polish_key(state.polish_seed))
+
+    def finish_advance(self, work: PolishWork, params) -> PolishWork:
+        values, paired, scale, support = self._polish_parts(params)
+        moves = jnp.asarray(self.polish_moves)
+        done = self.finish_done(work)
+        swept = sweep(work, moves, values, paired, scale, support)
+        return jax.tree.map(lambda old, new: jnp.where(done, old, new), work, swept)
+
+    def finish_done(self, work: PolishWork) -> jax.Array:
+        return work.stopped | (work.sweeps >= self.polish_sweeps)
+
+    def finish_end(self, state, work: PolishWork):
+        """``(state, work)``: the polished policy kept."""
+        return state.replace(best_policy=work.policy), work
+
+    def finish_record(self, info, seconds: float) -> dict | None:
+        """results.json ``polish``: sweeps run, moves applied, their summed gain on the
+        confirming rollouts (a paired estimate, not the honest value), moves per sweep."""
+        if info is None:
+            return None
+        return {
+            "sweeps": int(info.sweeps),
+            "moves_applied": int(info.applied),
+            "confirmed_gain": float(info.gain),
+            "moves_per_sweep": len(self.polish_moves),
+            "rollouts_per_move": self.settings.best_rollouts,
+            "rollouts": int(info.sweeps) * self.polish_sweep_rollouts,
+            "seconds": seconds,
+        }
+
+    def finish_status(self, work) -> dict:
+        """The polish's progress: sweeps run and moves applied (the largest over runs)."""
+        sweeps, applied = (np.max(np.asarray(getattr(work, f))) for f in ("sweeps", "applied"))
+        return {"sweeps": int(sweeps), "moves": int(applied)}
+
+    def finish_line(self, record: dict) -> str | None:
+        return (
+            f"polish: {record['moves_applied']} moves in {record['sweeps']} sweeps of "
+            f"{record['moves_per_sweep']} (paired gain {record['confirmed_gain']:+.4g}, "
+            f"{record['seconds']:.1f} s)"
+        )

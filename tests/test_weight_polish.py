@@ -1,0 +1,189 @@
+"""The paired-rollout polish of a kept neural controller (algorithms/weight_polish.py)."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cognet_jax.algorithms.weight_polish import (
+    ACTION,
+    DEFAULT,
+    SHIFT,
+    SHIFTS,
+    TARGET,
+    PolishWork,
+    apply_move,
+    move_table,
+    sweep,
+)
+from cognet_jax.cli import main as cli_main
+from cognet_jax.controllers.neural import NeuralPolicy
+
+A, Q, F, H, NA = 2, 3, 1, 2, 4
+
+
+def tied_policy() -> NeuralPolicy:
+    """Every (agent, node) runs the same network: unit 0 votes for node 1 past x = 0.5, unit 1
+    for node 2 below x = -1; default vote for node 0; actions 0, 1, 2 per node."""
+    w1 = jnp.broadcast_to(jnp.array([[2.0, -1.0]]), (A, Q, F, H))
+    b1 = jnp.broadcast_to(jnp.array([-1.0, -1.0]), (A, Q, H))
+    w2 = jnp.broadcast_to(jnp.array([[0.0, 5.0, 0.0], [0.0, 0.0, 5.0]]), (A, Q, H, Q))
+    b2 = jnp.broadcast_to(jnp.array([3.0, 0.0, 0.0]), (A, Q, Q))
+    actions = jnp.broadcast_to(jax.nn.one_hot(jnp.arange(Q), NA), (A, Q, NA))
+    params = {"Dense_0": {"kernel": w1, "bias": b1}, "Dense_1": {"kernel": w2, "bias": b2}}
+    return NeuralPolicy(action_probs=actions, net_params={"params": params})
+
+
+def leaves(policy):
+    p = policy.net_params["params"]
+    return (
+        np.asarray(p["Dense_0"]["bias"]),
+        np.asarray(p["Dense_1"]["kernel"]),
+        np.asarray(p["Dense_1"]["bias"]),
+        np.asarray(policy.action_probs),
+    )
+
+
+SCALE = jnp.full((A, F), 0.5)
+SUPPORT = jnp.ones((A, NA), bool).at[1, 3].set(False)  # agent 1 lacks action 3
+
+
+def test_the_table_lists_every_move_of_every_unit_and_node():
+    moves = move_table(A, Q, H, NA)
+    per_node = H * (len(SHIFTS) + Q - 1) + (NA - 1) + (Q - 1)
+    assert moves.shape == (A * Q * per_node, 5)
+    assert set(moves[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT}
+
+
+def test_a_shift_moves_every_copy_of_the_unit_by_its_spread():
+    policy = tied_policy()
+    b1, *_ = leaves(policy)
+    i = SHIFTS.index(0.1)
+    moved = apply_move(policy, jnp.array([SHIFT, 1, 2, 0, i]), SCALE, SUPPORT)
+    b1_new, w2, b2, actions = leaves(moved)
+    # |w * scale| = 2 * 0.5 = 1: the bias of unit 0 grows by 0.1 in every agent and node
+    assert np.allclose(b1_new[..., 0], b1[..., 0] + 0.1)
+    assert np.allclose(b1_new[..., 1], b1[..., 1])
+    assert np.array_equal(w2, leaves(policy)[1]) and np.array_equal(actions, leaves(policy)[3])
+
+
+def test_a_shift_of_an_untied_copy_leaves_the_others():
+    policy = tied_policy()
+    p = policy.net_params["params"]
+    b1 = p["Dense_0"]["bias"].at[0, 1, 0].set(-2.0)  # node 1 of agent 0 has its own unit 0
+    policy = policy.replace(net_params={"params": {**p, "Dense_0": {**p["Dense_0"], "bias": b1}}})
+    moved = apply_move(policy, jnp.array([SHIFT, 0, 1, 0, 0]), SCALE, SUPPORT)
+    new = leaves(moved)[0]
+    changed = np.argwhere(new != np.asarray(b1))
+    assert changed.tolist() == [[0, 1, 0]]
+
+
+def test_target_default_and_action_moves_change_what_they_name():
+    policy = tied_policy()
+    _, w2, b2, actions = leaves(policy)
+    _, w2_new, _, _ = leaves(apply_move(policy, jnp.array([TARGET, 0, 0, 0, 0]), SCALE, SUPPORT))
+    # unit 0 voted for node 1: its first other node is 2, the vote's strength kept
+    assert np.allclose(w2_new[..., 0, :], [0.0, 0.0, 5.0])
+    assert np.allclose(w2_new[..., 1, :], w2[..., 1, :])
+    _, _, b2_new, _ = leaves(apply_move(policy, jnp.array([DEFAULT, 1, 2, 0, 1]), SCALE, SUPPORT))
+    assert np.allclose(b2_new[1, 2], [0.0, 0.0, 3.0])
+    assert np.count_nonzero(b2_new != b2) == 2
+    # node 2 runs action 2; arg 0 gives action 3, which agent 1 lacks: no change there
+    *_, a0 = leaves(apply_move(policy, jnp.array([ACTION, 0, 2, 0, 0]), SCALE, SUPPORT))
+    *_, a1 = leaves(apply_move(policy, jnp.array([ACTION, 1, 2, 0, 0]), SCALE, SUPPORT))
+    assert np.argmax(a0[0, 2]) == 3 and np.array_equal(a1, actions)
+
+
+def bias_values(target: float):
+    """A stand-in for rollouts: the value of a policy falls with the distance of unit 0's
+    bias (agent 0, node 0) from ``target``, the same for every key."""
+
+    def values(key, policies):
+        b1 = policies.net_params["params"]["Dense_0"]["bias"]
+        return -jnp.abs(b1[:, 0, 0, 0] - target)
+
+    return values
+
+
+def exact_pair(values, stderr=0.01):
+    """``paired`` of ``values``: the differences of the values, with ``stderr``."""
+
+    def paired(key, policy, others):
+        stack = jax.tree.map(lambda p, o: jnp.concatenate([p[None], o]), policy, others)
+        v = values(key, stack)
+        return v[1:] - v[0], jnp.full(v.shape[0] - 1, stderr)
+
+    return paired
+
+
+def test_a_sweep_applies_the_move_that_gains_most_and_stops_when_none_gains():
+    moves = jnp.asarray(move_table(A, Q, H, NA))
+    work = PolishWork.start(tied_policy(), jax.random.key(0))
+    values = bias_values(-0.6)
+    run = jax.jit(lambda w: sweep(w, moves, values, exact_pair(values), SCALE, SUPPORT))
+    work = run(work)  # -1.0 -> -0.7 (the largest shift, 0.3)
+    assert int(work.applied) == 1 and not bool(work.stopped)
+    assert np.isclose(leaves(work.policy)[0][0, 0, 0], -0.7)
+    assert np.isclose(float(work.gain), 0.3)
+    work = run(work)  # -0.7 -> -0.6
+    assert np.isclose(leaves(work.policy)[0][0, 0, 0], -0.6)
+    before = leaves(work.policy)
+    work = run(work)  # nothing gains: stopped, the policy as it was
+    assert bool(work.stopped) and int(work.applied) == 2 and int(work.sweeps) == 3
+    for got, want in zip(leaves(work.policy), before):
+        assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("gain, stderr", [(-0.1, 0.01), (0.1, 0.05)])
+def test_a_move_that_does_not_win_clearly_on_the_confirming_rollouts_is_not_applied(gain, stderr):
+    """The picking rollouts favour a move; the confirming ones give it ``gain`` +- ``stderr``:
+    a loss, or a gain within 2.5 standard errors."""
+    moves = jnp.asarray(move_table(A, Q, H, NA))
+
+    def values(key, policies):
+        return policies.net_params["params"]["Dense_0"]["bias"][:, 0, 0, 0]
+
+    def paired(key, policy, others):
+        return jnp.full(4, gain), jnp.full(4, stderr)
+
+    start = PolishWork.start(tied_policy(), jax.random.key(0))
+    work = sweep(start, moves, values, paired, SCALE, SUPPORT)
+    assert bool(work.stopped) and int(work.applied) == 0
+    assert np.array_equal(leaves(work.policy)[0], leaves(tied_policy())[0])
+
+
+POLISHED_RUN = [
+    "--set",
+    "algorithm.iterations=20",
+    "--set",
+    "algorithm.candidates=64",
+    "--set",
+    "algorithm.eval_rollouts=100",
+    "--set",
+    "algorithm.elites=8",
+    "--set",
+    "algorithm.best_rollouts=50",
+    "--set",
+    "algorithm.polish_share=1.0",
+    "--set",
+    "evaluation.rollouts=2000",
+    "--set",
+    "run.plots=false",
+    "--no-progress",
+]
+
+
+def test_a_run_records_its_polish_and_evaluate_gives_the_polished_policys_value(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = cli_main(["train", "tagging-thesis-n3", "--seed", "1", "--out", str(out)] + POLISHED_RUN)
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    polish = results["finish"]
+    # 20 x 64 x 100 rollouts over (624 moves + 1 + 10 x 5) x 50 per sweep: 3 sweeps at most
+    assert 1 <= polish["sweeps"] <= 3 and polish["moves_per_sweep"] == 624
+    assert "polish:" in capsys.readouterr().out
+    assert cli_main(["evaluate", str(out), "--rollouts", "2000"]) == 0
+    shown = capsys.readouterr().out
+    assert f"{results['final_value']['mean']:.3f}" in shown
