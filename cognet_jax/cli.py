@@ -67,6 +67,7 @@ from cognet_jax.signals import (
     in_background,
     install_stop_handlers,
     restore_stop_handlers,
+    stop_received,
 )
 
 
@@ -576,6 +577,11 @@ def main(argv: list[str] | None = None) -> int:
         print("error: interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
+        signum = stop_received()
+        if signum is not None:  # the stop, raised inside a compiled call, wrapped by JAX
+            _STOPPED["signum"] = signum
+            print(f"error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+            return 128 + signum
         if args.debug:
             raise
         failed = callback_failure(err)

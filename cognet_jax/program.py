@@ -40,7 +40,7 @@ from cognet_jax.api import (
     final_returns,
     iteration_step,
     params_of,
-    seed_key,
+    seed_keys,
     split_seed_key,
 )
 from cognet_jax.config import Config
@@ -82,6 +82,18 @@ STACK_CHUNK = 64
 def _stack(trees):
     """The leaves of ``trees`` stacked along a new leading axis (``_stacked``)."""
     return jax.tree.map(lambda *xs: _stacked(xs), *trees)
+
+
+def _stack_shared(trees):
+    """``_stack(trees)`` where many of ``trees`` are the same object (a sweep's seeds of one
+    setting share their params): the distinct ones stacked once, then gathered per run, so
+    100,000 runs of one setting stack one tree, not 100,000. The same arrays."""
+    first: dict[int, int] = {}
+    index = [first.setdefault(id(t), len(first)) for t in trees]
+    distinct = list({id(t): t for t in trees}.values())
+    stacked = _stack(distinct)
+    where = jnp.asarray(index, jnp.int32)
+    return jax.tree.map(lambda x: jnp.take(x, where, axis=0), stacked)
 
 
 def _stacked(xs) -> jax.Array:
@@ -253,7 +265,8 @@ class Program:
             if id(r.config) not in made:
                 made[id(r.config)] = params_of(r.config)
         self.run_params = [made[id(r.config)] for r in runs]
-        self.seed_keys = [seed_key(r.config, r.seed) for r in runs]
+        #: ``[runs]`` every run's seed key (``api.seed_keys``: one call, not one per run)
+        self.seed_keys = seed_keys([r.config for r in runs], [r.seed for r in runs])
         # the first run's init and run keys (what a single-run program uses)
         self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
         self._step = iteration_step(self.algorithm)
@@ -261,9 +274,10 @@ class Program:
         if self.batched:
             padded_params = self.run_params + [self.run_params[-1]] * (len(padded) - len(runs))
             self.shared_env = all(same_tree(p.env, self.params.env) for p in self.run_params)
-            keys = _stacked(self.seed_keys + [self.seed_keys[-1]] * (len(padded) - len(runs)))
-            hyper = _stack([p.hyper for p in padded_params])
-            env = _stack([p.env for p in padded_params])
+            pad = len(padded) - len(runs)
+            keys = jnp.concatenate([self.seed_keys, jnp.repeat(self.seed_keys[-1:], pad, 0)])
+            hyper = _stack_shared([p.hyper for p in padded_params])
+            env = _stack_shared([p.env for p in padded_params])
             self.data = jax.device_put((keys, hyper, env), self.sharding)
 
     # -- per-run pieces, written once for both layouts --------------------------------------

@@ -15,7 +15,6 @@ import warnings
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from cognet_jax.api import (
@@ -76,8 +75,8 @@ def _without_run_section(meta: dict) -> dict:
 
 
 def _run_keys(program: Program):
-    keys = [split_seed_key(k)[1] for k in program.seed_keys]
-    return keys[0] if not program.batched else jnp.stack(keys)
+    keys = jax.vmap(lambda k: split_seed_key(k)[1])(program.seed_keys)  # [runs]
+    return keys[0] if not program.batched else keys
 
 
 def save_group(program: Program, path: Path, iteration: int, state, history) -> None:

@@ -24,17 +24,26 @@ import time
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: a stop signal this soon after the one before repeats it (seconds)
 REPEAT_S = 1.0
-_last_stop = {"time": -float("inf")}
+_last_stop = {"time": -float("inf"), "signum": None}
 
 
-def _fresh() -> bool:
+def _fresh(signum: int | None = None) -> bool:
     """Whether a stop signal arriving now is a new one (not a repeat within ``REPEAT_S``); a
     new one is remembered."""
     now = time.monotonic()
     if now - _last_stop["time"] <= REPEAT_S:
         return False
     _last_stop["time"] = now
+    _last_stop["signum"] = signum
     return True
+
+
+def stop_received() -> int | None:
+    """The last stop signal this process received, or None. A ``Stopped`` raised while the
+    main thread was inside a compiled call reaches the caller as that library's own error
+    (JAX: "Error dispatching computation"); the command line reads this to report the stop
+    as a stop."""
+    return _last_stop["signum"]
 
 
 def _heeded() -> list:
@@ -52,7 +61,7 @@ class Stopped(KeyboardInterrupt):
 
 
 def _raise_stopped(signum, frame):
-    if _fresh():
+    if _fresh(signum):
         raise Stopped(signum)
 
 
@@ -61,7 +70,9 @@ _INSTALLED: list = []
 
 
 def install_stop_handlers() -> None:
-    """Every stop signal raises ``Stopped`` (main thread only; the command line calls it)."""
+    """Every stop signal raises ``Stopped`` (main thread only; the command line calls it, once
+    per command: no stop received yet)."""
+    _last_stop["signum"] = None
     if threading.current_thread() is threading.main_thread():
         _INSTALLED[:] = _heeded()
         for sig in _INSTALLED:
@@ -112,7 +123,7 @@ def deferred_stop():
     heeded = _heeded()
 
     def handler(signum, frame):
-        if not _fresh():
+        if not _fresh(signum):
             return
         flag["signum"] = int(signum)
         for sig in heeded:

@@ -173,3 +173,28 @@ def test_a_stop_signal_after_the_work_ends_the_process_quietly():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stdout, done.stderr) == (143, "done\n", "")
+
+
+def test_a_stop_raised_inside_a_compiled_call_is_reported_as_the_stop(monkeypatch, capsys):
+    """JAX wraps an exception raised while it dispatches a computation (the stop handler's
+    ``Stopped``) in its own error, "Error dispatching computation": the command still ends
+    as stopped by the signal, not with an internal error."""
+    from cognet_jax import cli
+    from cognet_jax.signals import Stopped, install_stop_handlers
+
+    def dispatching(args):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler raises Stopped here
+            time.sleep(5)
+        except Stopped as err:  # as JAX's dispatch hands it on
+            raise RuntimeError("INTERNAL: Error dispatching computation") from None
+
+    monkeypatch.setattr(cli, "_evaluate", dispatching)
+    previous = signal.getsignal(signal.SIGTERM)
+    install_stop_handlers()
+    try:
+        code = cli.main(["evaluate", "somewhere"])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert code == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip() == "error: stopped by SIGTERM"
