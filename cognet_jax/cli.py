@@ -180,7 +180,9 @@ def _sweep(args) -> int:
     processes = args.num_processes or 1
     total = len(seeds) * math.prod(len(v) for v in grid.values())
     if not args.resume:
-        _size_sweep(experiment, overrides, len(seeds), total)
+        from cognet_jax.sweep_size import size_sweep
+
+        size_sweep(experiment, overrides, len(seeds), total)
     set_cpu_devices(args.cpu_devices, -(-total // processes))
     init_distributed(args)
     import jax
@@ -203,48 +205,9 @@ def _sweep(args) -> int:
         return 128 + err.signum
 
 
-#: a sweep of more runs than this is announced with its estimate before it is prepared
-MANY_RUNS = 1000
 #: a sweep of more runs than this is refused before it is prepared: each run is prepared in
 #: Python (its config, keys and folder), about a millisecond each
 MAX_RUNS = 100_000
-
-
-def _duration(seconds: float) -> str:
-    """``seconds`` in the unit that reads best: s, min or h."""
-    if seconds < 60:
-        return f"{seconds:.1f} s"
-    if seconds < 3600:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.1f} h"
-
-
-def _size_sweep(experiment: str, overrides: list[str], seeds: int, total: int) -> None:
-    """Refuse, before anything is built for each run, a sweep whose runs together take more
-    than ``budget.ABSURD_SECONDS`` of simulation (the first setting's estimate times the runs);
-    announce a large one (over ``MANY_RUNS`` runs, or over ``budget.LONG_SECONDS``)."""
-    from cognet_jax.api import build_env
-    from cognet_jax.budget import ABSURD_SECONDS, LONG_SECONDS, check_budget, estimated_seconds
-
-    config = load_config(experiment, overrides)
-    env = build_env(config)[0]
-    seconds = estimated_seconds(config, env) * total
-    settings = total // max(seeds, 1)
-    what = f"{total} runs ({settings} settings x {seeds} seeds)"
-    if seconds > ABSURD_SECONDS:
-        check_budget(config, env)  # one run alone too long: refused naming its own field
-        field = "seeds" if seeds >= settings else "grid"
-        raise ConfigError(
-            field,
-            f"the sweep's {what} simulate at least {seconds / 86400:.0f} days together, over "
-            f"the limit of {ABSURD_SECONDS / 86400:.0f} days",
-        )
-    if total > MANY_RUNS or seconds > LONG_SECONDS:
-        print(
-            f"sweep: {what}, at least {_duration(seconds)} of simulation; preparing them ...",
-            file=sys.stderr,
-            flush=True,
-        )
 
 
 def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main_process) -> int:
@@ -527,6 +490,12 @@ def _after_imports(names: list[str]) -> None:
 _IMPORTED: list[str] = []
 
 
+def _stopped(err: Stopped) -> int:
+    _STOPPED["signum"] = err.signum
+    print(f"error: stopped by {err}", file=sys.stderr)
+    return 128 + err.signum
+
+
 def main(argv: list[str] | None = None) -> int:
     install_stop_handlers()
     _one_line_warnings()
@@ -570,18 +539,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {one_line(err)}", file=sys.stderr)
         return 2
     except Stopped as err:
-        _STOPPED["signum"] = err.signum
-        print(f"error: stopped by {err}", file=sys.stderr)
-        return 128 + err.signum
+        return _stopped(err)
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # a bug, not a bad input: one line, the traceback with --debug
-        signum = stop_received()
-        if signum is not None:  # the stop, raised inside a compiled call, wrapped by JAX
-            _STOPPED["signum"] = signum
-            print(f"error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
-            return 128 + signum
+        if stop_received() is not None:  # the stop, raised inside a compiled call (JAX wraps it)
+            return _stopped(Stopped(stop_received()))
         if args.debug:
             raise
         failed = callback_failure(err)

@@ -398,3 +398,18 @@ def test_many_runs_are_stacked_in_chunks_to_the_same_arrays():
         if jax.dtypes.issubdtype(whole.dtype, jax.dtypes.prng_key):
             whole, chunked = jax.random.key_data(whole), jax.random.key_data(chunked)
         np.testing.assert_array_equal(np.asarray(chunked), np.asarray(whole))
+
+
+def test_a_sweep_is_sized_before_its_runs_are_prepared(capsys):
+    """Over 1000 runs: one line with the estimate; runs that together simulate for over a
+    week: refused naming the larger factor, before any run is built."""
+    from cognet_jax.sweep_size import size_sweep
+
+    size_sweep("tagging-thesis-n3", [], 2000, 2000)
+    line = capsys.readouterr().err
+    assert line.startswith("sweep: 2000 runs (1 settings x 2000 seeds), at least ")
+    assert line.rstrip().endswith("of simulation; preparing them ...")
+    size_sweep("tagging-thesis-n3", [], 4, 4)
+    assert capsys.readouterr().err == ""
+    with pytest.raises(ConfigError, match="'grid'.*10000 settings x 10 seeds.*days together"):
+        size_sweep("tagging-thesis-n3", ["algorithm.iterations=100000"], 10, 100_000)
