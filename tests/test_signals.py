@@ -186,7 +186,7 @@ def test_a_stop_raised_inside_a_compiled_call_is_reported_as_the_stop(monkeypatc
         try:
             os.kill(os.getpid(), signal.SIGTERM)  # the handler raises Stopped here
             time.sleep(5)
-        except Stopped as err:  # as JAX's dispatch hands it on
+        except Stopped:  # as JAX's dispatch hands it on
             raise RuntimeError("INTERNAL: Error dispatching computation") from None
 
     monkeypatch.setattr(cli, "_evaluate", dispatching)
