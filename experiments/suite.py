@@ -965,10 +965,13 @@ def _values(path: Path) -> list[float] | None:
 
 def _first_reach(rows: list[dict], target: float) -> str:
     """Median over seeds of the wall seconds at which the anytime best's honest value (the
-    probes) first reached ``target``; "never" for a seed that did not."""
+    probes, and the final value at the run's end) first reached ``target``; "never" for a
+    seed that did not."""
     times = []
     for r in rows:
         hit = [p["wall_s"] for p in r.get("probes") or [] if p["value"] >= target]
+        if r["final_value"]["mean"] >= target:  # the policy handed back (after any polish)
+            hit.append(r["wall_s"])
         times.append(min(hit) if hit else float("inf"))
     times.sort()
     median = times[len(times) // 2]
