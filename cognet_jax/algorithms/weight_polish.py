@@ -44,7 +44,7 @@ from flax import struct
 
 from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralPolicy
-from cognet_jax.rollout import evaluate_candidates, rollouts
+from cognet_jax.rollout import evaluate_candidates, many_returns
 
 SHIFT, TARGET, ACTION, DEFAULT = 0, 1, 2, 3
 #: threshold shifts, in standard deviations of the input features along a unit's weights
@@ -235,8 +235,10 @@ class PolishFinish:
                 self.env, self.controller, key, n, params.env, policies, memory=self.memory
             )
 
-        def paired(key, policy, others):
-            run = lambda p: rollouts(self.env, self.controller, key, n_check, params.env, p)  # noqa: E731
+        def paired(key, policy, others):  # 10,000 rollouts at a time: bounded memory
+            def run(p):
+                return many_returns(self.env, self.controller, key, params.env, p, n_check)
+
             diff = jax.vmap(run)(others) - run(policy)  # [K, n_check]
             return diff.mean(-1), diff.std(-1) / jnp.sqrt(jnp.float32(n_check))
 
@@ -268,7 +270,7 @@ class PolishFinish:
         return state.replace(best_policy=work.policy), work
 
     def finish_record(self, info, seconds: float) -> dict | None:
-        """results.json ``polish``: sweeps run, moves applied, their summed gain on the
+        """results.json ``finish``: sweeps run, moves applied, their summed gain on the
         confirming rollouts (a paired estimate, not the honest value), moves per sweep."""
         if info is None:
             return None
