@@ -1038,7 +1038,7 @@ def table() -> list[str]:
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
         for suffix, change in (
             ("-before-polish", "the polish"),
-            ("-before-redraw", "refine_redraw and kept_sharpness"),
+            ("-before-redraw", "refine_redraw, kept_sharpness and the polish"),
         ):
             earlier = RESULTS / f"cognet-{row}{suffix}" / "runs.json"
             if cognet == "not run" and earlier.is_file():  # not swept under the defaults of now
