@@ -708,6 +708,15 @@ def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
     return replaced(BEFORE_RULE, overrides)
 
 
+def earlier_defaults(suffix: str, what: str) -> dict:
+    """Rows ``cognet-ROW-SUFFIX``: each simulator's sweep of the defaults before a change (the
+    ``cognet-ROW`` sweeps of then, kept under that name)."""
+    return {
+        f"cognet-{row}-{suffix}": (experiment, [], SEEDS, what, None)
+        for row, (experiment, _) in ROWS.items()
+    }
+
+
 #: the refine phase's redrawn units and the kept policies' sharper votes as they were before
 #: they became defaults: every row measured before pins them (``before_redraw``)
 BEFORE_REDRAW = ["algorithm.refine_redraw=0.0", "algorithm.kept_sharpness=1.0"]
@@ -797,16 +806,7 @@ AFTER_REDRAW = {
         )
         for frac, budget, what in (("1of64", "4.6875e9", "1/64"), ("1of8", "3.75e10", "1/8"))
     },
-    **{
-        f"cognet-{row}-before-redraw": (
-            experiment,
-            [],
-            SEEDS,
-            "the defaults before refine_redraw and kept_sharpness",
-            None,
-        )
-        for row, (experiment, _) in ROWS.items()
-    },
+    **earlier_defaults("before-redraw", "the defaults before refine_redraw and kept_sharpness"),
 }
 
 
@@ -847,16 +847,7 @@ AFTER_POLISH = {
         "1/64 of the paper's 3e11 agent-steps under the defaults with the polish",
         "paper-budget-1of64-redraw",
     ),
-    **{
-        f"cognet-{row}-before-polish": (
-            experiment,
-            [],
-            SEEDS,
-            "the defaults before the polish after the search",
-            None,
-        )
-        for row, (experiment, _) in ROWS.items()
-    },
+    **earlier_defaults("before-polish", "the defaults before the polish after the search"),
 }
 
 

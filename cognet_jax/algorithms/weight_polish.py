@@ -37,6 +37,8 @@ pushing that gave four more seeds of eight a move than stopping there (experimen
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -202,9 +204,10 @@ class PolishFinish:
     ``memory``, ``feature_scale`` and ``rollouts_per_iteration``; its state's ``best_policy``
     and ``polish_seed``."""
 
-    @property
+    @functools.cached_property
     def polish_moves(self) -> np.ndarray:
-        """``[moves, 5]``: the moves of one sweep (``move_table``)."""
+        """``[moves, 5]``: the moves of one sweep (``move_table``, listed once per search: the
+        records of a sweep's runs read its length)."""
         s, c = self.settings, self.controller
         return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions)
 
