@@ -372,6 +372,8 @@ ADDED_FIELDS = {
             "refine_redraw": 0.0,
             "kept_sharpness": 1.0,
             "polish_share": 0.0,
+            "polish_axes": False,
+            "polish_extend": 1.0,
         }
     }
 }

@@ -9,12 +9,17 @@ import pytest
 
 from cognet_jax.algorithms.weight_polish import (
     ACTION,
+    AXIS,
+    AXIS_LEVELS,
+    AXIS_MAX_FEATURES,
+    AXIS_SHARPNESS,
     DEFAULT,
     SHIFT,
     SHIFTS,
     TARGET,
     PolishWork,
     apply_move,
+    axis_moves,
     move_table,
     sweep,
 )
@@ -55,6 +60,50 @@ def test_the_table_lists_every_move_of_every_unit_and_node():
     per_node = H * (len(SHIFTS) + Q - 1) + (NA - 1) + (Q - 1)
     assert moves.shape == (A * Q * per_node, 5)
     assert set(moves[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT}
+
+
+def test_axis_moves_are_listed_for_inputs_of_few_features_only():
+    plain = move_table(A, Q, H, NA)
+    with_axes = move_table(A, Q, H, NA, features=2)
+    per_node = 2 * 2 * len(AXIS_LEVELS) * Q  # features x sides x levels x targets
+    assert axis_moves(2, Q) == per_node
+    assert len(with_axes) == len(plain) + A * Q * per_node
+    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS}
+    assert len(move_table(A, Q, H, NA, features=AXIS_MAX_FEATURES + 1)) == len(plain)
+
+
+def node_choice(policy, agent: int, node: int, x: float) -> int:
+    """The next node a one-feature policy's ``(agent, node)`` votes for at observation ``x``."""
+    p = policy.net_params["params"]
+    hidden = jax.nn.relu(
+        x * p["Dense_0"]["kernel"][agent, node, 0] + p["Dense_0"]["bias"][agent, node]
+    )
+    logits = hidden @ p["Dense_1"]["kernel"][agent, node] + p["Dense_1"]["bias"][agent, node]
+    return int(jnp.argmax(logits))
+
+
+def test_an_axis_move_makes_the_weakest_unit_a_threshold_that_outvotes_the_others():
+    policy = tied_policy()
+    center = jnp.full((A, F), 2.0)
+    # feature 0, side +, level 0 (at the mean, x = 2), target node 2: arg ((0*2+0)*L + l)*Q + 2
+    level = AXIS_LEVELS.index(0.0)
+    moved = apply_move(policy, jnp.array([AXIS, 0, 1, 0, level * Q + 2]), SCALE, SUPPORT, center)
+    # unit 1 (spread 0.5 x vote 5) is weaker than unit 0 (1 x 5): it is the one rewritten, in
+    # every copy; unit 0 keeps voting for node 1 past x = 0.5
+    assert np.array_equal(leaves(moved)[0][..., 0], leaves(policy)[0][..., 0])
+    past = 2.0 + 2 * AXIS_SHARPNESS * 0.5  # two sharpness widths past the threshold
+    for agent in range(A):
+        for node in range(Q):
+            assert node_choice(policy, agent, node, past) == 1
+            assert node_choice(moved, agent, node, past) == 2
+            assert node_choice(moved, agent, node, 1.9) == 1
+            assert node_choice(moved, agent, node, -3.0) == node_choice(policy, agent, node, 0.0)
+    # without the features' mean (AXIS moves off) the same row changes nothing of that kind
+    same = apply_move(policy, jnp.array([SHIFT, 0, 1, 0, 0]), SCALE, SUPPORT, center)
+    for got, want in zip(
+        leaves(same), leaves(apply_move(policy, jnp.array([SHIFT, 0, 1, 0, 0]), SCALE, SUPPORT))
+    ):
+        assert np.array_equal(got, want)
 
 
 def test_a_shift_moves_every_copy_of_the_unit_by_its_spread():
@@ -136,6 +185,22 @@ def test_a_sweep_applies_the_move_that_gains_most_and_stops_when_none_gains():
         assert np.array_equal(got, want)
 
 
+def test_the_polish_goes_on_past_its_share_only_while_every_sweep_applies_a_move():
+    """``finish_done``: ``polish_sweeps`` sweeps, then more while the last one moved, up to
+    ``polish_sweep_cap``."""
+    from cognet_jax.algorithms.weight_polish import PolishFinish
+
+    class Fixed(PolishFinish):
+        polish_sweeps, polish_sweep_cap = 3, 6
+
+    done = Fixed().finish_done
+    work = PolishWork.start(tied_policy(), jax.random.key(0))
+    at = lambda n, moved: work.replace(sweeps=jnp.int32(n), moved=jnp.bool_(moved))  # noqa: E731
+    assert not done(at(2, False)) and not done(at(2, True))
+    assert done(at(3, False)) and not done(at(3, True)) and not done(at(5, True))
+    assert done(at(4, False)) and done(at(6, True))
+
+
 @pytest.mark.parametrize("gain, stderr", [(-0.1, 0.01), (0.1, 0.05)])
 def test_a_move_that_does_not_win_clearly_on_the_confirming_rollouts_is_not_applied(gain, stderr):
     """The picking rollouts favour a move; the confirming ones give it ``gain`` +- ``stderr``:
@@ -181,8 +246,10 @@ def test_a_run_records_its_polish_and_evaluate_gives_the_polished_policys_value(
     assert code == 0
     results = json.loads((out / "results.json").read_text())
     polish = results["finish"]
-    # 20 x 64 x 100 rollouts over (624 moves + 1 + 10 x 5) x 50 per sweep: 3 sweeps at most
-    assert polish["sweeps"] == 3 and polish["moves_per_sweep"] == 624
+    # 624 one-entry moves and 2 agents x 3 nodes x 42 AXIS moves (one feature); 20 x 64 x 100
+    # rollouts over (876 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps, 5 while each moves
+    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) == 876
+    assert polish["sweeps"] == min(5, max(2, polish["moves_applied"] + 1))
     assert "polish:" in capsys.readouterr().out
     assert cli_main(["evaluate", str(out), "--rollouts", "2000"]) == 0
     shown = capsys.readouterr().out

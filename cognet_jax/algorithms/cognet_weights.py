@@ -226,12 +226,14 @@ class CognetWeights(PolishFinish, NeuralSearch):
     ``standardize_inputs`` -- a fixed reparametrisation of the search space, computed once
     under the config's env params (``build``), not a function of the params a search runs
     with. ``feature_scale [agents, F]``: the input features' spread the polish measures its
-    threshold shifts in (``input_statistics``' scale; None: 1).
+    threshold shifts in (``input_statistics``' scale; None: 1), ``feature_mean [agents, F]``
+    their mean, where its AXIS moves put thresholds (None: 0).
     """
 
     pipeline: ObservationPipeline | None = None
     input_stats: tuple | None = None
     feature_scale: jax.Array | None = None
+    feature_mean: jax.Array | None = None
 
     def __post_init__(self):
         s = resolve_search(sized(self.settings, self.env), self.env)  # settings made in code

@@ -37,9 +37,9 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     stats = None
     if settings.standardize_inputs or settings.polish_share > 0:
         stats = input_statistics(env, controller, pipeline, env_params, memory)
-    scale = stats[1] if stats is not None else None
+    mean, scale = stats if stats is not None else (None, None)
     kept = stats if settings.standardize_inputs else None
-    return CognetWeights(env, settings, memory, pipeline, kept, scale)
+    return CognetWeights(env, settings, memory, pipeline, kept, scale, mean)
 
 
 def resolve(config, env, env_params) -> CognetWeightsSection:

@@ -58,7 +58,11 @@ class CognetWeightsSection:
     that much sharper, the argmax the same), ``kept_sharpness`` those of the policies the
     anytime best keeps only; ``polish_share``: the paired-rollout polish of the kept policy
     after the search may simulate at most that share of the search's rollouts
-    (``algorithms.weight_polish``; 0: none). The hidden width is ``network.hidden``."""
+    (``algorithms.weight_polish``; 0: none); ``polish_axes``: its moves include rewriting a
+    node's weakest unit as a threshold on one feature (AXIS, on inputs of at most
+    ``AXIS_MAX_FEATURES`` features); ``polish_extend``: while each sweep applies a move, the
+    polish goes on past its share up to that many times it (1: never). The hidden width is
+    ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -95,6 +99,8 @@ class CognetWeightsSection:
     refine_levels: int = 1
     starts: int = 1
     polish_share: float = 0.25
+    polish_axes: bool = True
+    polish_extend: float = 2.0
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
@@ -169,6 +175,11 @@ class CognetWeightsSection:
             0 <= self.polish_share <= 1,
             "algorithm.polish_share",
             f"in [0, 1] (0: no polish), got {self.polish_share}",
+        )
+        require(
+            1 <= self.polish_extend <= 10,
+            "algorithm.polish_extend",
+            f"in [1, 10] (1: the polish stops at its share), got {self.polish_extend}",
         )
         require(
             self.refine_redraw == "auto" or 0 <= self.refine_redraw <= 1,

@@ -19,7 +19,16 @@ Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q
   vote's strength kept);
 * ``ACTION``: the node's action becomes ``(a + 1 + arg) % actions`` (a move to an action the
   agent lacks leaves the policy as it is);
-* ``DEFAULT``: the node's default vote goes to ``(d + 1 + arg) % Q`` instead of ``d``.
+* ``DEFAULT``: the node's default vote goes to ``(d + 1 + arg) % Q`` instead of ``d``;
+* ``AXIS`` (``axes``, with at most ``AXIS_MAX_FEATURES`` input features): the node's weakest
+  unit (smallest vote times spread along its weights) becomes a threshold on one feature, the
+  rule a practitioner writes by hand: ``arg`` picks the feature ``f``, a side ``s = +-1``, a
+  level ``AXIS_LEVELS[l]`` and a target node ``t``; the unit reads ``relu(g s (x_f - c_f -
+  level scale_f) / scale_f)`` (``c``, ``scale``: the features' mean and spread, ``g`` the node's
+  largest unit spread) and votes for ``t`` with the node's strongest vote. SHIFT moves of later
+  sweeps tune its threshold. Why: a region the search never covered (on the chase, one end of
+  the bearing's range for half of the seeds) is a joint change of a unit's direction, bias
+  and target that one-entry moves cannot make (experiments/NOTES.md).
 
 SHIFT and TARGET change every copy of the unit at once: a tied controller (``node_tie``,
 ``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
@@ -33,6 +42,10 @@ standard errors of the paired difference (so a move picked for a lucky draw amon
 not kept on that draw). **[choice]** The polish runs every sweep its share of the budget
 allows, also after a sweep that applied nothing (the next sweep's rollouts are fresh): on box
 pushing that gave four more seeds of eight a move than stopping there (experiments/NOTES.md).
+**[choice]** Past its share it goes on while each sweep applies a move, up to ``polish_extend``
+times the share: a policy that still gains at every sweep (the chase seed whose kept policy
+missed a region: one move per sweep for seven sweeps) is not cut off, and one that has
+settled costs no more.
 """
 
 from __future__ import annotations
@@ -48,9 +61,16 @@ from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.rollout import evaluate_candidates, many_returns
 
-SHIFT, TARGET, ACTION, DEFAULT = 0, 1, 2, 3
+SHIFT, TARGET, ACTION, DEFAULT, AXIS = 0, 1, 2, 3, 4
 #: threshold shifts, in standard deviations of the input features along a unit's weights
 SHIFTS = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
+#: thresholds of AXIS moves, in standard deviations of the feature from its mean
+AXIS_LEVELS = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5)
+#: standard deviations past an AXIS threshold where its unit outvotes the node's others
+AXIS_SHARPNESS = 0.05
+#: AXIS moves only on inputs of at most this many features: on an image patch a threshold on
+#: one pixel is not what a hand-written rule reads, and the moves would grow with the pixels
+AXIS_MAX_FEATURES = 4
 #: moves of a sweep tried again on the confirming rollouts (its best by the picking ones)
 CONFIRM_TOP = 4
 #: the confirming rollouts, as a multiple of the picking ones (``best_rollouts``): the picking
@@ -65,8 +85,17 @@ POLISH_STREAM = 0x706F6C69
 POLISH_MAX_SWEEPS = 20
 
 
-def move_table(agents: int, nodes: int, hidden: int, actions: int) -> np.ndarray:
-    """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``."""
+def axis_moves(features: int, nodes: int) -> int:
+    """AXIS moves per node: features x sides x levels x targets (0 above
+    ``AXIS_MAX_FEATURES``)."""
+    if features > AXIS_MAX_FEATURES:
+        return 0
+    return features * 2 * len(AXIS_LEVELS) * nodes
+
+
+def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int = 0) -> np.ndarray:
+    """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``; ``features``
+    > 0 adds the AXIS moves of that many input features (``axis_moves``)."""
     rows = []
     for a in range(agents):
         for n in range(nodes):
@@ -75,6 +104,7 @@ def move_table(agents: int, nodes: int, hidden: int, actions: int) -> np.ndarray
                 rows += [(TARGET, a, n, h, i) for i in range(nodes - 1)]
             rows += [(ACTION, a, n, 0, i) for i in range(actions - 1)]
             rows += [(DEFAULT, a, n, 0, i) for i in range(nodes - 1)]
+            rows += [(AXIS, a, n, 0, i) for i in range(axis_moves(features, nodes))]
     return np.asarray(rows, np.int32).reshape(-1, 5)
 
 
@@ -98,15 +128,52 @@ def _shifted(index: int, size: int, arg) -> jax.Array:
     return (index + 1 + arg) % size
 
 
-def apply_move(policy: NeuralPolicy, move: jax.Array, scale: jax.Array, support: jax.Array):
+def _axis_unit(w1, b1, w2, b2, a, n, arg, scale, center):
+    """``(h, column [F], bias [], votes [Q])``: the AXIS move ``arg`` of node ``(a, n)``
+    (module docstring) -- which unit it rewrites and that unit's new weights. The unit's slope
+    makes its vote, ``AXIS_SHARPNESS`` standard deviations past the threshold, twice a bound
+    on any other logit of the node over features within 3 standard deviations of their mean:
+    the region past the threshold is the target's, as in a hand-written rule (relu units add
+    up, so a unit of the others' slope would lose to their sum)."""
+    q, f_count = w2.shape[-1], w1.shape[-2]
+    target, rest = arg % q, arg // q
+    level, rest = rest % len(AXIS_LEVELS), rest // len(AXIS_LEVELS)
+    side, feature = jnp.where(rest % 2 == 0, 1.0, -1.0), rest // 2
+    spreads = jnp.sqrt(jnp.sum((w1[a, n] * scale[a][:, None]) ** 2, axis=0))  # [H]
+    strength = jnp.max(jnp.abs(w2[a, n]), axis=-1)  # [H]
+    h = jnp.argmin(spreads * strength)
+    reach = jnp.abs(w1[a, n]).T @ (jnp.abs(center[a]) + 3.0 * scale[a]) + jnp.abs(b1[a, n])
+    bound = jnp.sum(reach * strength) + jnp.max(jnp.abs(b2[a, n]))
+    vote = jnp.maximum(jnp.max(strength), 1.0)
+    slope = 2.0 * bound / (AXIS_SHARPNESS * vote) + 1.0  # per standard deviation
+    s_f = scale[a, feature]
+    threshold = center[a, feature] + jnp.asarray(AXIS_LEVELS, jnp.float32)[level] * s_f
+    column = jax.nn.one_hot(feature, f_count, dtype=w1.dtype) * side * slope / s_f
+    bias = -side * slope * threshold / s_f
+    return h, column, bias, vote * jax.nn.one_hot(target, q, dtype=w2.dtype)
+
+
+def apply_move(
+    policy: NeuralPolicy,
+    move: jax.Array,
+    scale: jax.Array,
+    support: jax.Array,
+    center: jax.Array | None = None,
+):
     """``policy`` changed by one move (``move [5]`` int32, module docstring); ``scale [agents,
-    F]``: the input features' spread; ``support [agents, actions]`` bool: the agents' actions.
+    F]``, ``center [agents, F]``: the input features' spread and mean (``center`` needed by
+    AXIS moves only); ``support [agents, actions]`` bool: the agents' actions.
     Leaves: ``w1 [agents, Q, F, H]``, ``b1 [agents, Q, H]``, ``w2 [agents, Q, H, Q]``, ``b2
     [agents, Q, Q]``, ``action_probs [agents, Q, actions]`` (one-hot)."""
     w1, b1, w2, b2 = _layers(policy)
     actions = policy.action_probs
     kind, a, n, h, arg = move[0], move[1], move[2], move[3], move[4]
     q, na = b2.shape[-1], actions.shape[-1]
+    if center is not None:  # AXIS: its unit is the node's weakest, found here
+        axis_h, axis_column, axis_bias, axis_votes = _axis_unit(
+            w1, b1, w2, b2, a, n, arg, scale, center
+        )
+        h = jnp.where(kind == AXIS, axis_h, h)
     # the unit's copies: equal input weights and bias in every (agent, node)
     column = w1[a, n, :, h]
     copies = jnp.all(w1[:, :, :, h] == column, -1) & (b1[:, :, h] == b1[a, n, h])  # [A, Q]
@@ -129,13 +196,14 @@ def apply_move(policy: NeuralPolicy, move: jax.Array, scale: jax.Array, support:
     default = jnp.argmax(jnp.abs(b2[a, n]))
     b2_new = b2.at[a, n].set(b2[a, n, default] * jax.nn.one_hot(_shifted(default, q, arg), q))
     pick = lambda k, new, old: jnp.where(kind == k, new, old)  # noqa: E731
+    b1_new, w2_new = pick(SHIFT, b1_new, b1), pick(TARGET, w2_new, w2)
+    if center is not None:  # AXIS: every copy of the unit rewritten
+        at = copies[..., None] & unit  # [A, Q, H]
+        w1 = pick(AXIS, jnp.where(at[:, :, None, :], axis_column[:, None], w1), w1)
+        b1_new = pick(AXIS, jnp.where(at, axis_bias, b1), b1_new)
+        w2_new = pick(AXIS, jnp.where(at[..., None], axis_votes, w2), w2_new)
     return _with(
-        policy,
-        w1,
-        pick(SHIFT, b1_new, b1),
-        pick(TARGET, w2_new, w2),
-        pick(DEFAULT, b2_new, b2),
-        pick(ACTION, actions_new, actions),
+        policy, w1, b1_new, w2_new, pick(DEFAULT, b2_new, b2), pick(ACTION, actions_new, actions)
     )
 
 
@@ -154,30 +222,33 @@ def polish_key(seed: jax.Array) -> jax.Array:
 @struct.dataclass
 class PolishWork:
     """The polish in progress: the ``policy`` so far, the ``key`` of the next sweep, sweeps
-    run, moves applied and the summed gain of the applied moves on their confirming rollouts
-    (``[]`` each)."""
+    run, moves applied, the summed gain of the applied moves on their confirming rollouts and
+    whether the last sweep applied one (``moved``; ``[]`` each)."""
 
     policy: NeuralPolicy
     key: jax.Array
     sweeps: jax.Array
     applied: jax.Array
     gain: jax.Array
+    moved: jax.Array
 
     @classmethod
     def start(cls, policy: NeuralPolicy, key: jax.Array) -> PolishWork:
         zero = jnp.int32(0)
-        return cls(policy, key, zero, zero, jnp.float32(0.0))
+        return cls(policy, key, zero, zero, jnp.float32(0.0), jnp.bool_(False))
 
 
-def sweep(work: PolishWork, moves: jax.Array, values, paired, scale, support) -> PolishWork:
+def sweep(
+    work: PolishWork, moves: jax.Array, values, paired, scale, support, center=None
+) -> PolishWork:
     """One sweep (module docstring). ``values(key, policies) -> [P]``: mean returns of stacked
     policies on the same rollouts of ``key`` (common random numbers); ``paired(key, policy,
     others) -> (gains [K], stderrs [K])``: each of the stacked ``others``' mean return minus
     ``policy``'s on the same rollouts of ``key``, and the standard errors of those paired
-    differences."""
+    differences; ``center``: the features' mean (AXIS moves)."""
     k_pick, k_check, k_next = jax.random.split(work.key, 3)
     policy = work.policy
-    changed = jax.vmap(lambda m: apply_move(policy, m, scale, support))(moves)
+    changed = jax.vmap(lambda m: apply_move(policy, m, scale, support, center))(moves)
     stack = jax.tree.map(lambda p, c: jnp.concatenate([p[None], c]), policy, changed)
     means = values(k_pick, stack)
     gains = jnp.where(jnp.isnan(means[1:]), -jnp.inf, means[1:] - means[0])
@@ -193,33 +264,46 @@ def sweep(work: PolishWork, moves: jax.Array, values, paired, scale, support) ->
         sweeps=work.sweeps + 1,
         applied=work.applied + confirmed,
         gain=work.gain + jnp.where(confirmed, gain[best], 0.0),
+        moved=confirmed,
     )
 
 
 class PolishFinish:
     """The polish as a search's ``finish`` (``algorithms.engine``; mixed into
-    ``cognet_weights.CognetWeights``): ``polish_sweeps`` sweeps at most, each valuing every
-    move on ``best_rollouts`` rollouts. Reads the search's ``settings`` (``polish_share``,
+    ``cognet_weights.CognetWeights``): ``polish_sweeps`` sweeps, and more while each applies a
+    move, up to ``polish_sweep_cap``; each values every move on ``best_rollouts`` rollouts.
+    Reads the search's ``settings`` (``polish_share``, ``polish_axes``, ``polish_extend``,
     ``best_rollouts``, ``iterations``, ``nodes``, ``hidden``), ``env``, ``controller``,
-    ``memory``, ``feature_scale`` and ``rollouts_per_iteration``; its state's ``best_policy``
-    and ``polish_seed``."""
+    ``memory``, ``feature_scale``, ``feature_mean`` and ``rollouts_per_iteration``; its
+    state's ``best_policy`` and ``polish_seed``."""
 
     @functools.cached_property
     def polish_moves(self) -> np.ndarray:
         """``[moves, 5]``: the moves of one sweep (``move_table``, listed once per search: the
         records of a sweep's runs read its length)."""
         s, c = self.settings, self.controller
-        return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions)
+        features = c.in_features if s.polish_axes else 0
+        return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions, features)
 
     @property
     def polish_sweeps(self) -> int:
-        """Sweeps the polish may run: ``polish_share`` of the search's rollouts over the
+        """Sweeps the polish runs: ``polish_share`` of the search's rollouts over the
         rollouts of one sweep (every move and the policy, the confirming ones), at most
         ``POLISH_MAX_SWEEPS``; 0: no polish."""
+        return self._sweeps_of(self.settings.polish_share)
+
+    @property
+    def polish_sweep_cap(self) -> int:
+        """Sweeps the polish may run while each applies a move: those of ``polish_extend``
+        times its share (at least ``polish_sweeps``)."""
+        s = self.settings
+        return max(self._sweeps_of(s.polish_share * s.polish_extend), self.polish_sweeps)
+
+    def _sweeps_of(self, share: float) -> int:
         s = self.settings
         if s.polish_share <= 0:
             return 0
-        total = s.polish_share * s.iterations * self.rollouts_per_iteration
+        total = share * s.iterations * self.rollouts_per_iteration
         return int(min(total // self.polish_sweep_rollouts, POLISH_MAX_SWEEPS))
 
     @property
@@ -250,7 +334,13 @@ class PolishFinish:
         if scale is None:
             scale = jnp.ones((agents, features), jnp.float32)
         support = action_support(self.env)[:, 0, :]
-        return values, paired, jnp.asarray(scale, jnp.float32), support
+        center = None
+        if self.settings.polish_axes:
+            center = self.feature_mean
+            if center is None:
+                center = jnp.zeros((agents, features), jnp.float32)
+            center = jnp.asarray(center, jnp.float32)
+        return values, paired, jnp.asarray(scale, jnp.float32), support, center
 
     def finish_start(self, state, params):
         """The polish of the kept policy (``None`` without sweeps)."""
@@ -259,14 +349,16 @@ class PolishFinish:
         return PolishWork.start(state.best_policy, polish_key(state.polish_seed))
 
     def finish_advance(self, work: PolishWork, params) -> PolishWork:
-        values, paired, scale, support = self._polish_parts(params)
+        values, paired, scale, support, center = self._polish_parts(params)
         moves = jnp.asarray(self.polish_moves)
         done = self.finish_done(work)
-        swept = sweep(work, moves, values, paired, scale, support)
+        swept = sweep(work, moves, values, paired, scale, support, center)
         return jax.tree.map(lambda old, new: jnp.where(done, old, new), work, swept)
 
     def finish_done(self, work: PolishWork) -> jax.Array:
-        return work.sweeps >= self.polish_sweeps
+        """Its share spent and the last sweep applied nothing, or ``polish_sweep_cap``."""
+        spent = (work.sweeps >= self.polish_sweeps) & ~work.moved
+        return spent | (work.sweeps >= self.polish_sweep_cap)
 
     def finish_end(self, state, work: PolishWork):
         """``(state, work)``: the polished policy kept."""
