@@ -703,7 +703,8 @@ def before_rule(name: str, experiment: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with the fields of ``BEFORE_RULE`` it does not set, on an
     experiment that leaves the search to the defaults: the command that reproduces a row
     measured before the horizon rule."""
-    if experiment in PINNED or name in AFTER_RULE or name in AFTER_REDRAW or name in AFTER_POLISH:
+    later = (AFTER_RULE, AFTER_REDRAW, AFTER_POLISH, AFTER_AXES)
+    if experiment in PINNED or any(name in rows for rows in later):
         return overrides
     return replaced(BEFORE_RULE, overrides)
 
@@ -813,7 +814,9 @@ AFTER_REDRAW = {
 def before_redraw(name: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with ``BEFORE_REDRAW``'s fields it does not set, for the
     rows measured before those fields became defaults."""
-    if name in AFTER_POLISH or (name in AFTER_REDRAW and not name.endswith("-before-redraw")):
+    if name in AFTER_POLISH or name in AFTER_AXES:
+        return overrides
+    if name in AFTER_REDRAW and not name.endswith("-before-redraw"):
         return overrides
     return replaced(BEFORE_REDRAW, overrides)
 
@@ -854,17 +857,68 @@ AFTER_POLISH = {
 def before_polish(name: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with ``BEFORE_POLISH``, for the rows measured before the
     polish became a default."""
-    if name in AFTER_POLISH and not name.endswith("-before-polish"):
+    if name in AFTER_AXES or (name in AFTER_POLISH and not name.endswith("-before-polish")):
         return overrides
     return replaced(BEFORE_POLISH, overrides)
 
 
+#: the polish as it was before its AXIS moves and its extension past the share became
+#: defaults: every row measured before with the polish on pins them off (``before_axes``)
+BEFORE_AXES = ["algorithm.polish_axes=false", "algorithm.polish_extend=1.0"]
+#: the library's defaults on the experiments that pin the search (their TOMLs pin the polish
+#: off): with the polish, its AXIS moves and its extension (defaults of the fields)
+NEWEST_AXES = NEWEST_POLISHED
+#: rows measured since the AXIS moves and the extension became defaults
+AFTER_AXES = {
+    **{
+        f"{experiment}-defaults-axes": (
+            experiment,
+            NEWEST_AXES,
+            SEEDS,
+            "the library's defaults (the polish with AXIS moves and its extension)",
+            f"{experiment}-defaults-polish",
+        )
+        for experiment in ("tagging-thesis-n3", "tagging-thesis-n6")
+    },
+    "paper-budget-1of64-axes": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+        3,
+        "1/64 of the paper's 3e11 agent-steps under the defaults with the polish's AXIS moves "
+        "and extension",
+        "paper-budget-1of64-polish",
+    ),
+    **earlier_defaults(
+        "before-axes", "the defaults before the polish's AXIS moves and its extension"
+    ),
+}
+
+
+def before_axes(name: str, overrides: list[str]) -> list[str]:
+    """``overrides`` of row ``name`` with ``BEFORE_AXES``, for the rows measured with the
+    polish on before its AXIS moves and extension became defaults."""
+    if name in AFTER_AXES and not name.endswith("-before-axes"):
+        return overrides
+    if "algorithm.polish_share=0.0" in overrides:  # no polish: the fields change nothing
+        return overrides
+    return replaced(BEFORE_AXES, overrides)
+
+
 EXTRA = {
     name: (experiment, before_rule(name, experiment, overrides), *rest)
-    for name, (experiment, overrides, *rest) in {**EXTRA, **AFTER_REDRAW, **AFTER_POLISH}.items()
+    for name, (experiment, overrides, *rest) in {
+        **EXTRA,
+        **AFTER_REDRAW,
+        **AFTER_POLISH,
+        **AFTER_AXES,
+    }.items()
 }
 EXTRA = {
-    name: (experiment, before_polish(name, before_redraw(name, overrides)), *rest)
+    name: (
+        experiment,
+        before_axes(name, before_polish(name, before_redraw(name, overrides))),
+        *rest,
+    )
     for name, (experiment, overrides, *rest) in EXTRA.items()
 }
 
@@ -938,6 +992,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
         ("-before-distinct", "distinct"),
         ("-before-redraw", "redraw"),
         ("-before-polish", "the polish"),
+        ("-before-axes", "the AXIS moves"),
     ):
         before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
         if before:
@@ -1028,6 +1083,7 @@ def table() -> list[str]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
         for suffix, change in (
+            ("-before-axes", "the polish's AXIS moves and extension"),
             ("-before-polish", "the polish"),
             ("-before-redraw", "refine_redraw, kept_sharpness and the polish"),
         ):

@@ -192,7 +192,7 @@ def test_best_rollouts_sets_the_step8_evaluation():
     def step_and_expected(key):
         state, metrics = algorithm.step(key, algorithm.init(jax.random.key(4), params), params)
         expected = rollouts(
-            algorithm.env, algorithm.controller, streams(key).best, 700, params.env, state.policy
+            algorithm.env, algorithm.controller, streams(key).fresh, 700, params.env, state.policy
         ).mean()
         return metrics.value, expected
 

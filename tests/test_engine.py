@@ -187,7 +187,7 @@ def test_threshold_winner_is_revalued_on_rollouts_it_was_not_selected_on(name):
         state, _ = algorithm.tell(key, state, samples, values, params)
         winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
         recorded = state.progress.recent[-1]  # the value the anytime best compared
-        fresh = algorithm.fresh_value(streams(key).best, winner, params)
+        fresh = algorithm.fresh_value(streams(key).fresh, winner, params)
         reused = algorithm.fresh_value(streams(key).evaluate, winner, params)
         return state, (recorded, fresh, reused, values.max())
 
@@ -217,13 +217,13 @@ def test_weight_search_values_winner_and_mode_on_their_own_streams():
         winner = jax.tree.map(lambda x: x[jnp.argmax(values)], policies)
         mode = algorithm.to_policy(algorithm.mode(new.distribution))
         s = streams(key)
-        v_winner = algorithm.fresh_value(s.best, winner, params)
+        v_winner = algorithm.fresh_value(s.fresh, winner, params)
         v_mode = algorithm.fresh_value(s.other, mode, params)
         reused = algorithm.fresh_value(s.evaluate, winner, params)
         # every candidate on the best stream and on the evaluate stream (a winner whose
         # return is the same on every stream, e.g. one that never tags, shows nothing)
         on = lambda k: jax.vmap(lambda p: algorithm.fresh_value(k, p, params))(policies)  # noqa: E731
-        return metrics.value, v_winner, v_mode, reused, values.max(), on(s.best), on(s.evaluate)
+        return metrics.value, v_winner, v_mode, reused, values.max(), on(s.fresh), on(s.evaluate)
 
     value, v_winner, v_mode, reused, in_loop, on_best, on_evaluate = iteration(
         jax.random.key(3), state
@@ -245,7 +245,7 @@ def test_thesis_step8_values_the_updated_policy_on_its_own_stream(name):
         new, metrics = algorithm.step(key, state, params)
         s = streams(key)
         values = [
-            algorithm.fresh_value(k, new.policy, params) for k in (s.best, s.sample, s.evaluate)
+            algorithm.fresh_value(k, new.policy, params) for k in (s.fresh, s.sample, s.evaluate)
         ]
         return metrics.value, values
 

@@ -259,7 +259,7 @@ def test_best_rollouts_tracks_a_fresh_mean_of_the_winner():
     assert float(m0.value) == float(m1.value) == float(s0.progress.best_value)
     chex.assert_trees_all_equal(s0.best_policy, s1.best_policy)
     fresh_mean = rollouts(
-        env, algo.controller, streams(key).best, 2000, env_params, s1.best_policy
+        env, algo.controller, streams(key).fresh, 2000, env_params, s1.best_policy
     ).mean()
     np.testing.assert_allclose(float(s1.progress.best_value), float(fresh_mean), rtol=1e-6)
     # 4-rollout means maximised over 64 samples overstate the winner's value

@@ -376,7 +376,7 @@ class CognetThesis(NeuralSearch):
         fresh_value=None,
     ):
         """Steps 5-8 with the candidates' ``values [top]``; returns ``(state, CognetMetrics)``.
-        Step 8 values the updated policy on the ``best`` stream (``fresh_value``; yours with
+        Step 8 values the updated policy on the ``fresh`` stream (``fresh_value``; yours with
         ``fresh_value(key, policy)``); augmentation draws from the ``other`` stream."""
         hyper = params.hyper
         s = self.settings
@@ -423,9 +423,9 @@ class CognetThesis(NeuralSearch):
 
         # 8: evaluate, record, keep the best
         if fresh_value is None:
-            value = self.fresh_value(k.best, policy, params)
+            value = self.fresh_value(k.fresh, policy, params)
         else:
-            value = fresh_value(k.best, policy)
+            value = fresh_value(k.fresh, policy)
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, policy, state.best_policy)
         metrics = CognetMetrics(

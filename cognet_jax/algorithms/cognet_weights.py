@@ -137,7 +137,7 @@ One iteration (``step``), values are returns to **maximise**:
    ``paired_best``, which replaces the pool: configs written before the pool still run as
    they did) the
    challenger replaces the best policy when its fresh value beats the best fresh value so far
-   (the winner on the ``best`` stream, the mode on the ``other``); ``paired_best`` then
+   (the winner on the ``fresh`` stream, the mode on the ``other``); ``paired_best`` then
    re-evaluates the best policy on the challengers' rollouts and compares with that instead.
    The value recorded per iteration is the challenger's fresh value, never an in-loop mean.
 """
@@ -456,10 +456,10 @@ class CognetWeights(PolishFinish, NeuralSearch):
         fresh_value=None,
     ):
         """The state after ``values [candidates]`` of ``samples``; returns ``(state,
-        WeightsMetrics)``. The winner is valued on the ``best`` stream, the mode on the
+        WeightsMetrics)``. The winner is valued on the ``fresh`` stream, the mode on the
         ``other`` one; ``fresh_value(key, policy) -> value`` replaces their ``best_rollouts``
         fresh rollouts of the simulator. With a pool (``best_pool``) every fresh value is on
-        the ``best`` stream and ``best_value`` is the kept member's mean."""
+        the ``fresh`` stream and ``best_value`` is the kept member's mean."""
         hyper = params.hyper
         if fresh_value is None:
             fresh_value = lambda k, p: self.fresh_value(k, p, params)  # noqa: E731
@@ -477,15 +477,15 @@ class CognetWeights(PolishFinish, NeuralSearch):
             both = jax.tree.map(
                 lambda a, b: jnp.concatenate([a, b]), stack(winner, mode), pool.policies
             )
-            fresh = jax.vmap(fresh_value, (None, 0))(k.best, both)
+            fresh = jax.vmap(fresh_value, (None, 0))(k.fresh, both)
             v_winner, v_mode = fresh[0], fresh[1]
         elif s.paired_best:  # winner, mode and the best so far on the same fresh rollouts
             v_winner, v_mode, v_best = jax.vmap(fresh_value, (None, 0))(
-                k.best, stack(winner, mode, state.best_policy)
+                k.fresh, stack(winner, mode, state.best_policy)
             )
         else:  # one batched program for both (vmap over keys draws what two calls would draw)
             v_winner, v_mode = jax.vmap(fresh_value)(
-                jnp.stack([k.best, k.other]), stack(winner, mode)
+                jnp.stack([k.fresh, k.other]), stack(winner, mode)
             )
         mode_better = v_mode > v_winner
         candidate = select_tree(mode_better, mode, winner)

@@ -23,7 +23,7 @@ are there), and the algorithm's ``rollouts_per_iteration``.
 **Random streams**: each of ``ask``, ``evaluate`` and ``tell`` derives what it draws from the
 iteration key through :func:`streams`, which splits it once into independent named keys --
 ``sample`` (the candidates; the thesis COGNet-DICE's rollouts of its current policy),
-``evaluate`` (the candidates' rollouts), ``best`` (the fresh rollouts that value the
+``evaluate`` (the candidates' rollouts), ``fresh`` (the fresh rollouts that value the
 iteration's winner for the anytime best) and ``other`` (anything else: the default
 COGNet-DICE's mode, the thesis algorithm's augmentation). So a search driven by hand draws
 exactly what ``step`` draws, and the winner's fresh rollouts never reuse the rollouts it was
@@ -89,7 +89,7 @@ class Streams(NamedTuple):
 
     sample: jax.Array
     evaluate: jax.Array
-    best: jax.Array
+    fresh: jax.Array
     other: jax.Array
 
 
@@ -319,7 +319,7 @@ class ThresholdSearch(Search):
     def anytime_value(self, key, winner, in_loop, params, fresh_value=None) -> jax.Array:
         """The value the anytime best compares for the iteration's ``winner``: ``fresh_value``
         (yours), else the mean of ``best_rollouts`` fresh rollouts, else its ``in_loop``
-        value; ``key`` is the iteration's ``best`` stream."""
+        value; ``key`` is the iteration's ``fresh`` stream."""
         if fresh_value is not None:
             return fresh_value(key, winner)
         if self.best_rollouts > 0:
@@ -348,7 +348,9 @@ class ThresholdSearch(Search):
         progress = progress.replace(threshold=threshold).after_injection(injected)
         best_idx = jnp.argmax(values)
         winner = jax.tree.map(lambda x: x[best_idx], self.policies_of(samples))
-        value = self.anytime_value(streams(key).best, winner, values[best_idx], params, fresh_value)
+        value = self.anytime_value(
+            streams(key).fresh, winner, values[best_idx], params, fresh_value
+        )
         progress, improved = progress.record(value)
         best_policy = select_tree(improved, winner, state.best_policy)
         metrics = SearchMetrics(
