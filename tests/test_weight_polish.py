@@ -16,6 +16,7 @@ from cognet_jax.algorithms.weight_polish import (
     DEFAULT,
     SHIFT,
     SHIFTS,
+    START,
     TARGET,
     PolishWork,
     apply_move,
@@ -62,14 +63,16 @@ def test_the_table_lists_every_move_of_every_unit_and_node():
     assert set(moves[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT}
 
 
-def test_axis_moves_are_listed_for_inputs_of_few_features_only():
+def test_axis_moves_are_listed_for_inputs_of_few_features_only_start_moves_for_all():
     plain = move_table(A, Q, H, NA)
     with_axes = move_table(A, Q, H, NA, features=2)
     per_node = 2 * 2 * len(AXIS_LEVELS) * Q  # features x sides x levels x targets
     assert axis_moves(2, Q) == per_node
-    assert len(with_axes) == len(plain) + A * Q * per_node
-    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS}
-    assert len(move_table(A, Q, H, NA, features=AXIS_MAX_FEATURES + 1)) == len(plain)
+    starts = (A + 1) * (Q - 1)  # per agent, and every agent at once
+    assert len(with_axes) == len(plain) + A * Q * per_node + starts
+    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS, START}
+    wide = move_table(A, Q, H, NA, features=AXIS_MAX_FEATURES + 1)
+    assert len(wide) == len(plain) + starts and AXIS not in wide[:, 0]
 
 
 def node_choice(policy, agent: int, node: int, x: float) -> int:
@@ -104,6 +107,30 @@ def test_an_axis_move_makes_the_weakest_unit_a_threshold_that_outvotes_the_other
         leaves(same), leaves(apply_move(policy, jnp.array([SHIFT, 0, 1, 0, 0]), SCALE, SUPPORT))
     ):
         assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("every", [0, 1])
+def test_a_start_move_swaps_the_roles_of_node_0_and_another(every):
+    policy = tied_policy()
+    center = jnp.zeros((A, F))
+    moved = apply_move(policy, jnp.array([START, 1, every, 0, 1]), SCALE, SUPPORT, center)
+    b1, w2, b2, actions = leaves(moved)
+    old_b1, old_w2, old_b2, old_actions = leaves(policy)
+    swapped = [0, 1] if every else [1]
+    for agent in range(A):
+        if agent not in swapped:
+            assert np.array_equal(actions[agent], old_actions[agent])
+            assert np.array_equal(w2[agent], old_w2[agent])
+            continue
+        # node 0 now acts as node 2 did and node 2 as node 0; unit 1 votes for node 0 (was 2)
+        assert np.argmax(actions[agent], -1).tolist() == [2, 1, 0]
+        assert np.allclose(w2[agent, :, 1], [5.0, 0.0, 0.0])
+        assert np.allclose(w2[agent, :, 0], [0.0, 5.0, 0.0])
+        assert np.allclose(b2[agent], [0.0, 0.0, 3.0])  # the default vote follows node 0's role
+        # the same controller from node 2 on: node 0 of the new is node 2 of the old
+        for x in (-3.0, 0.0, 2.0):
+            old_next = node_choice(policy, agent, 2, x)
+            assert node_choice(moved, agent, 0, x) == [2, 1, 0][old_next]
 
 
 def test_a_shift_moves_every_copy_of_the_unit_by_its_spread():
@@ -246,9 +273,10 @@ def test_a_run_records_its_polish_and_evaluate_gives_the_polished_policys_value(
     assert code == 0
     results = json.loads((out / "results.json").read_text())
     polish = results["finish"]
-    # 624 one-entry moves and 2 agents x 3 nodes x 42 AXIS moves (one feature); 20 x 64 x 100
-    # rollouts over (876 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps, 5 while each moves
-    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) == 876
+    # 624 one-entry moves, 2 agents x 3 nodes x 42 AXIS moves (one feature), 3 x 2 START
+    # moves; 20 x 64 x 100 rollouts over (882 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps,
+    # 5 while each moves
+    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) + 3 * 2 == 882
     assert polish["sweeps"] == min(5, max(2, polish["moves_applied"] + 1))
     assert "polish:" in capsys.readouterr().out
     assert cli_main(["evaluate", str(out), "--rollouts", "2000"]) == 0

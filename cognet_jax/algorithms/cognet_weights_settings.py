@@ -60,9 +60,9 @@ class CognetWeightsSection:
     after the search may simulate at most that share of the search's rollouts
     (``algorithms.weight_polish``; 0: none); ``polish_axes``: its moves include rewriting a
     node's weakest unit as a threshold on one feature (AXIS, on inputs of at most
-    ``AXIS_MAX_FEATURES`` features); ``polish_extend``: while each sweep applies a move, the
-    polish goes on past its share up to that many times it (1: never). The hidden width is
-    ``network.hidden``."""
+    ``AXIS_MAX_FEATURES`` features) and starting a controller at another node's role
+    (START); ``polish_extend``: while each sweep applies a move, the polish goes on past its
+    share up to that many times it (1: never). The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"

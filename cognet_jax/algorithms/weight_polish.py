@@ -28,7 +28,13 @@ Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q
   largest unit spread) and votes for ``t`` with the node's strongest vote. SHIFT moves of later
   sweeps tune its threshold. Why: a region the search never covered (on the chase, one end of
   the bearing's range for half of the seeds) is a joint change of a unit's direction, bias
-  and target that one-entry moves cannot make (experiments/NOTES.md).
+  and target that one-entry moves cannot make (experiments/NOTES.md);
+* ``START`` (``axes`` too): node 0, where every controller starts, and node ``1 + arg`` swap
+  roles (their actions, networks and every vote for them) in agent ``agent``'s controller,
+  or, with ``node`` 1, in every agent's: the same controller started elsewhere. Why: the
+  start node acts blind and is also a target of the others' votes, so which role starts is
+  a joint choice of every weight the search cannot make one entry at a time (beacon: the
+  kept policies started by stepping, the hand-written rule by staying; +0.1).
 
 SHIFT and TARGET change every copy of the unit at once: a tied controller (``node_tie``,
 ``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
@@ -61,7 +67,7 @@ from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.rollout import evaluate_candidates, many_returns
 
-SHIFT, TARGET, ACTION, DEFAULT, AXIS = 0, 1, 2, 3, 4
+SHIFT, TARGET, ACTION, DEFAULT, AXIS, START = 0, 1, 2, 3, 4, 5
 #: threshold shifts, in standard deviations of the input features along a unit's weights
 SHIFTS = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
 #: thresholds of AXIS moves, in standard deviations of the feature from its mean
@@ -95,7 +101,8 @@ def axis_moves(features: int, nodes: int) -> int:
 
 def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int = 0) -> np.ndarray:
     """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``; ``features``
-    > 0 adds the AXIS moves of that many input features (``axis_moves``)."""
+    > 0 adds the AXIS moves of that many input features (``axis_moves``) and the START
+    moves."""
     rows = []
     for a in range(agents):
         for n in range(nodes):
@@ -105,6 +112,10 @@ def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int
             rows += [(ACTION, a, n, 0, i) for i in range(actions - 1)]
             rows += [(DEFAULT, a, n, 0, i) for i in range(nodes - 1)]
             rows += [(AXIS, a, n, 0, i) for i in range(axis_moves(features, nodes))]
+        if features:
+            rows += [(START, a, 0, 0, i) for i in range(nodes - 1)]
+    if features:
+        rows += [(START, 0, 1, 0, i) for i in range(nodes - 1)]
     return np.asarray(rows, np.int32).reshape(-1, 5)
 
 
@@ -197,14 +208,40 @@ def apply_move(
     b2_new = b2.at[a, n].set(b2[a, n, default] * jax.nn.one_hot(_shifted(default, q, arg), q))
     pick = lambda k, new, old: jnp.where(kind == k, new, old)  # noqa: E731
     b1_new, w2_new = pick(SHIFT, b1_new, b1), pick(TARGET, w2_new, w2)
+    b2_new, actions_new = pick(DEFAULT, b2_new, b2), pick(ACTION, actions_new, actions)
     if center is not None:  # AXIS: every copy of the unit rewritten
         at = copies[..., None] & unit  # [A, Q, H]
         w1 = pick(AXIS, jnp.where(at[:, :, None, :], axis_column[:, None], w1), w1)
         b1_new = pick(AXIS, jnp.where(at, axis_bias, b1), b1_new)
         w2_new = pick(AXIS, jnp.where(at[..., None], axis_votes, w2), w2_new)
-    return _with(
-        policy, w1, b1_new, w2_new, pick(DEFAULT, b2_new, b2), pick(ACTION, actions_new, actions)
-    )
+        started = _started(arg, a, n, (w1, b1, w2, b2, actions))
+        w1, b1_new, w2_new, b2_new, actions_new = (
+            pick(START, new, old)
+            for new, old in zip(started, (w1, b1_new, w2_new, b2_new, actions_new))
+        )
+    return _with(policy, w1, b1_new, w2_new, b2_new, actions_new)
+
+
+def _started(arg, agent, every, leaves):
+    """The START move (module docstring): ``leaves`` ``(w1, b1, w2, b2, actions)`` with nodes
+    0 and ``1 + arg`` swapped in agent ``agent``'s controller, or every agent's when
+    ``every`` is 1."""
+    q = leaves[1].shape[1]
+    other = 1 + arg
+    nodes = jnp.arange(q)
+    perm = jnp.where(nodes == 0, other, jnp.where(nodes == other, 0, nodes))
+    agents = jnp.arange(leaves[0].shape[0])
+    chosen = (every == 1) | (agents == agent)  # [A]
+    # the node axis of each leaf, and the axis of the nodes its votes go to (w2, b2)
+    axes = ((1,), (1,), (1, 3), (1, 2), (1,))
+    out = []
+    for leaf, leaf_axes in zip(leaves, axes):
+        swapped = leaf
+        for axis in leaf_axes:
+            swapped = jnp.take(swapped, perm, axis=axis)
+        mask = chosen.reshape((-1,) + (1,) * (leaf.ndim - 1))
+        out.append(jnp.where(mask, swapped, leaf))
+    return out
 
 
 def polish_seed(init_key: jax.Array) -> jax.Array:
