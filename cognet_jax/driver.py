@@ -271,7 +271,7 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
         try:
             finished, info = jax.block_until_ready(program.finish(state, line.report))
         finally:
-            line.close()
+            line.close_finish()
         seconds = time.perf_counter() - t_finish
         runs = range(len(program.runs))
         if info is not None:
@@ -284,10 +284,13 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
         if big is not None:
             print(big, file=sys.stderr, flush=True)
         finals = []
+        line.evaluating(len(program.runs))
         for r, run in enumerate(program.runs):
             final = program.final_value(r, best[r])
             final.update(algorithm.exact_record(run.config, best[r]) or {})
             finals.append(final)
+            line.evaluated()
+        line.close()
         probing = probes is not None and probes.seconds > 0
         kept = [probes.evaluated(r) if probing else None for r in runs]
         return _Finished(records, finals, best, kept, seconds)
@@ -301,11 +304,13 @@ def _finish_and_evaluate(program: Program, state, progress: bool, probes=None) -
 
 
 class _FinishLine:
-    """The progress line of ``finish`` (shown with ``progress``, from its first step): the
-    steps, the time and the search's own fields (``finish_status``)."""
+    """The progress lines after the search (shown with ``progress``): ``finish``'s, from its
+    first step (the steps, the time and the search's own fields, ``finish_status``), then the
+    honest evaluation's, runs evaluated, when there are several runs."""
 
     def __init__(self, progress: bool, algorithm):
         self.progress, self.bar, self.algorithm = progress, None, algorithm
+        self.evaluation = None
 
     def report(self, work) -> None:
         if not self.progress:
@@ -317,8 +322,27 @@ class _FinishLine:
         if status:
             self.bar.set_postfix(**status)
 
+    def close_finish(self) -> None:
+        bar, self.bar = self.bar, None
+        if bar is not None:
+            bar.close()
+
+    def evaluating(self, runs: int) -> None:
+        if self.progress and runs > 1:
+            self.evaluation = tqdm(
+                total=runs, desc="honest evaluation", unit="run", dynamic_ncols=True
+            )
+
+    def evaluated(self) -> None:
+        bar = self.evaluation
+        if bar is not None:
+            bar.update(1)
+
     def close(self) -> None:
-        bar, self.progress = self.bar, False  # no new bar after this (the worker may go on)
+        """Both lines closed, and no new one after this (on a stop the worker may go on)."""
+        self.progress = False
+        self.close_finish()
+        bar, self.evaluation = self.evaluation, None
         if bar is not None:
             bar.close()
 

@@ -1143,7 +1143,12 @@ it (rows "-before-polish"): the search is the same, seed for seed, so the differ
 polish's alone, and the agent-steps cell adds what it simulated. The grids of the Dec-Tiger
 and beacon controllers were widened (their tuned points had been at an edge of the grid):
 noisy Dec-Tiger's hand-written controller rose from -18.253 (count 4, margin 1.5) to the
-value in the table."""
+value in the table. The polish of now also rewrites a node's weakest unit as a threshold on one
+feature (AXIS, inputs of at most 4 features), lets another node's role start a controller
+(START), and goes on past its share while every sweep applies a move (up to twice it:
+`polish_axes`, `polish_extend`); "before the AXIS moves" gives the sweep of the polish before
+them (rows "-before-axes"), again the same search seed for seed. A row that says "not yet
+re-run" was not swept under them."""
 
 
 EXTRA_NOTES = """\

@@ -413,3 +413,25 @@ def test_a_sweep_is_sized_before_its_runs_are_prepared(capsys):
     assert capsys.readouterr().err == ""
     with pytest.raises(ConfigError, match="'grid'.*10000 settings x 10 seeds.*days together"):
         size_sweep("tagging-thesis-n3", ["algorithm.iterations=100000"], 10, 100_000)
+
+
+def test_the_honest_evaluation_of_several_runs_shows_its_progress(capsys):
+    """``driver._FinishLine``: a line of runs evaluated when there are several runs and
+    progress is on; none for one run or without progress; none started after ``close``."""
+    from cognet_jax.driver import _FinishLine
+
+    line = _FinishLine(True, algorithm=None)
+    line.evaluating(3)
+    for _ in range(3):
+        line.evaluated()
+    line.close()
+    shown = capsys.readouterr().err.replace("\r", "\n")
+    assert "honest evaluation" in shown and "3/3" in shown
+    for progress, runs in ((True, 1), (False, 3)):
+        quiet = _FinishLine(progress, algorithm=None)
+        quiet.evaluating(runs)
+        quiet.evaluated()
+        quiet.close()
+    line.evaluating(3)  # closed: a worker left running after a stop starts no new line
+    line.evaluated()
+    assert "honest evaluation" not in capsys.readouterr().err
