@@ -875,7 +875,7 @@ AFTER_AXES = {
             experiment,
             NEWEST_AXES,
             SEEDS,
-            "the library's defaults (the polish with AXIS moves and its extension)",
+            "the library's defaults (the polish with AXIS and START moves and its extension)",
             f"{experiment}-defaults-polish",
         )
         for experiment in ("tagging-thesis-n3", "tagging-thesis-n6")
@@ -884,12 +884,12 @@ AFTER_AXES = {
         "tagging-paper-auto",
         ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
         3,
-        "1/64 of the paper's 3e11 agent-steps under the defaults with the polish's AXIS moves "
-        "and extension",
+        "1/64 of the paper's 3e11 agent-steps under the defaults with the polish's AXIS and "
+        "START moves and extension",
         "paper-budget-1of64-polish",
     ),
     **earlier_defaults(
-        "before-axes", "the defaults before the polish's AXIS moves and its extension"
+        "before-axes", "the defaults before the polish's AXIS and START moves and its extension"
     ),
 }
 
@@ -992,7 +992,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
         ("-before-distinct", "distinct"),
         ("-before-redraw", "redraw"),
         ("-before-polish", "the polish"),
-        ("-before-axes", "the AXIS moves"),
+        ("-before-axes", "the AXIS and START moves"),
     ):
         before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
         if before:
@@ -1083,7 +1083,7 @@ def table() -> list[str]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
         for suffix, change in (
-            ("-before-axes", "the polish's AXIS moves and extension"),
+            ("-before-axes", "the polish's AXIS and START moves and extension"),
             ("-before-polish", "the polish"),
             ("-before-redraw", "refine_redraw, kept_sharpness and the polish"),
         ):
@@ -1146,9 +1146,9 @@ noisy Dec-Tiger's hand-written controller rose from -18.253 (count 4, margin 1.5
 value in the table. The polish of now also rewrites a node's weakest unit as a threshold on one
 feature (AXIS, inputs of at most 4 features), lets another node's role start a controller
 (START), and goes on past its share while every sweep applies a move (up to twice it:
-`polish_axes`, `polish_extend`); "before the AXIS moves" gives the sweep of the polish before
-them (rows "-before-axes"), again the same search seed for seed. A row that says "not yet
-re-run" was not swept under them."""
+`polish_axes`, `polish_extend`); "before the AXIS and START moves" gives the sweep of the
+polish before them (rows "-before-axes"), again the same search seed for seed. A row that says
+"not yet re-run" was not swept under them."""
 
 
 EXTRA_NOTES = """\
