@@ -96,20 +96,20 @@ integer distance (tagging's paper setting) then hold. ``vote_sharpness`` does th
 every candidate (off: it changes the search's landscape, experiments/NOTES.md).
 
 **Polish** (``polish_share``, **[choice]**, 0.25): after the last iteration the kept policy
-is improved one entry at a time (a threshold, a vote's next node, an action), each move valued
-on the policy's own rollouts and applied when it also wins on fresh ones, within that share of
-the search's rollouts (``algorithms.weight_polish``; experiments/NOTES.md).
+is improved one change at a time (a threshold, a vote's next node, an action, a unit made a
+threshold on one feature, the start node's role), each valued on the policy's own rollouts and
+applied when it also wins on fresh ones, within that share of the search's rollouts, up to
+twice it while every sweep moves (``algorithms.weight_polish``; experiments/NOTES.md).
 
-**Input standardisation** (``standardize_inputs``, **[choice]**, "auto" by default: on where
-the inputs are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians
-are then over a network that reads ``(x - mean) / scale`` per input feature, where ``mean`` and
-``scale [agents, F]`` are the features' mean and standard deviation over the observations of
-``STATS_ROLLOUTS`` rollouts of the uniformly random controller (fixed key, so every seed of a
-run sees the same constants). ``to_policy`` folds them into the first layer (``W1 / scale``,
-``b1 - (mean / scale) . W1``), so the policy still reads the raw features. Without it a hidden
-unit's threshold ``-b / w`` is spread over the scale of ``init_scale``; on the raw heatmap patch
-(pixels in [0, 1], most positions differing by a few hundredths) almost no sampled unit then
-splits the positions that matter.
+**Input standardisation** (``standardize_inputs``, **[choice]**, "auto": on where the inputs
+are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians are then over a network
+that reads ``(x - mean) / scale`` per input feature, ``mean`` and ``scale [agents, F]`` the
+features' mean and standard deviation over ``STATS_ROLLOUTS`` rollouts of the uniformly random
+controller (fixed key: every seed of a run sees the same constants). ``to_policy`` folds them
+into the first layer (``W1 / scale``, ``b1 - (mean / scale) . W1``), so the policy still reads
+the raw features. Without it a hidden unit's threshold ``-b / w`` is spread over the scale of
+``init_scale``; on the raw heatmap patch (pixels in [0, 1], most positions differing by a few
+hundredths) almost no sampled unit then splits the positions that matter.
 
 The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits; with votes of
 about 5 the draw is nearly deterministic), so evaluation, ``controller_step`` and saved policies

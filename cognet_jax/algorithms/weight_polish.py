@@ -20,23 +20,25 @@ Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q
 * ``ACTION``: the node's action becomes ``(a + 1 + arg) % actions`` (a move to an action the
   agent lacks leaves the policy as it is);
 * ``DEFAULT``: the node's default vote goes to ``(d + 1 + arg) % Q`` instead of ``d``;
-* ``AXIS`` (``axes``, with at most ``AXIS_MAX_FEATURES`` input features): the node's weakest
-  unit (smallest vote times spread along its weights) becomes a threshold on one feature, the
-  rule a practitioner writes by hand: ``arg`` picks the feature ``f``, a side ``s = +-1``, a
-  level ``AXIS_LEVELS[l]`` and a target node ``t``; the unit reads ``relu(g s (x_f - c_f -
-  level scale_f) / scale_f)`` (``c``, ``scale``: the features' mean and spread, ``g`` the node's
-  largest unit spread) and votes for ``t`` with the node's strongest vote. SHIFT moves of later
-  sweeps tune its threshold. Why: a region the search never covered (on the chase, one end of
-  the bearing's range for half of the seeds) is a joint change of a unit's direction, bias
-  and target that one-entry moves cannot make (experiments/NOTES.md);
-* ``START`` (``axes`` too): node 0, where every controller starts, and node ``1 + arg`` swap
-  roles (their actions, networks and every vote for them) in agent ``agent``'s controller,
-  or, with ``node`` 1, in every agent's: the same controller started elsewhere. Why: the
-  start node acts blind and is also a target of the others' votes, so which role starts is
-  a joint choice of every weight the search cannot make one entry at a time (beacon: the
-  kept policies started by stepping, the hand-written rule by staying; +0.1).
+* ``AXIS`` (``polish_axes``, with at most ``AXIS_MAX_FEATURES`` input features): the node's
+  weakest unit (smallest vote times spread along its weights) becomes a threshold on one
+  feature, the rule a practitioner writes by hand: ``arg`` picks the feature ``f``, a side
+  ``s = +-1``, a level ``AXIS_LEVELS[l]`` and a target node ``t``; the unit reads ``relu(g s
+  (x_f - c_f - level scale_f) / scale_f)`` (``c``, ``scale``: the features' mean and spread;
+  ``g`` a slope steep enough to outvote the node's other units ``AXIS_SHARPNESS`` spreads
+  past the threshold, ``_axis_unit``) and votes for ``t`` with the node's strongest vote.
+  SHIFT moves of later sweeps tune its threshold. Why: a region the search never covered
+  (on the chase, one end of the bearing's range for half of the seeds) is a joint change of
+  a unit's direction, bias and target that one-entry moves cannot make (experiments/NOTES.md);
+* ``START`` (``polish_axes``, any number of features): node 0, where every controller starts,
+  and node ``1 + arg`` swap roles (their actions, networks and every vote for them) in agent
+  ``agent``'s controller, or, with ``node`` 1, in every agent's: the same controller started
+  elsewhere. Why: the start node acts blind and is also a target of the others' votes, so
+  which role starts is a joint choice of every weight the search cannot make one entry at a
+  time (beacon: the kept policies started by stepping, the hand-written rule by staying;
+  +0.1).
 
-SHIFT and TARGET change every copy of the unit at once: a tied controller (``node_tie``,
+SHIFT, TARGET and AXIS change every copy of the unit at once: a tied controller (``node_tie``,
 ``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
 changing one copy alone would untie it.
 
