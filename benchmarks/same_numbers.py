@@ -26,7 +26,7 @@ from pathlib import Path
 #: the numbers of a run that a change of the house must not move
 FIELDS = (
     "values_per_iteration",
-    "best_per_iteration",
+    "in_loop_best_per_iteration",
     "threshold_per_iteration",
     "kept_per_iteration",
     "in_loop_best",
@@ -62,6 +62,16 @@ def run(out: Path, code: Path, names: list[str], iterations: int, overrides: lis
             print(f"    failed (exit {done.returncode}): {last}", flush=True)
 
 
+#: results.json fields renamed since: old name -> name of now
+RENAMED = {"best_per_iteration": "in_loop_best_per_iteration"}
+
+
+def _named_now(results: dict) -> dict:
+    """``results`` with its fields under the names of now (``RENAMED``): runs of code from
+    before a rename compare with runs of now."""
+    return {RENAMED.get(k, k): v for k, v in results.items()}
+
+
 def compare(a: Path, b: Path, write: Path | None = None) -> int:
     lines, differ = [], 0
     for folder in sorted(p for p in a.iterdir() if (p / "results.json").is_file()):
@@ -70,8 +80,7 @@ def compare(a: Path, b: Path, write: Path | None = None) -> int:
             lines.append(f"{folder.name}: missing in {b}")
             differ += 1
             continue
-        x = json.loads((folder / "results.json").read_text())
-        y = json.loads(other.read_text())
+        x, y = (_named_now(json.loads(p.read_text())) for p in (folder / "results.json", other))
         fields = [f for f in FIELDS if f in x and f in y]
         changed = [f for f in fields if x[f] != y[f]]
         lines.append(

@@ -101,12 +101,23 @@ def restore_state(template: Any, raw: dict) -> Any:
         ) from None
 
 
+#: fields renamed since checkpoints were written: old name -> name of now
+RENAMED_FIELDS = {"best_value": "in_loop_best"}
+
+
+def _renamed(stored: dict) -> dict:
+    """``stored`` (one level of a state dict) under the names of now (``RENAMED_FIELDS``)."""
+    return {RENAMED_FIELDS.get(k, k): v for k, v in stored.items()}
+
+
 def _with_absent_fields(template: Any, stored: Any) -> Any:
     """``stored`` (a state dict) with the fields that ``template``'s state dict holds as
     ``None`` and ``stored`` lacks added as ``None``: optional parts of a state added to the
-    library since the checkpoint was written, off in the search it resumes."""
+    library since the checkpoint was written, off in the search it resumes; fields stored
+    under an old name (``RENAMED_FIELDS``) read under the new one."""
     if not (isinstance(template, dict) and isinstance(stored, dict)):
         return stored
+    stored = _renamed(stored)
     filled = {k: _with_absent_fields(template.get(k), v) for k, v in stored.items()}
     filled.update({k: None for k, v in template.items() if v is None and k not in stored})
     return filled
@@ -116,7 +127,8 @@ def restore_history(template: Any, raw: dict) -> list:
     """Per-iteration metrics as a list of pytrees shaped like ``template`` (one iteration)."""
     if "history" not in raw:
         return []
-    stacked = serialization.from_state_dict(template, raw["history"])
+    stored = _with_absent_fields(serialization.to_state_dict(template), raw["history"])
+    stacked = serialization.from_state_dict(template, stored)
     n = int(raw["iteration"])
     return [jax.tree.map(lambda x, i=i: np.asarray(x)[i], stacked) for i in range(n)]
 

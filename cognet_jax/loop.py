@@ -130,5 +130,5 @@ def iterate(
 
 
 def _postfix(metrics) -> dict:
-    value, best = np.asarray(metrics.value), np.asarray(metrics.best_value)
+    value, best = np.asarray(metrics.value), np.asarray(metrics.in_loop_best)
     return {"value": f"{float(value.mean()):.2f}", "best": f"{float(best.max()):.2f}"}

@@ -195,7 +195,7 @@ def plot_node_responses(
 
 def plot_values(
     values_per_iteration,
-    best_per_iteration,
+    in_loop_best_per_iteration,
     path,
     title: str | None = None,
     reference: Mapping[str, float] | None = None,
@@ -205,7 +205,7 @@ def plot_values(
     """In-loop value per iteration and the running best; ``reference`` maps a label to a value
     drawn as a dashed horizontal line (e.g. ``{"reactive controller": 20.76}``)."""
     values = np.asarray(values_per_iteration, dtype=float).reshape(-1)
-    best = np.asarray(best_per_iteration, dtype=float).reshape(-1)
+    best = np.asarray(in_loop_best_per_iteration, dtype=float).reshape(-1)
     fig, ax = _subplots(figsize=(6.4, 3.8))
     ax.plot(
         np.arange(values.size),

@@ -205,14 +205,14 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
     env = algorithm.env
     fields = {
-        "in_loop_best": float(h.best_value[-1]),
+        "in_loop_best": float(h.in_loop_best[-1]),
         # the search's budget: agent-steps simulated by all its iterations
         "simulated_agent_steps": iterations
         * algorithm.rollouts_per_iteration
         * env.horizon
         * env.num_agents,
         "values_per_iteration": np.asarray(h.value).tolist(),
-        "best_per_iteration": np.asarray(h.best_value).tolist(),
+        "in_loop_best_per_iteration": np.asarray(h.in_loop_best).tolist(),
     }
     # the cross-entropy figures, where the search reports them (``SearchMetrics``)
     threshold, kept, injected, restarted = (

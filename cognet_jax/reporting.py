@@ -30,13 +30,21 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
     return written + [Path(p) for p in algorithm.write_plots(config, policy, results, out_dir)]
 
 
+def in_loop_best_series(results: dict) -> list:
+    """A results.json's in-loop best after each iteration (``in_loop_best_per_iteration``;
+    ``best_per_iteration`` in files written before the name)."""
+    if "in_loop_best_per_iteration" in results:
+        return results["in_loop_best_per_iteration"]
+    return results["best_per_iteration"]
+
+
 def write_value_plot(config, results: dict, out_dir) -> Path:
     """``values.png``: the in-loop value per iteration and the running best, with the known
     values of the run's simulator (``references_for``)."""
     return Path(
         plots.plot_values(
             results["values_per_iteration"],
-            results["best_per_iteration"],
+            in_loop_best_series(results),
             Path(out_dir) / "values.png",
             title=run_title(results),
             reference=references_for(config),

@@ -49,7 +49,7 @@ def member_values(config, seeds: int):
     for seed in range(seeds):
         t0 = time.perf_counter()
         state = search(api.seed_key(config, seed))
-        before = [np.asarray(m.progress.best_value).round(4).tolist() for m in state.members]
+        before = [np.asarray(m.progress.in_loop_best).round(4).tolist() for m in state.members]
         work = start(state)
         while not bool(algorithm.finish_done(work)):
             work = advance(work)

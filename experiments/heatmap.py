@@ -35,6 +35,8 @@ from pathlib import Path
 
 from _readme import machine, replace_block
 
+from cognet_jax.reporting import in_loop_best_series
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "heatmap"
 README = HERE / "README.md"
@@ -143,7 +145,7 @@ def findings() -> str:
         _load(n, 0)["final_value"]["stderr"] * _load(n, 0)["final_value"]["rollouts"] ** 0.5
         for n in spec
     ]
-    best_at = sorted({first_best_iteration(_load(n, 0)["best_per_iteration"]) for n in spec})
+    best_at = sorted({first_best_iteration(in_loop_best_series(_load(n, 0))) for n in spec})
     parts = [
         "Findings on the thesis algorithm `cognet-dice-thesis` (seed 0, 500 iterations; the "
         "experiments were called heatmap-2d-n4 etc. before the default changed and are now the "
@@ -446,10 +448,10 @@ def _load(name: str, seed: int) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def first_best_iteration(best_per_iteration: list[float]) -> int:
+def first_best_iteration(in_loop_best: list[float]) -> int:
     """1-based iteration at which the in-loop best reached its final value."""
-    final = best_per_iteration[-1]
-    return next(i + 1 for i, v in enumerate(best_per_iteration) if v >= final)
+    final = in_loop_best[-1]
+    return next(i + 1 for i, v in enumerate(in_loop_best) if v >= final)
 
 
 def _seeds_of(name: str) -> list[int]:
@@ -486,7 +488,7 @@ def main_rows() -> tuple[list[str], list[int]]:
             f"| {r['iterations']} "
             f"| {f['mean']:.3f} +- {f['stderr']:.3f} ({f['rollouts']}) "
             f"| {r['in_loop_best']:.3f} | {'' if thesis is None else thesis} "
-            f"| {first_best_iteration(r['best_per_iteration'])} "
+            f"| {first_best_iteration(in_loop_best_series(r))} "
             f"| {r['loop_s'] / r['iterations']:.3f} | {r['wall_s']:.1f} ({r['compile_s']:.1f}) |"
         )
     return rows, iterations

@@ -28,6 +28,8 @@ from pathlib import Path
 from _readme import machine, replace_block
 from cognet_sweeps import _agent_steps
 
+from cognet_jax.reporting import in_loop_best_series
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "suite"
 SEEDS = 8
@@ -891,6 +893,21 @@ AFTER_AXES = {
     **earlier_defaults(
         "before-axes", "the defaults before the polish's AXIS and START moves and its extension"
     ),
+    "hearing-tiger-noisy-budget4": (
+        "hearing-tiger-noisy-n7",
+        ["algorithm.budget=2.4e9"],
+        SEEDS,
+        "noisy Dec-Tiger at 4 times the default budget",
+        "cognet-hearing-tiger-noisy",
+    ),
+    "hearing-tiger-noisy-n9-axes": (
+        "hearing-tiger-noisy-n7",
+        ["algorithm.nodes=9"],
+        SEEDS,
+        "noisy Dec-Tiger with 9 nodes (the hand-written controller's count 4 needs 9), under "
+        "the defaults with the AXIS and START moves",
+        "hearing-tiger-noisy-n9",
+    ),
 }
 
 
@@ -1184,7 +1201,7 @@ TRACE_AT = (100, 200, 300, 350, 400)
 
 def refine_trace(row: str) -> list[str]:
     """Per seed of ``row``'s sweep with and without the refine phase: the kept policy's in-loop
-    estimate (``best_per_iteration``, the pool's mean) after the iterations of ``TRACE_AT``,
+    estimate (``in_loop_best_per_iteration``, the pool's mean) after the iterations of ``TRACE_AT``,
     and the honest value; empty when either sweep is missing."""
     paths = [RESULTS / f"cognet-{row}-before-refine", RESULTS / f"cognet-{row}-before-rule"]
     if not all((p / "runs.json").is_file() for p in paths):
@@ -1196,7 +1213,7 @@ def refine_trace(row: str) -> list[str]:
     ]
     for path in paths:
         for r in json.loads((path / "runs.json").read_text())["rows"]:
-            best = r["best_per_iteration"]
+            best = in_loop_best_series(r)
             cells = " | ".join(f"{best[min(i, len(best)) - 1]:.2f}" for i in TRACE_AT)
             honest = r["final_value"]["mean"]
             lines.append(f"| {path.name} | {r['seed']} | {cells} | {honest:.3f} |")

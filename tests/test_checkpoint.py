@@ -64,7 +64,7 @@ def _wait_for_checkpoint(proc, path: Path, timeout=240.0):
 
 
 def _same_results(a: dict, b: dict, dir_a: Path, dir_b: Path):
-    for k in ("values_per_iteration", "best_per_iteration", "threshold_per_iteration"):
+    for k in ("values_per_iteration", "in_loop_best_per_iteration", "threshold_per_iteration"):
         assert a[k] == b[k], k
     assert a["final_value"] == b["final_value"]
     assert (dir_a / "policy.msgpack").read_bytes() == (dir_b / "policy.msgpack").read_bytes()
@@ -214,3 +214,22 @@ def test_a_field_added_since_the_checkpoint_does_not_block_its_resume():
     kept = _written_fields(changed, old)
     assert kept != old
     assert _first_difference(old, kept) == "config (algorithm.nodes: 3 there, 4 now)"
+
+
+def test_a_checkpoint_written_before_best_value_was_named_in_loop_best_still_restores():
+    """State and history stored under the old name ``best_value`` read under ``in_loop_best``
+    (``checkpoint.RENAMED_FIELDS``)."""
+    import jax
+    from flax import serialization
+
+    from cognet_jax.algorithms.engine import SearchMetrics
+    from cognet_jax.checkpoint import restore_history, restore_state
+
+    one = SearchMetrics(value=np.float32(1), in_loop_best=np.float32(2), mean_value=np.float32(0))
+    stacked = jax.tree.map(lambda x: np.stack([x, x + 1]), one)
+    old = serialization.to_state_dict(stacked)
+    old["best_value"] = old.pop("in_loop_best")
+    raw = {"history": old, "iteration": 2, "state": {"progress": old}}
+    assert [float(h.in_loop_best) for h in restore_history(one, raw)] == [2.0, 3.0]
+    state = restore_state({"progress": stacked}, raw)
+    np.testing.assert_array_equal(state["progress"].in_loop_best, [2.0, 3.0])

@@ -282,7 +282,7 @@ def test_short_tagging_run_compiles_once_and_beats_random():
     best = []
     for i in range(30):
         state, metrics = step(jax.random.fold_in(k_run, i), state, params)
-        best.append(float(metrics.best_value))
+        best.append(float(metrics.in_loop_best))
     assert int(state.progress.iteration) == 30
     assert np.all(np.diff(best) >= 0)  # anytime best never gets worse
     d = state.distribution

@@ -146,7 +146,7 @@ def test_vmap_over_seeds_equals_separate_runs():
         _, single = train(keys[s])
         np.testing.assert_array_equal(np.asarray(batched.value[s]), np.asarray(single.value))
         np.testing.assert_array_equal(
-            np.asarray(batched.best_value[s]), np.asarray(single.best_value)
+            np.asarray(batched.in_loop_best[s]), np.asarray(single.in_loop_best)
         )
 
 
@@ -156,7 +156,12 @@ def test_same_seed_same_results(tmp_path):
     config = load_config("tagging-thesis-spec-n3", SMALL)
     a = train(config, 3, tmp_path / "a", log=lambda *_: None)
     b = train(config, 3, tmp_path / "b", log=lambda *_: None)
-    for field in ("final_value", "in_loop_best", "values_per_iteration", "best_per_iteration"):
+    for field in (
+        "final_value",
+        "in_loop_best",
+        "values_per_iteration",
+        "in_loop_best_per_iteration",
+    ):
         assert a[field] == b[field]
     c = train(config, 4, tmp_path / "c", log=lambda *_: None)
     assert c["values_per_iteration"] != a["values_per_iteration"]

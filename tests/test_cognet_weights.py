@@ -211,16 +211,16 @@ def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rol
     assert alg.rollouts_per_iteration == 8 * 16 + 3 * 200
     # a known good reactive controller as the best so far
     good = reactive_tagging_policy(alg)
-    kept = state.replace(best_policy=good, progress=state.progress.replace(best_value=1e9))
+    kept = state.replace(best_policy=good, progress=state.progress.replace(in_loop_best=1e9))
     new, metrics = jax.jit(alg.step)(jax.random.key(1), kept, params)
     chex_equal = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), new.best_policy, good)
     assert all(jax.tree.leaves(chex_equal))
-    assert 10.0 < float(metrics.best_value) < 1e9  # the paired estimate, not the stale 1e9
+    assert 10.0 < float(metrics.in_loop_best) < 1e9  # the paired estimate, not the stale 1e9
     # the worst possible best (always tag: -40 per step) is replaced
     bad = good.replace(action_probs=jax.nn.one_hot(jnp.zeros((2, 3), jnp.int32), 3))
     new, metrics = jax.jit(alg.step)(jax.random.key(1), state.replace(best_policy=bad), params)
     assert not bool(jnp.all(new.best_policy.action_probs == bad.action_probs))
-    assert float(metrics.best_value) > -120.0
+    assert float(metrics.in_loop_best) > -120.0
 
 
 def test_the_pool_keeps_its_member_with_the_best_bound_as_the_best_policy():
@@ -237,7 +237,7 @@ def test_the_pool_keeps_its_member_with_the_best_bound_as_the_best_policy():
     best = int(pool.best())
     same = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), state.best_policy, pool.member(best))
     assert all(jax.tree.leaves(same))
-    assert float(metrics.best_value) == pytest.approx(float(pool.means()[best]))
+    assert float(metrics.in_loop_best) == pytest.approx(float(pool.means()[best]))
     good = reactive_tagging_policy(alg)
     stacked = jax.tree.map(lambda x: jnp.stack([x] * 3), good)
     start = pool.replace(

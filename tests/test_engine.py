@@ -76,7 +76,7 @@ def test_tabular_search_with_own_fitness_and_fresh_values():
     best = float(fitness(jax.tree.map(lambda x: x[None], algorithm.best_policy(state)))[0])
     # Dec-Tiger h 2 optimum -4 (listen twice); the in-loop best is the exact value of the policy
     assert best == pytest.approx(-4.0, abs=1e-4)
-    assert float(metrics.best_value) == pytest.approx(best, abs=1e-5)
+    assert float(metrics.in_loop_best) == pytest.approx(best, abs=1e-5)
     assert jnp.isfinite(metrics.threshold)
 
 
@@ -136,7 +136,7 @@ def test_ask_evaluate_tell_with_own_values_and_fresh(name):
     algorithm, _, (_, metrics) = _driven_by_hand(name)
     if name == "gdice-portfolio":
         assert len(algorithm.members) == 3  # independent, shared, exploring
-    assert float(metrics.best_value) == 7.0
+    assert float(metrics.in_loop_best) == 7.0
     assert float(metrics.value) == OWN_VALUE[name]
 
 

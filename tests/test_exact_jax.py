@@ -78,7 +78,7 @@ def test_gdice_exact_evaluator_finds_dectiger_h2_optimum_and_in_loop_value_is_ex
     value = exact_value(load_problem(config.problem), best.actions, best.transitions, 2, 1.0)
     assert value == pytest.approx(-4.0, abs=1e-9)
     # with exact values there is no winner's curse: the in-loop best is the true value
-    assert float(metrics.best_value[-1]) == pytest.approx(value, abs=1e-4)
+    assert float(metrics.in_loop_best[-1]) == pytest.approx(value, abs=1e-4)
 
 
 def test_exact_evaluator_config_errors(tmp_path):

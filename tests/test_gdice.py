@@ -235,7 +235,7 @@ def test_step_does_not_retrace_across_iterations_and_hyper_values():
         )
         state, metrics = step(jax.random.key(i), state, hyper)
     assert int(state.progress.iteration) == 8
-    assert np.isfinite(float(metrics.best_value))
+    assert np.isfinite(float(metrics.in_loop_best))
 
 
 def test_best_rollouts_tracks_a_fresh_mean_of_the_winner():
@@ -256,14 +256,14 @@ def test_best_rollouts_tracks_a_fresh_mean_of_the_winner():
         out[fresh] = (state, metrics)
     (s0, m0), (s1, m1) = out[0], out[2000]
     # same samples and in-loop values, same winner
-    assert float(m0.value) == float(m1.value) == float(s0.progress.best_value)
+    assert float(m0.value) == float(m1.value) == float(s0.progress.in_loop_best)
     chex.assert_trees_all_equal(s0.best_policy, s1.best_policy)
     fresh_mean = rollouts(
         env, algo.controller, streams(key).fresh, 2000, env_params, s1.best_policy
     ).mean()
-    np.testing.assert_allclose(float(s1.progress.best_value), float(fresh_mean), rtol=1e-6)
+    np.testing.assert_allclose(float(s1.progress.in_loop_best), float(fresh_mean), rtol=1e-6)
     # 4-rollout means maximised over 64 samples overstate the winner's value
-    assert float(s1.progress.best_value) < float(s0.progress.best_value)
+    assert float(s1.progress.in_loop_best) < float(s0.progress.in_loop_best)
 
 
 # --------------------------------------------------------------------------------------------

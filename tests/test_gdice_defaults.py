@@ -121,11 +121,11 @@ def test_portfolio_keeps_the_best_member_and_is_anytime():
     step = jax.jit(algo.step)
     for i in range(4):
         state, metrics = step(jax.random.key(i), state, params)
-        member_best = max(float(m.progress.best_value.max()) for m in state.members)
-        assert float(metrics.best_value) == pytest.approx(member_best)
+        member_best = max(float(m.progress.in_loop_best.max()) for m in state.members)
+        assert float(metrics.in_loop_best) == pytest.approx(member_best)
     best = jax.device_get(state.best_policy)
     value = float(exact_value_layered(env, params.env, best, settings.nodes))
-    assert value == pytest.approx(float(state.progress.best_value), abs=1e-4)
+    assert value == pytest.approx(float(state.progress.in_loop_best), abs=1e-4)
 
 
 def test_portfolio_skips_shared_search_for_different_agents(tmp_path):
@@ -139,7 +139,7 @@ def test_portfolio_skips_shared_search_for_different_agents(tmp_path):
     algo = GDicePortfolio(env, settings, shared_restarts=1)
     assert len(algo.members) == 1  # no shared search: the agents differ
     state, _ = jax.jit(algo.step)(jax.random.key(0), algo.init(jax.random.key(1), params), params)
-    assert float(state.progress.best_value) == pytest.approx(2.0)  # (1, 2) twice
+    assert float(state.progress.in_loop_best) == pytest.approx(2.0)  # (1, 2) twice
 
 
 @pytest.mark.optimised
@@ -209,7 +209,7 @@ def test_hybrid_ranks_the_best_samples_by_rollouts_with_exact_values():
     state, metrics = jax.jit(algo.step)(jax.random.key(3), state, params)
     best = jax.device_get(state.best_policy)
     value = float(exact_value_layered(env, params.env, best, settings.nodes))
-    assert float(state.progress.best_value) == pytest.approx(value, abs=1e-5)
+    assert float(state.progress.in_loop_best) == pytest.approx(value, abs=1e-5)
     assert np.isfinite(float(metrics.mean_value))
     assert algo.rollouts_per_iteration == settings.samples * settings.eval_rollouts
 
@@ -267,7 +267,7 @@ def test_portfolio_is_a_pure_function_of_the_env_params():
         alone, m_alone = step(key, state, p)
         for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(batched)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b)[r], rtol=1e-6)
-    assert float(m.best_value[0]) != float(m.best_value[1])
+    assert float(m.in_loop_best[0]) != float(m.in_loop_best[1])
 
 
 def test_layered_draws_read_only_the_next_layer_and_equal_full_rows():
@@ -368,7 +368,7 @@ def test_repeated_searches_include_the_unrepeated_ones():
         first = jax.tree.map(lambda x: x[:1], m_twice)
         for a, b in zip(jax.tree.leaves(m_once), jax.tree.leaves(first)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
-    assert float(twice.progress.best_value) >= float(once.progress.best_value) - 1e-6
+    assert float(twice.progress.in_loop_best) >= float(once.progress.in_loop_best) - 1e-6
 
 
 def test_hybrid_exact_part_sizes_from_the_model():

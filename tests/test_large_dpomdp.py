@@ -128,7 +128,7 @@ def test_large_model_builds_and_short_gdice_run_is_finite(large):
         assert np.isfinite(float(m.value)) and np.isfinite(float(m.mean_value))
         # the first iteration keeps N_b elites (V_w = -inf); later ones may keep none
         assert int(m.kept) == settings.elites if i == 0 else 0 <= int(m.kept) <= settings.elites
-    assert np.isfinite(float(state.progress.best_value))
+    assert np.isfinite(float(state.progress.in_loop_best))
     best = jax.device_get(state.best_policy)
     returns = jax.jit(lambda k, p: algo.returns(k, p, 4000, params, 4000))(
         jax.random.key(99), state.best_policy

@@ -96,7 +96,7 @@ class ThresholdSearch(Search):
         best = select_tree(improved, jax.tree.map(lambda x: x[i], samples), state.best_policy)
         metrics = SearchMetrics(
             value=values[i],
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             mean_value=values.mean(),
         )
         return ThresholdState(best, progress), metrics

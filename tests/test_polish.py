@@ -86,7 +86,7 @@ def test_portfolio_polish_never_lowers_the_best_value():
     algo = GDicePortfolio(env, settings, shared_restarts=1)
     state = algo.init(jax.random.key(2), params)
     state, _ = jax.jit(algo.step)(jax.random.key(3), state, params)
-    before = float(state.progress.best_value)
+    before = float(state.progress.in_loop_best)
     # what each member search's best polishes to on its own
     search, polish = algo._polish()
     alone = [
@@ -96,10 +96,10 @@ def test_portfolio_polish_never_lowers_the_best_value():
             ).value
         )
         for m in state.members
-        for i in range(m.progress.best_value.shape[0])
+        for i in range(m.progress.in_loop_best.shape[0])
     ]
     finished, info = jax.jit(algo.finish)(state, params)
-    value = float(finished.progress.best_value)
+    value = float(finished.progress.in_loop_best)
     assert value >= before - 1e-6
     assert int(info.moves_applied) <= 3 and info.moves_per_sweep == len(search.polish_moves())
     # the kept policy is the best polished one, and its exact value is the reported one

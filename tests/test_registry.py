@@ -351,7 +351,7 @@ class RandomRegions(Search):
         best = select_tree(improved, winner, state.best_policy)
         metrics = SearchMetrics(
             value=values[i],
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             mean_value=values.mean(),
             threshold=values[i],
             kept=jnp.int32(1),

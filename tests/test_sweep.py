@@ -101,7 +101,7 @@ def test_sweep_equals_single_runs_exactly(one_process, tmp_path):
         stored = json.loads((folder / "results.json").read_text())
         assert stored["status"] == "complete" and stored["final_value"] == single["final_value"]
         assert row["values_per_iteration"] == single["values_per_iteration"]
-        assert row["best_per_iteration"] == single["best_per_iteration"]
+        assert row["in_loop_best_per_iteration"] == single["in_loop_best_per_iteration"]
         assert row["in_loop_best"] == single["in_loop_best"]
     # the settings really differ (alpha reaches the compiled program as data)
     assert rows[0]["values_per_iteration"] != rows[3]["values_per_iteration"]
@@ -354,7 +354,7 @@ def test_summary_reports_exact_values_of_tabular_runs(tmp_path):
             },
             "in_loop_best": exact + 0.5,
             "values_per_iteration": [exact, exact],
-            "best_per_iteration": [exact, exact],
+            "in_loop_best_per_iteration": [exact, exact],
         }
 
     result = {

@@ -163,7 +163,7 @@ class CognetState:
 @struct.dataclass
 class CognetMetrics:
     value: jax.Array  # [] step-8 value of the updated policy
-    best_value: jax.Array  # [] best in-loop value so far
+    in_loop_best: jax.Array  # [] best in-loop value so far
     threshold: jax.Array  # [] V_w after this iteration
     kept: jax.Array  # [] number of kept candidates
     best_candidate: jax.Array  # [] largest candidate value
@@ -392,7 +392,7 @@ class CognetThesis(NeuralSearch):
         else:
             best_candidate = values.max()
             # 5: threshold
-            bar = progress.best_value if s.threshold_rule == "best" else progress.threshold
+            bar = progress.in_loop_best if s.threshold_rule == "best" else progress.threshold
             sel, kept_mask, new_bar = elite_selection(values, bar, s.keep)
             threshold = progress.threshold if s.threshold_rule == "best" else new_bar
             kept_idx = asked.top_idx[sel]
@@ -430,7 +430,7 @@ class CognetThesis(NeuralSearch):
         best_policy = select_tree(improved, policy, state.best_policy)
         metrics = CognetMetrics(
             value=value,
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             threshold=progress.threshold,
             kept=kept_mask.sum(),
             best_candidate=best_candidate,

@@ -206,7 +206,7 @@ class WeightsState:
 @struct.dataclass
 class WeightsMetrics:
     value: jax.Array  # [] fresh value of the better of (winner, mode) this iteration
-    best_value: jax.Array  # [] the kept policy's estimate: best fresh value so far, or with a
+    in_loop_best: jax.Array  # [] the kept policy's estimate: best fresh value so far, or with a
     # pool the kept member's mean over its evaluations (not monotone)
     mean_value: jax.Array  # [] mean candidate value (in-loop)
     top_value: jax.Array  # [] largest candidate value (in-loop, optimistic)
@@ -459,7 +459,7 @@ class CognetWeights(PolishFinish, NeuralSearch):
         WeightsMetrics)``. The winner is valued on the ``fresh`` stream, the mode on the
         ``other`` one; ``fresh_value(key, policy) -> value`` replaces their ``best_rollouts``
         fresh rollouts of the simulator. With a pool (``best_pool``) every fresh value is on
-        the ``fresh`` stream and ``best_value`` is the kept member's mean."""
+        the ``fresh`` stream and ``in_loop_best`` is the kept member's mean."""
         hyper = params.hyper
         if fresh_value is None:
             fresh_value = lambda k, p: self.fresh_value(k, p, params)  # noqa: E731
@@ -494,18 +494,18 @@ class CognetWeights(PolishFinish, NeuralSearch):
         progress = progress.replace(threshold=elite_values[-1])
         if s.paired_best:
             improved = value > v_best
-            progress = progress.replace(best_value=jnp.maximum(value, v_best))
+            progress = progress.replace(in_loop_best=jnp.maximum(value, v_best))
         best_policy = select_tree(improved, candidate, state.best_policy)
         if pool is not None:
             pool = race(pool, fresh[2:], candidate, value)
             best_policy = pool.member(pool.best())
-            progress = progress.replace(best_value=pool.means()[pool.best()])
+            progress = progress.replace(in_loop_best=pool.means()[pool.best()])
         start, done = refine_start(s), progress.iteration
         level = self.refine_level(done - 1)  # the level of the distribution just refit
         converged = self.converged(dist, done > start, state.searches, level)
         metrics = WeightsMetrics(
             value=value,
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             mean_value=values.mean(),
             top_value=elite_values[0],
             threshold=elite_values[-1],

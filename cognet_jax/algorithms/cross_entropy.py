@@ -96,7 +96,7 @@ class Progress:
     threshold: jax.Array
     recent: jax.Array
     num_recent: jax.Array
-    best_value: jax.Array
+    in_loop_best: jax.Array
     since_improved: jax.Array
     iteration: jax.Array
     injections: jax.Array
@@ -107,7 +107,7 @@ class Progress:
             threshold=jnp.float32(-jnp.inf),
             recent=jnp.zeros(window, jnp.float32),
             num_recent=jnp.int32(0),
-            best_value=jnp.float32(-jnp.inf),
+            in_loop_best=jnp.float32(-jnp.inf),
             since_improved=jnp.int32(0),
             iteration=jnp.int32(0),
             injections=jnp.int32(0),
@@ -132,13 +132,13 @@ class Progress:
 
     def record(self, value: jax.Array) -> tuple[Progress, jax.Array]:
         """Append this iteration's value; returns ``(progress, improved)``."""
-        improved = value > self.best_value
+        improved = value > self.in_loop_best
         recent = jnp.concatenate([self.recent[1:], value[None]])
         return (
             self.replace(
                 recent=recent,
                 num_recent=jnp.minimum(self.num_recent + 1, self.recent.shape[0]),
-                best_value=jnp.where(improved, value, self.best_value),
+                in_loop_best=jnp.where(improved, value, self.in_loop_best),
                 since_improved=jnp.where(improved, 0, self.since_improved + 1),
                 iteration=self.iteration + 1,
             ),

@@ -16,7 +16,7 @@ params pytree and the algorithm's hyper-parameters -- is one :class:`SearchParam
 ``step(key, state, params)`` is exactly ``ask``, ``evaluate`` and ``tell`` with one iteration
 key. What the orchestration reads besides: ``state.progress.iteration`` (the iteration
 count, ``cross_entropy.Progress``; the loop, ``cognet_jax.loop``), the metrics fields
-``value``, ``best_value`` and ``mean_value`` (``SearchMetrics``; a cross-entropy search also
+``value``, ``in_loop_best`` and ``mean_value`` (``SearchMetrics``; a cross-entropy search also
 fills ``threshold``, ``kept`` and ``injected``, which ``cognet_jax.records`` writes when they
 are there), and the algorithm's ``rollouts_per_iteration``.
 
@@ -156,7 +156,7 @@ class SearchMetrics:
     """One iteration's figures (scalars; a leading ``[iterations]`` axis after a scan)."""
 
     value: jax.Array  # [] best sample value of this iteration
-    best_value: jax.Array  # [] value of the anytime best so far
+    in_loop_best: jax.Array  # [] value of the anytime best so far
     mean_value: jax.Array  # [] mean sample value
     # cross-entropy searches only (None where a search has no such figure):
     threshold: jax.Array | None = None  # [] V_w after this iteration
@@ -355,7 +355,7 @@ class ThresholdSearch(Search):
         best_policy = select_tree(improved, winner, state.best_policy)
         metrics = SearchMetrics(
             value=values[best_idx],
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             mean_value=self.mean_value(values),
             threshold=progress.threshold,
             kept=kept.sum(),

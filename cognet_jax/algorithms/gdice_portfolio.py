@@ -154,7 +154,7 @@ class GDicePortfolio(TabularReports, Search):
             )
             members.append(new)
             metrics.append(met)
-        bests = jnp.concatenate([s.progress.best_value for s in members])
+        bests = jnp.concatenate([s.progress.in_loop_best for s in members])
         policies = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[s.best_policy for s in members])
         winner = jnp.argmax(bests)
         progress, improved = state.progress.record(bests[winner])
@@ -164,7 +164,7 @@ class GDicePortfolio(TabularReports, Search):
         met = jax.tree.map(lambda *xs: jnp.concatenate(xs), *metrics)
         out = SearchMetrics(
             value=met.value.max(),
-            best_value=progress.best_value,
+            in_loop_best=progress.in_loop_best,
             mean_value=met.mean_value.mean(),
             threshold=met.threshold.max(),
             kept=met.kept.sum(),
@@ -216,8 +216,8 @@ class GDicePortfolio(TabularReports, Search):
         search, polish = self._polish()
         winner = jnp.argmax(work.value)  # the first of equal values: the portfolio's best
         kept = jax.tree.map(lambda x: x[winner], work)
-        value = jnp.maximum(kept.value, state.progress.best_value)
-        progress = state.progress.replace(best_value=value)
+        value = jnp.maximum(kept.value, state.progress.in_loop_best)
+        progress = state.progress.replace(in_loop_best=value)
         info = polish_info(kept, len(polish.moves), polish.budget)
         return state.replace(best_policy=kept.policy, progress=progress), info
 

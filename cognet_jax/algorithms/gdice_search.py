@@ -545,8 +545,8 @@ class GDice(TabularReports, ThresholdSearch):
     def finish_end(self, state: GDiceState, work: PolishState):
         """``(state, PolishInfo)``: the polished policy kept, its value the better of the
         polished one and the search's best."""
-        value = jnp.maximum(work.value, state.progress.best_value)
-        progress = state.progress.replace(best_value=value)
+        value = jnp.maximum(work.value, state.progress.in_loop_best)
+        progress = state.progress.replace(in_loop_best=value)
         info = polish_info(work, len(self.polish_moves()), self.polish_budget())
         return state.replace(best_policy=work.policy, progress=progress), info
 
