@@ -900,6 +900,22 @@ AFTER_AXES = {
         "noisy Dec-Tiger at 4 times the default budget",
         "cognet-hearing-tiger-noisy",
     ),
+    "plume-i800": (
+        "plume-n5",
+        ["algorithm.iterations=800", "algorithm.eval_rollouts=188"],
+        SEEDS,
+        "candidate: 800 iterations x 188 rollouts per candidate, the same budget (twice the "
+        "exploring searches, each of about 95 iterations)",
+        "cognet-plume",
+    ),
+    "paper-budget-1of64-start": (
+        "tagging-paper-auto",
+        ["algorithm.budget=4.6875e9", "run.probe_seconds=10", "algorithm.start_draw=true"],
+        3,
+        "1/64 of the paper's 3e11 agent-steps, candidate: every candidate draws per agent the "
+        "node whose role it starts in (start_draw)",
+        "paper-budget-1of64-axes",
+    ),
     "hearing-tiger-noisy-n9-axes": (
         "hearing-tiger-noisy-n7",
         ["algorithm.nodes=9"],

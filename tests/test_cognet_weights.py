@@ -742,3 +742,37 @@ def test_results_count_the_searches_restarts_under_their_own_name(tmp_path):
     assert cli.main(["train", "--out", str(out), *TINY_TRAIN]) == 0
     results = json.loads((out / "results.json").read_text())
     assert isinstance(results["restarts"], int) and "entropy_injections" not in results
+
+
+def test_a_drawn_start_runs_the_controller_from_that_nodes_role():
+    """``start_draw``: the other draws are those without it; a candidate's policy is the
+    policy of its draws with node 0 and its start node swapped per agent (the polish's
+    START move of the same swap); the start categorical is refit to the elites."""
+    from cognet_jax.algorithms.weight_polish import START, apply_move
+    from cognet_jax.controllers.base import action_support
+
+    off, params = small_algorithm()
+    on, _ = small_algorithm(start_draw=True)
+    d_off, d_on = off.init_distribution(), on.init_distribution()
+    assert d_off.start_probs is None and d_on.start_probs.shape == (2, 3)
+    a, b = off.draw(jax.random.key(4), d_off, 64), on.draw(jax.random.key(4), d_on, 64)
+    for name in ("actions", "w1", "b1", "unit_targets", "m", "default", "bias", "node_tie"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    start = np.asarray(b.start)  # [64, agents]: not tied with the agents
+    assert {0, 1, 2} <= set(start[:, 1]) and (start[:, 0] != start[:, 1]).any()
+    support = action_support(on.env)[:, 0, :]
+    ones = jnp.ones((2, on.controller.in_features))
+    for c in np.flatnonzero((start[:, 0] == 0) & (start[:, 1] > 0))[:3]:
+        draws = jax.tree.map(lambda x, c=c: x[c], b)
+        want = apply_move(
+            off.to_policy(draws.replace(start=None)),
+            jnp.array([START, 1, 0, 0, int(start[c, 1]) - 1]),
+            ones,
+            support,
+            jnp.zeros_like(ones),
+        )
+        for got, exp in zip(jax.tree.leaves(on.to_policy(draws)), jax.tree.leaves(want)):
+            np.testing.assert_allclose(np.asarray(got), np.asarray(exp), rtol=1e-6)
+    elites = jax.tree.map(lambda x: x[np.flatnonzero(start[:, 1] == 2)[:4]], b)
+    new = on.update_distribution(d_on, elites, params.hyper.replace(alpha=1.0))
+    assert float(new.start_probs[1, 2]) > 0.9

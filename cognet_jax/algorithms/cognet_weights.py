@@ -111,9 +111,8 @@ the raw features. Without it a hidden unit's threshold ``-b / w`` is spread over
 ``init_scale``; on the raw heatmap patch (pixels in [0, 1], most positions differing by a few
 hundredths) almost no sampled unit then splits the positions that matter.
 
-The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits; with votes of
-about 5 the draw is nearly deterministic), so evaluation, ``controller_step`` and saved policies
-are those of the thesis algorithm.
+The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits), so evaluation,
+``controller_step`` and saved policies are those of the thesis algorithm.
 
 One iteration (``step``), values are returns to **maximise**:
 
@@ -134,12 +133,11 @@ One iteration (``step``), values are returns to **maximise**:
    re-evaluated on the same fresh rollouts every iteration (``algorithms.best_pool``: the kept
    policy is the member with the largest lower confidence bound, so the winner's curse of a
    maximum over hundreds of noisy means does not decide). With ``best_pool = 0`` (or with
-   ``paired_best``, which replaces the pool: configs written before the pool still run as
-   they did) the
-   challenger replaces the best policy when its fresh value beats the best fresh value so far
-   (the winner on the ``fresh`` stream, the mode on the ``other``); ``paired_best`` then
-   re-evaluates the best policy on the challengers' rollouts and compares with that instead.
-   The value recorded per iteration is the challenger's fresh value, never an in-loop mean.
+   ``paired_best``, which replaces the pool: older configs run as they did) the challenger
+   replaces the best policy when its fresh value beats the best fresh value so far (the
+   winner on the ``fresh`` stream, the mode on the ``other``); ``paired_best`` compares on
+   the challengers' rollouts instead. The value recorded per iteration is the challenger's
+   fresh value, never an in-loop mean.
 """
 
 from __future__ import annotations
@@ -169,11 +167,12 @@ from cognet_jax.algorithms.weight_space import (
     WeightDistribution,
     WeightSample,
     centered,
-    distinct_draw,
     draw_actions,
+    mode_of,
     redraw_unit,
     refit,
     sample_of,
+    started,
     tie,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
@@ -188,8 +187,9 @@ from cognet_jax.prng import fast_key
 #: (with partitionable threefry, folding with ``i`` gives ``split(key, n)[i]``: a small number
 #: would reuse a stream of ``draw``)
 DISTINCT_STREAM = 0x64697374
-#: the stream of the refine phase's unit redraws (``refine_redraw``), likewise
-REDRAW_STREAM = 0x72647277
+#: the streams of the refine phase's unit redraws (``refine_redraw``) and of the start
+#: roles (``start_draw``), likewise
+REDRAW_STREAM, START_STREAM = 0x72647277, 0x73747274
 
 
 @struct.dataclass
@@ -272,6 +272,7 @@ class CognetWeights(PolishFinish, NeuralSearch):
             ),
             distinct_probs=full((a, 2), 0.5) if s.distinct_actions else None,
             redraw=full((), 0.0) if s.refine_redraw > 0 and s.refine > 0 else None,
+            start_probs=full((a, q), 1.0 / q) if s.start_draw else None,
         )
 
     @property
@@ -313,35 +314,23 @@ class CognetWeights(PolishFinish, NeuralSearch):
             agent_tie=categorical(ks[8], dist.agent_tie_probs) if ties else untied[1],
             distinct=distinct,
         )
+        if dist.start_probs is not None:  # the start roles, on their own stream
+            start_key = jax.random.fold_in(fast_key(key), START_STREAM)
+            sample = sample.replace(start=categorical(start_key, dist.start_probs))
         if dist.redraw is not None:  # the refine phase's redrawn units, on their own stream
             redraw_key = jax.random.fold_in(fast_key(key), REDRAW_STREAM)
             sample = redraw_unit(redraw_key, sample, self.init_distribution(), dist.redraw)
         return tie(sample) if ties else sample
 
     def mode(self, dist: WeightDistribution) -> WeightSample:
-        """The most likely controller: Gaussian means and the most likely categories."""
-        sample = WeightSample(
-            actions=jnp.argmax(dist.action_probs, -1).astype(jnp.int32),
-            w1=dist.w1_mean,
-            b1=dist.b1_mean,
-            unit_targets=jnp.argmax(dist.unit_target_probs, -1).astype(jnp.int32),
-            m=dist.m_mean,
-            default=jnp.argmax(dist.default_probs, -1).astype(jnp.int32),
-            bias=dist.bias_mean,
-            node_tie=jnp.argmax(dist.node_tie_probs, -1).astype(jnp.int32),
-            agent_tie=jnp.argmax(dist.agent_tie_probs, -1).astype(jnp.int32),
-        )
-        if dist.distinct_probs is not None:  # the most likely actions, distinct if so flagged
-            flag = jnp.argmax(dist.distinct_probs, -1).astype(jnp.int32)
-            chosen = distinct_draw(None, dist.action_probs, action_support(self.env))
-            actions = jnp.where(flag[:, None] == 1, chosen, sample.actions)
-            sample = sample.replace(actions=actions, distinct=flag)
-        return tie(sample) if self.settings.tie_structure else sample
+        """The most likely controller (``weight_space.mode_of``)."""
+        return mode_of(dist, action_support(self.env), self.settings.tie_structure)
 
     def to_policy(self, sample: WeightSample) -> NeuralPolicy:
         """The ``NeuralPolicy`` of one sample (works on a leading candidate axis too): one-hot
-        actions, ``W2 = m * onehot(unit_targets)``, ``b2 = bias * onehot(default)``."""
-        q, na = self.settings.nodes, self.env.num_actions
+        actions, ``W2 = m * onehot(unit_targets)``, ``b2 = bias * onehot(default)``, each
+        agent started in the role its ``start`` draws (``started``)."""
+        q, na, sample = self.settings.nodes, self.env.num_actions, started(sample)
         w1, b1 = sample.w1, sample.b1
         if self.settings.standardize_inputs:  # fold (x - mean) / scale into the first layer
             input_mean, input_scale = self.input_stats

@@ -62,7 +62,9 @@ class CognetWeightsSection:
     node's weakest unit as a threshold on one feature (AXIS, on inputs of at most
     ``AXIS_MAX_FEATURES`` features) and starting a controller at another node's role
     (START); ``polish_extend``: while each sweep applies a move, the polish goes on past its
-    share up to that many times it (1: never). The hidden width is ``network.hidden``."""
+    share up to that many times it (1: never); ``start_draw``: every candidate also draws,
+    per agent, the node whose role it starts in (a categorical refit to the elites; tied
+    agents share a controller and may start apart). The hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -101,6 +103,7 @@ class CognetWeightsSection:
     polish_share: float = 0.25
     polish_axes: bool = True
     polish_extend: float = 2.0
+    start_draw: bool = False
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""

@@ -35,6 +35,9 @@ class WeightDistribution:
     #: [] probability that a candidate redraws one hidden unit from the initial distribution
     #: (``redraw_unit``); None where the search has no such draws (``refine_redraw`` 0)
     redraw: jax.Array | None = None
+    #: [agents, Q]: the node whose role each agent starts in (``started``); None where node 0
+    #: always starts (``start_draw`` off)
+    start_probs: jax.Array | None = None
 
 
 @struct.dataclass
@@ -51,6 +54,7 @@ class WeightSample:
     node_tie: jax.Array  # [agents] int32, 1: every node runs node 0's network
     agent_tie: jax.Array  # [] int32, 1: every agent runs agent 0's controller
     distinct: jax.Array | None = None  # [agents] int32, 1: actions drawn by ``distinct_draw``
+    start: jax.Array | None = None  # [agents] int32: the node whose role starts (``started``)
 
 
 #: the fields of a node's network (copied by node tying); agent tying copies every field
@@ -82,6 +86,32 @@ def tie(sample: WeightSample) -> WeightSample:
     fields = (*NETWORK_FIELDS, "actions", "node_tie")
     fields += ("distinct",) if sample.distinct is not None else ()
     return sample.replace(**{f: pick(getattr(sample, f), agent_src, lead) for f in fields})
+
+
+def started(sample: WeightSample) -> WeightSample:
+    """The controllers ``sample`` runs (leaves with or without a leading candidate axis):
+    in each agent's, node 0 (where it starts) and node ``start[a]`` swap roles -- their
+    actions, networks and every vote for them -- so an agent starts in the role of node
+    ``start[a]``. Tied agents (``agent_tie``) then share one controller and may start in
+    different roles. ``sample`` as it is without ``start``."""
+    if sample.start is None:
+        return sample
+    lead = sample.start.ndim  # the node axis: after the agents'
+    q = sample.actions.shape[-1]
+    nodes, first = jnp.arange(q), sample.start[..., None]
+    perm = jnp.where(nodes == 0, first, jnp.where(nodes == first, 0, nodes))  # [..., agents, Q]
+
+    def along_nodes(x):
+        index = perm.reshape(perm.shape + (1,) * (x.ndim - perm.ndim))
+        return jnp.take_along_axis(x, jnp.broadcast_to(index, x.shape), axis=lead)
+
+    def renamed(votes):  # a vote for node t goes to where t now sits: perm is an involution
+        flat = votes.reshape(votes.shape[:lead] + (-1,))  # [..., agents, Q x H]
+        return jnp.take_along_axis(perm, flat, axis=-1).reshape(votes.shape)
+
+    moved = {f: along_nodes(getattr(sample, f)) for f in (*NETWORK_FIELDS, "actions")}
+    moved.update({f: renamed(moved[f]) for f in ("unit_targets", "default")})
+    return sample.replace(**moved)
 
 
 def gaussian_refit(mean, std, elite_draws, alpha):
@@ -166,6 +196,9 @@ def refit(dist: WeightDistribution, elites: WeightSample, alpha, floors, agent_f
         if dist.distinct_probs is None
         else categorical(dist.distinct_probs, elites.distinct, 2, category_floor),
         redraw=dist.redraw,
+        start_probs=None
+        if dist.start_probs is None
+        else categorical(dist.start_probs, elites.start, q, category_floor),
     )
 
 
@@ -209,6 +242,12 @@ def centered(
         if init.distinct_probs is None
         else peaked(reproduces_distinct(sample.actions, support), 2),
         redraw=None if init.redraw is None else jnp.float32(redraw),
+        start_probs=None
+        if init.start_probs is None
+        else peaked(
+            jnp.zeros(sample.actions.shape[0], jnp.int32) if sample.start is None else sample.start,
+            q,
+        ),
     )
 
 
@@ -302,3 +341,28 @@ def draw_actions(key, probs: jax.Array, num: int, distinct, support: jax.Array) 
     if distinct is None:
         return actions
     return jnp.where(distinct[..., None] == 1, distinct_draw(u, probs, support), actions)
+
+
+def mode_of(dist: WeightDistribution, support: jax.Array, ties: bool) -> WeightSample:
+    """The most likely controller of ``dist``: Gaussian means and the most likely categories
+    (the actions distinct where the flag says so, ``distinct_draw``; tied where the tie flags
+    say so and ``ties``); ``support [agents, 1, actions]`` the actions each agent has."""
+    sample = WeightSample(
+        actions=jnp.argmax(dist.action_probs, -1).astype(jnp.int32),
+        w1=dist.w1_mean,
+        b1=dist.b1_mean,
+        unit_targets=jnp.argmax(dist.unit_target_probs, -1).astype(jnp.int32),
+        m=dist.m_mean,
+        default=jnp.argmax(dist.default_probs, -1).astype(jnp.int32),
+        bias=dist.bias_mean,
+        node_tie=jnp.argmax(dist.node_tie_probs, -1).astype(jnp.int32),
+        agent_tie=jnp.argmax(dist.agent_tie_probs, -1).astype(jnp.int32),
+    )
+    if dist.distinct_probs is not None:
+        flag = jnp.argmax(dist.distinct_probs, -1).astype(jnp.int32)
+        chosen = distinct_draw(None, dist.action_probs, support)
+        actions = jnp.where(flag[:, None] == 1, chosen, sample.actions)
+        sample = sample.replace(actions=actions, distinct=flag)
+    if dist.start_probs is not None:
+        sample = sample.replace(start=jnp.argmax(dist.start_probs, -1).astype(jnp.int32))
+    return tie(sample) if ties else sample
