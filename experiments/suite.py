@@ -1092,6 +1092,35 @@ def extra_table() -> list[str]:
     return rows
 
 
+def single_runs_table() -> list[str]:
+    """One ``cognet-jax train`` at a time (folders ``*-single/seedS`` of ``RESULTS``): each
+    run's honest value, wall and compile seconds, and the wall time at which its anytime best
+    first reached the hand-written controller (``_first_reach``: probes, then the end)."""
+    rows = [
+        "| runs | experiment | seed | honest value | wall s (compile s) | time to the "
+        "hand-written controller |",
+        "|---|---|---|---|---|---|",
+    ]
+    for folder in sorted(RESULTS.glob("*-single")):
+        for path in sorted(folder.glob("seed*/results.json")):
+            r = json.loads(path.read_text())
+            target = TAGGING_REACTIVE.get(r["config"]["env"].get("setting"))
+            reach = _first_reach([r], target).split(" (")[0] if target else ""
+            rows.append(
+                f"| {folder.name} | {r['experiment']} | {r['seed']} | "
+                f"{r['final_value']['mean']:.3f} | {r['wall_s']:.1f} ({r['compile_s']:.1f}) | "
+                f"{reach} (target {target}) |"
+            )
+    return rows
+
+
+SINGLE_NOTES = """Each row is one `cognet-jax train EXPERIMENT --seed S` with the overrides of
+its sweep (paper-budget-1of64-axes, tagging-thesis-n3-defaults-axes) and `run.probe_seconds`
+(10 s on the paper setting, 1 s on the thesis one), run one after another: the first of each
+compiled its programs, the others found them kept. The values equal the sweeps' seed for
+seed. The thesis runs shared the machine with a sweep."""
+
+
 def table() -> list[str]:
     from cognet_jax.plugins import import_plugin
 
@@ -1447,6 +1476,12 @@ def write_table() -> None:
         EXTRA_NOTES,
         "",
         refine_half_note(),
+        "",
+        "### Time to the hand-written controller, one run at a time",
+        "",
+        *single_runs_table(),
+        "",
+        SINGLE_NOTES,
         "",
         "### The refine phase seed by seed: beacon, before the horizon rule",
         "",
