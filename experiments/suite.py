@@ -870,6 +870,8 @@ BEFORE_AXES = ["algorithm.polish_axes=false", "algorithm.polish_extend=1.0"]
 #: the library's defaults on the experiments that pin the search (their TOMLs pin the polish
 #: off): with the polish, its AXIS moves and its extension (defaults of the fields)
 NEWEST_AXES = NEWEST_POLISHED
+#: the rows swept with ``start_draw`` as a candidate (rows ``ROW-start``)
+START_ROWS = ("hearing-tiger", "hearing-tiger-noisy", "readme-seek", "beacon-clean", "box-push")
 #: rows measured since the AXIS moves and the extension became defaults
 AFTER_AXES = {
     **{
@@ -916,6 +918,27 @@ AFTER_AXES = {
         "node whose role it starts in (start_draw)",
         "paper-budget-1of64-axes",
     ),
+    **{
+        f"{row}-start": (
+            ROWS[row][0],
+            ["algorithm.start_draw=true"],
+            SEEDS,
+            "candidate: every candidate draws per agent the node whose role it starts in "
+            "(start_draw)",
+            f"cognet-{row}",
+        )
+        for row in START_ROWS
+    },
+    **{
+        f"{experiment}-start": (
+            experiment,
+            [*NEWEST_AXES, "algorithm.start_draw=true"],
+            SEEDS,
+            "candidate: the library's defaults with start_draw",
+            f"{experiment}-defaults-axes",
+        )
+        for experiment in ("tagging-thesis-n3", "tagging-thesis-n6")
+    },
     "hearing-tiger-noisy-n9-axes": (
         "hearing-tiger-noisy-n7",
         ["algorithm.nodes=9"],
