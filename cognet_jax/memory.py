@@ -80,6 +80,20 @@ def gb(num_bytes: float) -> str:
     return f"{num_bytes / 1e9:.3g} GB"
 
 
+def check_made_fits(make, args: tuple, memory: int | None, what: str) -> None:
+    """``ResourceError`` when the arrays ``make(*args)`` returns are over ``memory`` bytes
+    (``None``: ``budget_bytes()``), found by ``jax.eval_shape`` before anything is made: a
+    policy or a batch of candidates built eagerly (outside a compiled program, which
+    ``trace_checked`` checks) is refused instead of failing to allocate."""
+    size = sum(_aval_bytes(x) for x in jax.tree.leaves(jax.eval_shape(make, *args)))
+    limit = budget_bytes() if memory is None else memory
+    if size > limit:
+        raise ResourceError(
+            f"{what} take {gb(size)}, over the memory budget of {gb(limit)}; lower the sizes "
+            "in the config (algorithm.nodes, network.hidden) or raise run.memory_gb"
+        )
+
+
 def _aval_bytes(aval) -> int:
     shape = getattr(aval, "shape", None)
     dtype = getattr(aval, "dtype", None)

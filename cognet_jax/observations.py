@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from cognet_jax.config import ConfigError, require, require_positive
 from cognet_jax.controllers.neural import NeuralController
-from cognet_jax.memory import trace_checked
+from cognet_jax.memory import check_made_fits, trace_checked
 from cognet_jax.rollout import rollouts
 from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae, vae_bytes
 
@@ -240,6 +240,7 @@ def input_statistics(env, controller, pipeline, env_params, memory=None):
     ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
     ``memory`` bytes (``memory.trace_checked``). Raw observations' statistics are computed
     once per simulator, params and controller shape in a process (``_RAW_STATS``)."""
+    check_made_fits(controller.init, (jax.random.key(0),), memory, "one joint policy's arrays")
     template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
     uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
     record = jax.jit(

@@ -181,3 +181,32 @@ def test_a_horizon_of_a_million_is_refused_in_seconds(capsys, tmp_path):
 
 def test_memory_gb_must_not_be_negative(capsys):
     one_line_error(capsys, ["train", *sets("run.memory_gb=-1")], "run.memory_gb")
+
+
+@pytest.mark.parametrize("command", ["check", "train"])
+def test_a_policy_over_the_budget_is_refused_before_the_noise_pilot_makes_it(
+    capsys, tmp_path, command
+):
+    """``algorithm.nodes=100000`` on the weight search: one joint policy is 880 GB; ``check``
+    and ``train`` both refuse it in one line (exit 2) before the noise pilot or the input
+    statistics allocate it."""
+    out = tmp_path / "never"
+    argv = [command, "hearing-tiger-n7", *sets("algorithm.nodes=100000")]
+    argv += ["--out", str(out)] if command == "train" else []
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()  # the pilot's line, then the refusal
+    assert err[-1].startswith("error: one joint policy") and "Traceback" not in "".join(err)
+    assert "880 GB" in err[-1] and "algorithm.nodes" in err[-1]
+    assert not out.exists()
+
+
+def test_made_arrays_over_the_budget_are_refused_without_making_them():
+    """``check_made_fits`` sizes what a function returns by its shapes only."""
+
+    def make(key, rows):
+        return jax.random.normal(key, (rows.shape[0], 1000))
+
+    key = jax.random.key(0)
+    memory.check_made_fits(make, (key, jnp.zeros(10)), 40_000, "ten rows")
+    with pytest.raises(memory.ResourceError, match="ten thousand rows take 0.04 GB"):
+        memory.check_made_fits(make, (key, jnp.zeros(10_000)), 40_000, "ten thousand rows")

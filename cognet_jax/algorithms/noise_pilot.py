@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from cognet_jax import status
+from cognet_jax.memory import check_made_fits
 from cognet_jax.rollout import rollouts
 from cognet_jax.signals import in_background
 
@@ -73,7 +74,11 @@ def measure_noise(algorithm, env_params) -> Noise:
     (``algorithm``: a search with ``init_distribution``, ``draw``, ``to_policy``, ``env`` and
     ``controller``, as ``CognetWeights``)."""
     draw_key, rollout_key = jax.random.split(jax.random.key(PILOT_KEY))
-    samples = algorithm.draw(draw_key, algorithm.init_distribution(), PILOT_CANDIDATES)
+    dist = algorithm.init_distribution()
+    what = f"the noise pilot's {PILOT_CANDIDATES} candidates"
+    drawn = lambda k: algorithm.to_policy(algorithm.draw(k, dist, PILOT_CANDIDATES))  # noqa: E731
+    check_made_fits(drawn, (draw_key,), getattr(algorithm, "memory", None), what)
+    samples = algorithm.draw(draw_key, dist, PILOT_CANDIDATES)
     policies = algorithm.to_policy(samples)
 
     def returns(policy):
