@@ -871,7 +871,14 @@ BEFORE_AXES = ["algorithm.polish_axes=false", "algorithm.polish_extend=1.0"]
 #: off): with the polish, its AXIS moves and its extension (defaults of the fields)
 NEWEST_AXES = NEWEST_POLISHED
 #: the rows swept with ``start_draw`` as a candidate (rows ``ROW-start``)
-START_ROWS = ("hearing-tiger", "hearing-tiger-noisy", "readme-seek", "beacon-clean", "box-push")
+START_ROWS = (
+    "hearing-tiger",
+    "hearing-tiger-noisy",
+    "readme-seek",
+    "beacon-clean",
+    "box-push",
+    "bearing-chase",
+)
 #: rows measured since the AXIS moves and the extension became defaults
 AFTER_AXES = {
     **{
