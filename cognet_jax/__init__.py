@@ -36,6 +36,7 @@ _PUBLIC = {
     "EncodedPolicy": "cognet_jax.controllers.encoded",
     "train": "cognet_jax.driver",
     "evaluate_run": "cognet_jax.saved_runs",
+    "run_sweep": "cognet_jax.sweep",
 }
 __all__ = sorted(_PUBLIC)
 __version__ = "0.1.0"

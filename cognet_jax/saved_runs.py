@@ -16,6 +16,7 @@ import jax.numpy as jnp
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
+    Built,
     build,
     seed_key,
 )
@@ -69,12 +70,20 @@ class LoadedRun:
     results: dict
 
 
-def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None = None) -> LoadedRun:
+def load_run(
+    run_dir,
+    overrides: list[str] | None = None,
+    rollouts: int | None = None,
+    built: Built | None = None,
+) -> LoadedRun:
     """The run in ``run_dir``. ``overrides`` (``--set``) may change the evaluation setting,
     e.g. ``env.obs_noise=0.1``; shapes must match; ``rollouts`` replaces
     ``evaluation.rollouts`` before the run is built (and its size checked, ``api.build``).
     The run's own ``vae.msgpack`` (if any) is used unless ``network.vae_path`` is
-    overridden."""
+    overridden. ``built``: the run as the caller built it (``api.build``; e.g. once for all
+    the seeds of a sweep), used as built; its config must be the folder's (with
+    ``overrides`` and ``rollouts``), ``MismatchError`` naming the fields otherwise; a file
+    the run kept (an encoder) may be another copy with the same digest."""
     run_dir = Path(run_dir)
     results_path = run_dir / "results.json"
     if not results_path.is_file():
@@ -101,7 +110,12 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     if rollouts is not None:
         evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
         config = dataclasses.replace(config, evaluation=evaluation)
-    built = build(config)
+    if built is None:
+        built = build(config)
+    else:
+        _check_built(built, config, {f["field"] for f in kept.values()}, run_dir)
+        config = built.config
+        kept = {n: dict(f, path=_field_path(config, f["field"])) for n, f in kept.items()}
     algorithm, params = built.algorithm, built.params
     # the policy's structure and shapes, traced (running ``init`` op by op took seconds)
     template = jax.eval_shape(
@@ -112,9 +126,38 @@ def load_run(run_dir, overrides: list[str] | None = None, rollouts: int | None =
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
     _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
     for name, file in kept.items():
-        _check_digest(run_dir / name, file["sha256"], recorded)
+        _check_digest(file.get("path", run_dir / name), file["sha256"], recorded)
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
+
+
+#: ``run`` fields that change no number of an evaluation (how a run shows and keeps itself)
+PRESENTATION_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
+
+
+def _check_built(built: Built, config: Config, kept_fields: set, run_dir: Path) -> None:
+    """Refuse a ``built`` run whose config is not ``config`` (the folder's, with the
+    caller's overrides), but for the presentation fields and the fields of kept files."""
+    mine, theirs = config.to_dict(), built.config.to_dict()
+    differ = []
+    for section in sorted(set(mine) | set(theirs)):
+        a, b = mine.get(section) or {}, theirs.get(section) or {}
+        for key in sorted(set(a) | set(b)):
+            name = f"{section}.{key}"
+            skip = name in kept_fields or (section == "run" and key in PRESENTATION_FIELDS)
+            if not skip and a.get(key) != b.get(key):
+                differ.append(f"{name} ({b.get(key)!r}, the run's {a.get(key)!r})")
+    if differ:
+        raise MismatchError(
+            f"the Built run given is not the run in {run_dir}: it differs in "
+            f"{', '.join(differ)}; build the folder's config (with the overrides) or pass none"
+        )
+
+
+def _field_path(config: Config, field: str) -> Path:
+    """The file the ``section.key`` field of ``config`` names."""
+    section, key = field.split(".")
+    return Path(getattr(getattr(config, section), key)).expanduser()
 
 
 def _run_files(results: dict, run_dir: Path, results_path: Path) -> dict:
@@ -161,15 +204,17 @@ def evaluate_run(
     seed: int | None = None,
     overrides=(),
     announce=None,
+    built: Built | None = None,
 ):
     """The honest value of the best policy in ``run_dir``: by default the run's own
     evaluation (its seed's evaluation key, ``evaluation.rollouts``), which reproduces its
     results.json ``final_value``; ``seed`` draws from that seed's evaluation key instead,
     ``rollouts`` changes the number, ``overrides`` the setting. ``announce(line)``, when given,
     hears a large evaluation's size and least time before it compiles (``evaluation_line``).
-    Returns the summary with ``seed``, ``overrides`` and ``wall_s``."""
+    ``built``: the run as the caller built it (``load_run``), e.g. once for every seed of a
+    sweep. Returns the summary with ``seed``, ``overrides`` and ``wall_s``."""
     t0 = time.perf_counter()
-    run = load_run(run_dir, list(overrides), rollouts)
+    run = load_run(run_dir, list(overrides), rollouts, built)
     config = run.config
     line = evaluation_line(config, run.algorithm.env, str(run_dir))
     if announce is not None and line is not None:

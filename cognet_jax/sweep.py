@@ -49,13 +49,14 @@ import numpy as np
 from jax.experimental import multihost_utils
 from tqdm.auto import tqdm
 
+from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_text
-from cognet_jax.config import Config, ConfigError, parse_override
+from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions, run_group
-from cognet_jax.errors import MismatchError, read_json
+from cognet_jax.errors import MismatchError, UsageError, read_json
 from cognet_jax.plots import plot_sweep_values
 from cognet_jax.program import Run
-from cognet_jax.registry import dynamic_fields, load_config
+from cognet_jax.registry import config_from_dict, dynamic_fields, load_config
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
 SWEEP_SPEC = "sweep.json"
@@ -112,10 +113,11 @@ PLAN_BAR = 200
 
 
 def plan(
-    experiment: str, grid: dict[str, list], overrides: list[str], progress: bool = True
+    experiment: str | Config, grid: dict[str, list], overrides: list[str], progress: bool = True
 ) -> list[Group]:
-    """Validated settings (every grid combination), grouped by their static fields; a bar
-    for many settings unless ``progress`` is off."""
+    """Validated settings (every grid combination of ``experiment``: a built-in name, a TOML
+    file or a ``Config``), grouped by their static fields; a bar for many settings unless
+    ``progress`` is off."""
     names = list(grid)
     groups: dict[str, Group] = {}
     combos = itertools.product(*(grid[n] for n in names)) if names else [()]
@@ -130,7 +132,7 @@ def plan(
     for index, combo in enumerate(shown):
         values = dict(zip(names, combo, strict=True))
         sets = overrides + [f"{n}={json.dumps(v)}" for n, v in values.items()]
-        config = load_config(experiment, sets)
+        config = _setting_config(experiment, sets)
         d = config.to_dict()
         for n in dynamic_fields(config):
             section, key = n.split(".")
@@ -142,6 +144,14 @@ def plan(
             Setting(index=index, values=values, config=config)
         )
     return list(groups.values())
+
+
+def _setting_config(experiment: str | Config, sets: list[str]) -> Config:
+    """``experiment`` (a name, a TOML file or a ``Config``) with the ``section.key=value``
+    settings ``sets`` applied and validated."""
+    if isinstance(experiment, Config):
+        return config_from_dict(apply_overrides(experiment.to_dict(), sets))
+    return load_config(experiment, sets)
 
 
 def assign_runs(groups: list[Group], seeds: list[int], process: int = 0, processes: int = 1):
@@ -195,9 +205,12 @@ def _group_runs(group: Group, out: Path | None) -> list[Run]:
     ]
 
 
-def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, progress, log, desc):
+def _run_one_group(
+    group: Group, g_index: int, out: Path | None, resume: bool, progress, log, desc, built=None
+):
     """``(rows, timing)`` of one group: from its finished rows when a resumed sweep has them,
-    else by the driver (checkpointed under ``OUT/sweep-state/``)."""
+    else by the driver (checkpointed under ``OUT/sweep-state/``); ``built``: the group's
+    ``api.build``, when the caller made it."""
     tag = f"group{g_index}-p{jax.process_index()}"
     state = None if out is None else out / STATE_DIR
     done = None if state is None else state / f"{tag}.rows.json"
@@ -209,7 +222,7 @@ def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, p
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}
     checkpoint = None if state is None else state / f"{tag}.checkpoint.msgpack"
-    opts = GroupOptions(checkpoint, resume, progress, log, desc, resume_dir=out)
+    opts = GroupOptions(checkpoint, resume, progress, log, desc, resume_dir=out, built=built)
     rows, timing = run_group(_group_runs(group, out), opts)
     if done is not None:
         atomic_write_text(done, json.dumps({"runs": group.runs, "rows": rows, "timing": timing}))
@@ -217,7 +230,7 @@ def _run_one_group(group: Group, g_index: int, out: Path | None, resume: bool, p
 
 
 def run_sweep(
-    experiment: str,
+    experiment: str | Config | Built,
     seeds: list[int],
     grid: dict[str, list] | None = None,
     overrides: list[str] | None = None,
@@ -231,14 +244,29 @@ def run_sweep(
     checkpoints under ``out/sweep-state`` (``out=None``: no files); with ``resume`` a finished
     group's rows are kept and a cut one continues from its checkpoint; ``run_overrides``
     (``run.*`` fields: progress, checkpoints) drive it without being part of the sweep's own
-    settings (sweep.json, runs.json). Returns ``{"rows":
+    settings (sweep.json, runs.json).
+
+    ``experiment``: a built-in name or TOML file, a ``Config``, or a ``Built`` run
+    (``api.build``), whose seeds then run as built (nothing is built again; give it no grid,
+    no overrides; its memory share is the one it was built with, ``build(config,
+    lanes=len(seeds))`` for seeds side by side). Returns ``{"rows":
     [...] (every process's, sorted by setting and seed), "groups": [...], "grid", "seeds",
     "wall_s", ...}``."""
     if not seeds:
         raise ConfigError("seeds", "a sweep needs at least one seed")
     t0 = time.perf_counter()
     grid = grid or {}
+    built = experiment if isinstance(experiment, Built) else None
+    if built is not None:
+        if grid or overrides or run_overrides:
+            raise UsageError(
+                "a sweep of a Built run takes no grid and no overrides (its settings are built): "
+                "pass its config, built.config, to sweep other settings"
+            )
+        experiment = built.config
     groups = plan(experiment, grid, [*(overrides or []), *run_overrides], progress)
+    if built is not None:  # the one setting, exactly the config the run was built from
+        groups[0].settings[0].config = built.config
     total = assign_runs(groups, seeds, jax.process_index(), jax.process_count())
     if len(groups) > 1:  # said before the first compiles: each group is a program of its own
         log(
@@ -246,13 +274,16 @@ def run_sweep(
             "groups (settings whose fields change shapes compile a program each, one group "
             "after another)"
         )
+    name = experiment if isinstance(experiment, str) else experiment.experiment.name
     if out is not None:
-        spec = {"experiment": experiment, "seeds": seeds, "grid": grid, "overrides": overrides}
+        spec = {"experiment": name, "seeds": seeds, "grid": grid, "overrides": overrides}
+        if isinstance(experiment, Config):  # --resume rebuilds from it, not from the name
+            spec["config"] = experiment.to_dict()
         atomic_write_text(Path(out) / STATE_DIR / SWEEP_SPEC, json.dumps(spec, indent=1))
     rows, timings = [], []
     for g_index, g in enumerate(groups):
         desc = f"group {g_index + 1}/{len(groups)}"
-        g_rows, timing = _run_one_group(g, g_index, out, resume, progress, log, desc)
+        g_rows, timing = _run_one_group(g, g_index, out, resume, progress, log, desc, built)
         for row in g_rows:
             row["group"] = g_index
         rows.extend(g_rows)
@@ -263,13 +294,13 @@ def run_sweep(
         raise RuntimeError(f"gathered {len(rows)} runs, expected {total}")
     wall_s = time.perf_counter() - t0
     log(
-        f"sweep {experiment}: {total} runs in {len(groups)} compiled group(s), "
+        f"sweep {name}: {total} runs in {len(groups)} compiled group(s), "
         f"{jax.process_count()} process(es) x {jax.local_device_count()} device(s), "
         f"wall {wall_s:.1f} s"
     )
     settings = {s.index: s.values for g in groups for s in g.settings}
     return {
-        "experiment": experiment,
+        "experiment": name,
         "overrides": overrides or [],
         "grid": grid,
         "seeds": seeds,
@@ -286,11 +317,15 @@ def run_sweep(
 
 
 def read_spec(out) -> dict:
-    """The arguments of the sweep in ``out`` (``--resume``)."""
+    """The arguments of the sweep in ``out`` (``--resume``); ``experiment`` is the ``Config``
+    the sweep was given, when it was given one (its ``config``), else its name."""
     path = Path(out) / STATE_DIR / SWEEP_SPEC
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: is {out} a sweep folder?")
-    return read_json(path, ("experiment", "seeds", "grid", "overrides"))
+    spec = read_json(path, ("experiment", "seeds", "grid", "overrides"))
+    if "config" in spec:
+        spec["experiment"] = config_from_dict(spec.pop("config"))
+    return spec
 
 
 # ---------------------------------------------------------------------------------------------
