@@ -52,7 +52,8 @@ from cognet_jax.config import (
     read_experiment,
     section_from_dict,
 )
-from cognet_jax.envs.base import check_simulator
+from cognet_jax.envs.base import build_from_fields, check_simulator
+from cognet_jax.envs.base import dynamic_fields as params_fields
 from cognet_jax.errors import ConfigWarning
 
 #: built-in simulator name -> the module that registers it
@@ -199,6 +200,19 @@ def register_env(
     )
     _ENVS[name] = entry
     return entry
+
+
+def register_fields_env(name: str, section: type, env_cls: type, params_cls: type) -> EnvEntry:
+    """Register the simulator ``name`` whose ``[env]`` fields are named as the fields of the
+    static ``env_cls`` (shapes) or of the ``params_cls`` pytree (every tunable number, the
+    dynamic fields): built by ``envs.base.build_from_fields``; never replaces an entry."""
+
+    def build(values, config):
+        return build_from_fields(env_cls, params_cls, values)
+
+    build.__module__ = env_cls.__module__  # whose simulator it is (``is_builtin``)
+    build.__qualname__ = f"{env_cls.__qualname__}.build_from_section"
+    return register_env(name, section, build, dynamic=params_fields(params_cls), overwrite=False)
 
 
 def register_algorithm(

@@ -93,65 +93,59 @@ RECYCLING_PAPER = dataclasses.replace(
 )
 
 
+def dectiger(name: str, horizon: int, optimum: float, **settings) -> GDiceRun:
+    """G-DICE on Dec-Tiger at ``horizon`` (the file's discount, 1), its optimum, entropy
+    injection on; ``settings``: nodes, iterations, samples, elites, eval_rollouts, alpha."""
+    settings.update(entropy_injection=True)
+    return GDiceRun(name, "dectiger", horizon, None, optimum, "optimal", settings)
+
+
+DECTIGER_H4 = dectiger(
+    "dectiger-h4", 4, 4.802755, nodes=15, iterations=300, samples=200, elites=10,
+    eval_rollouts=4000, alpha=0.3,
+)  # fmt: skip
+RECYCLING_H3 = dataclasses.replace(
+    RECYCLING_G09,
+    name="recycling-h3",
+    horizon=3,
+    discount=1.0,
+    optimum=10.660125,
+    reference="optimal",
+    settings={**RECYCLING_G09.settings, "iterations": 80, "samples": 2000, "elites": 25,
+              "eval_rollouts": 1000},
+    seed=1,
+    target=None,
+)  # fmt: skip
+
+
 #: The configurations of the issue. Why these settings: see the G-DICE notes the table prints.
 BASE_RUNS = [
-    GDiceRun(
-        name="dectiger-h3",
-        problem="dectiger",
-        horizon=3,
-        discount=None,
-        optimum=5.190812,
-        reference="optimal",
-        settings=dict(
-            nodes=7,
-            iterations=200,
-            samples=200,
-            elites=10,
-            eval_rollouts=100,
-            alpha=0.1,
-            entropy_injection=True,
-        ),
-        seed=0,
-    ),
-    GDiceRun(
-        name="dectiger-h4",
-        problem="dectiger",
-        horizon=4,
-        discount=None,
-        optimum=4.802755,
-        reference="optimal",
-        settings=dict(
-            nodes=15,
-            iterations=300,
-            samples=200,
-            elites=10,
-            eval_rollouts=4000,
-            alpha=0.3,
-            entropy_injection=True,
-        ),
-        seed=0,
-    ),
-    GDiceRun(
-        name="recycling-h3",
-        problem="recycling",
-        horizon=3,
-        discount=1.0,
-        optimum=10.660125,
-        reference="optimal",
-        settings=dict(
-            nodes=3,
-            iterations=80,
-            samples=2000,
-            elites=25,
-            eval_rollouts=1000,
-            alpha=0.1,
-            entropy_injection=True,
-        ),
-        seed=1,
-    ),
+    dectiger(
+        "dectiger-h3",
+        3,
+        5.190812,
+        nodes=7,
+        iterations=200,
+        samples=200,
+        elites=10,
+        eval_rollouts=100,
+        alpha=0.1,
+    ),  # fmt: skip
+    DECTIGER_H4,
+    RECYCLING_H3,
     RECYCLING_G09,
     RECYCLING_PAPER,
 ]
+
+
+def exact_run(base: GDiceRun, **settings) -> GDiceRun:
+    """``base`` with its samples ranked by exact values (``evaluator = "exact"``, no
+    ``eval_rollouts``), seed 0, its ``settings`` changed by the ones given."""
+    changed = {k: v for k, v in base.settings.items() if k != "eval_rollouts"}
+    changed.update(settings, evaluator="exact")
+    return dataclasses.replace(base, name=f"{base.name}-exact", settings=changed, seed=0)
+
+
 RUNS = [
     *BASE_RUNS,
     # the same problems and settings with one controller sampled for both (identical) agents
@@ -173,62 +167,9 @@ RUNS = [
         settings={**RECYCLING_PAPER.settings, "shared_controller": True, "best_rollouts": 1000},
     ),
     # the same problems with G-DICE ranking its samples by exact values (algorithm.evaluator)
-    GDiceRun(
-        name="dectiger-h4-exact",
-        problem="dectiger",
-        horizon=4,
-        discount=None,
-        optimum=4.802755,
-        reference="optimal",
-        settings=dict(
-            nodes=15,
-            iterations=300,
-            samples=200,
-            elites=10,
-            alpha=0.3,
-            entropy_injection=True,
-            evaluator="exact",
-        ),
-        seed=0,
-    ),
-    GDiceRun(
-        name="recycling-h3-exact",
-        problem="recycling",
-        horizon=3,
-        discount=1.0,
-        optimum=10.660125,
-        reference="optimal",
-        settings=dict(
-            nodes=3,
-            iterations=80,
-            samples=2000,
-            elites=25,
-            alpha=0.1,
-            entropy_injection=True,
-            evaluator="exact",
-        ),
-        seed=0,
-    ),
-    GDiceRun(
-        name="recycling-g0.9-exact",
-        problem="recycling",
-        horizon=100,
-        discount=0.9,
-        optimum=31.93,
-        reference="best known; target >= 31.5",
-        settings=dict(
-            nodes=4,
-            iterations=150,
-            samples=1000,
-            elites=10,
-            alpha=0.1,
-            entropy_injection=True,
-            entropy_rate=0.1,
-            evaluator="exact",
-        ),
-        seed=0,
-        target=31.5,
-    ),
+    exact_run(DECTIGER_H4),
+    exact_run(RECYCLING_H3),
+    exact_run(RECYCLING_G09, nodes=4, iterations=150, samples=1000, entropy_rate=0.1),
 ]
 BY_NAME = {r.name: r for r in RUNS}
 

@@ -30,12 +30,10 @@ from cognet_jax.envs.base import (
     MOVE5_NAMES,
     MOVES5,
     ContinuousObservations,
-    build_from_fields,
-    dynamic_fields,
     scaled_normal,
     sum_last,
 )
-from cognet_jax.registry import register_env
+from cognet_jax.registry import register_fields_env
 
 
 @struct.dataclass
@@ -159,14 +157,5 @@ class BeaconSection:
         require_nonnegative(self, "env", "obs_noise", "motion_noise", "radius")
 
 
-def build_from_section(section: BeaconSection, config):
-    return build_from_fields(Beacon, BeaconParams, section)
-
-
-register_env(
-    "beacon",
-    BeaconSection,
-    build_from_section,
-    dynamic=dynamic_fields(BeaconParams),
-    overwrite=False,
-)
+#: ``build_from_section(section, config) -> (env, params)``: the registered builder
+build_from_section = register_fields_env("beacon", BeaconSection, Beacon, BeaconParams).build

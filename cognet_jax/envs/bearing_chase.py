@@ -30,11 +30,9 @@ from cognet_jax.envs.base import (
     MOVE5_NAMES,
     MOVES5,
     ContinuousObservations,
-    build_from_fields,
-    dynamic_fields,
     scaled_normal,
 )
-from cognet_jax.registry import register_env
+from cognet_jax.registry import register_fields_env
 
 
 @struct.dataclass
@@ -152,14 +150,7 @@ class BearingChaseSection:
         )
 
 
-def build_from_section(section: BearingChaseSection, config):
-    return build_from_fields(BearingChase, ChaseParams, section)
-
-
-register_env(
-    "bearing-chase",
-    BearingChaseSection,
-    build_from_section,
-    dynamic=dynamic_fields(ChaseParams),
-    overwrite=False,
-)
+#: ``build_from_section(section, config) -> (env, params)``: the registered builder
+build_from_section = register_fields_env(
+    "bearing-chase", BearingChaseSection, BearingChase, ChaseParams
+).build

@@ -28,12 +28,10 @@ from cognet_jax.config import require_discount, require_nonnegative, require_pos
 from cognet_jax.controllers.rules import RuleController, rule_policy
 from cognet_jax.envs.base import (
     ContinuousObservations,
-    build_from_fields,
-    dynamic_fields,
     scaled_normal,
     sum_last,
 )
-from cognet_jax.registry import register_env
+from cognet_jax.registry import register_fields_env
 
 LEFT, RIGHT, PUSH = 0, 1, 2
 ACTION_NAMES = ("left", "right", "push")
@@ -138,14 +136,5 @@ class BoxPushSection:
         require_nonnegative(self, "env", "obs_noise", "motion_noise", "reach")
 
 
-def build_from_section(section: BoxPushSection, config):
-    return build_from_fields(BoxPush, BoxPushParams, section)
-
-
-register_env(
-    "box-push",
-    BoxPushSection,
-    build_from_section,
-    dynamic=dynamic_fields(BoxPushParams),
-    overwrite=False,
-)
+#: ``build_from_section(section, config) -> (env, params)``: the registered builder
+build_from_section = register_fields_env("box-push", BoxPushSection, BoxPush, BoxPushParams).build

@@ -32,11 +32,9 @@ from cognet_jax.config import require, require_discount, require_nonnegative, re
 from cognet_jax.controllers.rules import RuleController, rule_policy
 from cognet_jax.envs.base import (
     ContinuousObservations,
-    build_from_fields,
-    dynamic_fields,
     scaled_normal,
 )
-from cognet_jax.registry import register_env
+from cognet_jax.registry import register_fields_env
 
 LISTEN, OPEN_LEFT, OPEN_RIGHT = 0, 1, 2
 ACTION_NAMES = ("listen", "open-left", "open-right")
@@ -145,14 +143,7 @@ class HearingTigerSection:
         require(self.horizon <= 10_000, "env.horizon", f"at most 10000, got {self.horizon}")
 
 
-def build_from_section(section: HearingTigerSection, config):
-    return build_from_fields(HearingTiger, TigerParams, section)
-
-
-register_env(
-    "hearing-tiger",
-    HearingTigerSection,
-    build_from_section,
-    dynamic=dynamic_fields(TigerParams),
-    overwrite=False,
-)
+#: ``build_from_section(section, config) -> (env, params)``: the registered builder
+build_from_section = register_fields_env(
+    "hearing-tiger", HearingTigerSection, HearingTiger, TigerParams
+).build

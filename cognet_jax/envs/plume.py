@@ -30,12 +30,10 @@ from cognet_jax.envs.base import (
     MOVE5_NAMES,
     MOVES5,
     ContinuousObservations,
-    build_from_fields,
-    dynamic_fields,
     scaled_normal,
     sum_last,
 )
-from cognet_jax.registry import register_env
+from cognet_jax.registry import register_fields_env
 
 #: ``(dx, dy)`` of the patch's pixels, row-major
 PATCH_OFFSETS = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int32)
@@ -148,14 +146,5 @@ class PlumeSection:
         require(self.spread > 0, "env.spread", f"must be > 0, got {self.spread}")
 
 
-def build_from_section(section: PlumeSection, config):
-    return build_from_fields(Plume, PlumeParams, section)
-
-
-register_env(
-    "plume",
-    PlumeSection,
-    build_from_section,
-    dynamic=dynamic_fields(PlumeParams),
-    overwrite=False,
-)
+#: ``build_from_section(section, config) -> (env, params)``: the registered builder
+build_from_section = register_fields_env("plume", PlumeSection, Plume, PlumeParams).build
