@@ -151,7 +151,8 @@ class RunSection:
     picks the random number generator)."""
 
     #: "threefry2x32" (default), "rbg", "unsafe_rbg", or "hash": the counter-based generator
-    #: of ``cognet_jax.prng`` (rollouts about 1.3x faster on CPU than threefry; other numbers)
+    #: of ``cognet_jax.prng`` (faster rollouts on CPU than threefry, benchmarks/README.md;
+    #: other numbers)
     prng_impl: Literal["threefry2x32", "rbg", "unsafe_rbg", "hash"] = "threefry2x32"
     progress: bool = True
     plots: bool = True

@@ -202,8 +202,9 @@ def plot_values(
     ylabel: str = "value",
     dpi: int = 120,
 ):
-    """In-loop value per iteration and the running best; ``reference`` maps a label to a value
-    drawn as a dashed horizontal line (e.g. ``{"reactive controller": 20.76}``)."""
+    """The value of each iteration (``values_per_iteration``, as the search reports it) and
+    the in-loop best; ``reference`` maps a label to a value drawn as a dashed horizontal line
+    (e.g. ``{"reactive controller": 20.76}``)."""
     values = np.asarray(values_per_iteration, dtype=float).reshape(-1)
     best = np.asarray(in_loop_best_per_iteration, dtype=float).reshape(-1)
     fig, ax = _subplots(figsize=(6.4, 3.8))
@@ -559,8 +560,8 @@ def plot_controller_graphs(
 
 
 def plot_sweep_values(result: dict, path, label) -> str | Path:
-    """A sweep's in-loop value per iteration, mean over seeds +- s.e. per setting (``label``
-    names a setting's grid values)."""
+    """A sweep's value of each iteration (``values_per_iteration``), mean over seeds +- s.e.
+    per setting (``label`` names a setting's grid values)."""
     fig, ax = _subplots(figsize=(7, 4))
     for index, values in enumerate(result["settings"]):
         v = np.array([r["values_per_iteration"] for r in result["rows"] if r["setting"] == index])
@@ -570,7 +571,7 @@ def plot_sweep_values(result: dict, path, label) -> str | Path:
         (line,) = ax.plot(x, mean, label=label(values))
         ax.fill_between(x, mean - se, mean + se, color=line.get_color(), alpha=0.2)
     ax.set_xlabel("iteration")
-    ax.set_ylabel("in-loop value (mean over seeds +- s.e.)")
+    ax.set_ylabel("value of the iteration (mean over seeds +- s.e.)")
     ax.set_title(f"{result['experiment']}: {len(result['seeds'])} seeds per setting")
     ax.legend(fontsize=8)
     return _save(fig, path, 120)

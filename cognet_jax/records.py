@@ -201,7 +201,8 @@ def run_record(run: Run, program: Program, **fields) -> dict:
 
 
 def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
-    """The per-iteration fields of run ``r`` (``None``: an unbatched history)."""
+    """The per-iteration fields of run ``r`` (``None``: an unbatched history): the value
+    curves every run writes and what the search adds (``Search.history_record``)."""
     h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
     env = algorithm.env
     fields = {
@@ -214,18 +215,7 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
         "values_per_iteration": np.asarray(h.value).tolist(),
         "in_loop_best_per_iteration": np.asarray(h.in_loop_best).tolist(),
     }
-    # the cross-entropy figures, where the search reports them (``SearchMetrics``)
-    threshold, kept, injected, restarted = (
-        getattr(h, f, None) for f in ("threshold", "kept", "injected", "restarted")
-    )
-    if threshold is not None:
-        fields["threshold_per_iteration"] = np.asarray(threshold).tolist()
-    if kept is not None:
-        fields["kept_per_iteration"] = np.asarray(kept).tolist()
-    if injected is not None:
-        fields["entropy_injections"] = int(np.sum(injected))
-    if restarted is not None:  # (``entropy_injections`` in files of cognet-dice before 2026-11-29)
-        fields["restarts"] = int(np.sum(restarted))
+    fields.update(algorithm.history_record(h))  # the search's own per-run figures
     return fields
 
 

@@ -147,9 +147,9 @@ def _simulate(
         """A step's uniforms ``[*C, R, width]`` in the steps' layout."""
         return steps.uniform_layout(per_key(lambda k: uniforms(k, 2 * n + env.step_noise))(k))
 
-    # draws in the kernels that read them: rollouts last (the other layout ran 0.7-0.99x as
-    # fast), and no other policy reads this batch's block (a key per candidate, or one policy
-    # that no caller vmaps over a shared key)
+    # draws in the kernels that read them: rollouts last (the faster layout on CPU), and no
+    # other policy reads this batch's block (a key per candidate, or one policy that no caller
+    # vmaps over a shared key)
     unshared = key_axis is not None or (lanes is None and not shared_key)
     in_kernel = steps.rollouts_last and unshared
     loop = _TimeLoop(env, controller, steps, policy, env_params, block, in_kernel, record)

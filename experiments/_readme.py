@@ -28,3 +28,9 @@ def replace_block(name: str, body: str, readme: Path = README) -> None:
         head, tail = text.rstrip("\n") + "\n\n", "\n"
     readme.write_text(f"{head}{begin}\n{body.rstrip()}\n{end}{tail}")
     print(f"wrote the {name} block of {readme}")
+
+
+def finish_of(results: dict) -> dict:
+    """A results.json record's ``finish`` (``polish`` in runs saved before the name; ``{}`` for
+    a run without one)."""
+    return results.get("finish", results.get("polish")) or {}

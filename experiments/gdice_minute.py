@@ -22,7 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _readme import machine, replace_block
+from _readme import finish_of, machine, replace_block
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "gdice-minute"
@@ -75,7 +75,7 @@ def table() -> list[str]:
             share = ""  # 100 less the shortfall in % of the optimum's magnitude
             if value is not None and optimum:
                 share = f"{100 - 100 * (optimum - value) / abs(optimum):.1f}"
-            polish = (r.get("finish", r.get("polish")) or {}).get("seconds", 0.0)
+            polish = finish_of(r).get("seconds", 0.0)
             goal = GOAL_SECONDS.get(h)
             verdict = "" if goal is None else ("met" if r["wall_s"] <= goal else f"> {goal:.0f} s")
             if goal is not None and share and float(share) < 99.0:

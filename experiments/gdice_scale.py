@@ -34,7 +34,7 @@ import sys
 import time
 from pathlib import Path
 
-from _readme import machine, replace_block
+from _readme import finish_of, machine, replace_block
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "gdice-scale"
@@ -162,9 +162,9 @@ def _row(problem: str, horizon: int, runs: list, optimum: float, counts: dict) -
     counts["time"] = counts.get("time", 0) + fast
     counts["runs"] = counts.get("runs", 0) + len(values)
     evaluator = runs[0][0].get("resolved", {}).get("evaluator", "")
-    before = [(r.get("finish", r.get("polish")) or {}).get("value_before") for r, _ in runs]
+    before = [finish_of(r).get("value_before") for r, _ in runs]
     responses = [
-        (r.get("finish", r.get("polish")) or {}).get("best_responses_applied", 0) for r, _ in runs
+        finish_of(r).get("best_responses_applied", 0) for r, _ in runs
     ]
     return (
         f"| {problem} | {horizon} | {optimum} | {', '.join(f'{v:.4f}' for v in values)} "

@@ -23,7 +23,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from _readme import machine, replace_block
+from _readme import finish_of, machine, replace_block
 from gdice_defaults import reached
 
 HERE = Path(__file__).resolve().parent
@@ -78,7 +78,7 @@ def table() -> list[str]:
         fixed = ("problem.path=", "problem.horizon=", "problem.discount=")
         other = [o for o in out["overrides"] if not o.startswith(fixed)]
         values = [r["final_value"]["exact"] for r in out["rows"]]
-        before = [(r.get("finish", r.get("polish")) or {}).get("value_before") for r in out["rows"]]
+        before = [finish_of(r).get("value_before") for r in out["rows"]]
         ok = [reached(v, optimum) for v in values] if optimum is not None else []
         if not other:  # the count is of the defaults only
             hits, total = hits + sum(ok), total + len(ok)

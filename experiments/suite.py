@@ -25,7 +25,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _readme import machine, replace_block
+from _readme import finish_of, machine, replace_block
 from cognet_sweeps import _agent_steps
 
 from cognet_jax.reporting import in_loop_best_series
@@ -1037,7 +1037,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
         else data["rows"][0]["simulated_agent_steps"]
     )
     sizes = f"{alg['iterations']} x {population} x {alg['eval_rollouts']}"
-    polish = [(r.get("finish") or {}).get("rollouts") for r in data["rows"]]
+    polish = [finish_of(r).get("rollouts") for r in data["rows"]]
     if "candidates" in alg and all(p is not None for p in polish):  # the polish's, per run
         from cognet_jax.api import build_env
         from cognet_jax.registry import config_from_dict

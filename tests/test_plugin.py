@@ -2,14 +2,17 @@
 registered from a user's file with nothing in cognet_jax edited, runs through every command."""
 
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cognet_jax import driver
 from cognet_jax.cli import main
 from cognet_jax.controllers.step import controller_step
+from cognet_jax.records import save_group
 from cognet_jax.saved_runs import load_run
 
 THRESHOLD_SEARCH = '''
@@ -101,6 +104,9 @@ class ThresholdSearch(Search):
         )
         return ThresholdState(best, progress), metrics
 
+    def history_record(self, history):  # its own per-iteration figure in results.json
+        return {"mean_value_per_iteration": [float(v) for v in history.mean_value]}
+
     def write_plots(self, config, policy, record, out_dir):
         from matplotlib.figure import Figure
 
@@ -124,7 +130,9 @@ cognet_jax.register_policy_type(
 '''
 
 
-def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(tmp_path):
+def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
+    tmp_path, monkeypatch, capsys
+):
     module = tmp_path / "threshold_search.py"
     module.write_text(THRESHOLD_SEARCH)
     toml = tmp_path / "thresholds.toml"
@@ -132,8 +140,17 @@ def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
     out = tmp_path / "run"
     imports = ["--import", str(module)]
     train = [*imports, "train", str(toml), "--out", str(out), "--no-progress"]
+    first = tmp_path / "checkpoint-at-2.msgpack"  # the checkpoint written mid-run, kept
+
+    def keep_first(program, path, iteration, state, history):
+        save_group(program, path, iteration, state, history)
+        if iteration == 2:
+            shutil.copyfile(path, first)
+
+    monkeypatch.setattr(driver, "save_group", keep_first)
     assert main([*train, "--checkpoint-every", "2"]) == 0
     results = json.loads((out / "results.json").read_text())
+    assert len(results["mean_value_per_iteration"]) == 4  # its history_record
     assert results["algorithm"] == "thresholds" and results["status"] == "complete"
     assert (out / "thresholds.png").stat().st_size > 0  # its own figure
     assert (out / "values.png").stat().st_size > 0  # the driver's, for every search
@@ -146,9 +163,13 @@ def test_an_algorithm_with_its_own_policy_and_figure_runs_through_every_command(
     logged = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
     assert logged["mean"] == value
 
+    shutil.copyfile(first, out / "checkpoint.msgpack")  # as if stopped after iteration 2
+    capsys.readouterr()
     assert main([*imports, "train", "--resume", str(out), "--no-progress"]) == 0
+    assert "at iteration 2/4" in capsys.readouterr().out  # iterations 3 and 4 run again
     again = json.loads((out / "results.json").read_text())
-    assert again["final_value"]["mean"] == value  # the checkpoint held the policy type
+    assert again["final_value"]["mean"] == value  # the checkpoint held the search's own state
+    assert again["mean_value_per_iteration"] == results["mean_value_per_iteration"]
 
     sweep = tmp_path / "sweep"
     args = [*imports, "sweep", str(toml), "--seeds", "2", "--out", str(sweep), "--no-progress"]

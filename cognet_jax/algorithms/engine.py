@@ -59,6 +59,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from cognet_jax.algorithms.cross_entropy import (
@@ -263,6 +264,27 @@ class Search:
         if not dataclasses.is_dataclass(self.settings):
             return {}
         return json.loads(json.dumps(dataclasses.asdict(self.settings), default=str))
+
+    def history_record(self, history) -> dict:
+        """Fields of results.json from one run's metrics ``history`` (this search's metrics,
+        leaves ``[iterations]``), beside the value curves every run writes
+        (``values_per_iteration``, ``in_loop_best_per_iteration``). Default: the
+        cross-entropy figures of ``SearchMetrics`` the search reports (not ``None``):
+        ``threshold_per_iteration``, ``kept_per_iteration``, ``entropy_injections`` (the
+        iterations that injected entropy) and ``restarts`` (that restarted the distribution)."""
+        fields = {}
+        for name, field in (
+            ("threshold", "threshold_per_iteration"),
+            ("kept", "kept_per_iteration"),
+        ):
+            series = getattr(history, name, None)
+            if series is not None:
+                fields[field] = np.asarray(series).tolist()
+        for name, field in (("injected", "entropy_injections"), ("restarted", "restarts")):
+            flags = getattr(history, name, None)
+            if flags is not None:
+                fields[field] = int(np.sum(flags))
+        return fields
 
     def finish_record(self, info, seconds: float) -> dict | None:
         """One run's record of ``finish`` for results.json (``info``: what ``finish_end``

@@ -56,7 +56,7 @@ class GDicePortfolio(TabularReports, Search):
 
     ``explore_restarts`` more independent searches inject entropy at ``explore_rate`` instead
     of the hyper's rate: a strong injection lets a converged search leave a local optimum (box
-    pushing h 3: the independent search stays at 19.2 where the optimum is 66.081) but keeps
+    pushing h 3, where the independent search stays far below the optimum) but keeps
     the search from settling on a fine optimum (Dec-Tiger h 5, GridSmall h 5), so both run.
 
     Why: a shared controller finds optima that need every agent to change the same entry at

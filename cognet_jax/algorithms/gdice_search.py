@@ -125,7 +125,7 @@ EXACT_EVALUATOR_LIMIT = 2_000_000_000
 
 
 #: ``evaluator = "auto"`` ranks samples exactly up to this many multiply-adds per iteration
-#: (about 0.1-0.3 s on two cores), by rollouts above it.
+#: (a short exact part beside the iteration's rollouts), by rollouts above it.
 EXACT_AUTO_LIMIT = 300_000_000
 
 
