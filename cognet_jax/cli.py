@@ -517,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command not in ("list", "inspect"):
             check_jax_settings()
             check_xla_flags()
-        if args.command in ("train", "sweep", "evaluate"):
+        if args.command in ("train", "sweep", "evaluate", "check"):
             use_compile_cache(args)
         return {
             "train": _train,

@@ -4,6 +4,7 @@ programs are kept")."""
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import logging
@@ -54,6 +55,15 @@ def use_compile_cache(args) -> None:
     if folder.exists() and not folder.is_dir():
         cache_note(f"{CACHE_VARIABLE}={folder}: not a folder; compiled programs are not kept")
         return
+    foreign = foreign_files(folder)
+    if foreign:  # JAX's eviction and the repair below would remove or rewrite them
+        cache_note(
+            f"{CACHE_VARIABLE}={folder}: holds files that are not compiled programs "
+            f"({', '.join(foreign[:3])}); compiled programs are not kept there"
+        )
+        return
+    if not _seal_entries(folder):
+        return
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     _watch_lookups()
@@ -61,6 +71,87 @@ def use_compile_cache(args) -> None:
     if importlib.util.find_spec("filelock") is not None:  # JAX's eviction needs it
         repair_cache_folder(folder)
         jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+
+
+#: the name of an entry of JAX's compilation cache: ``<program name>-<sha256 hex>-cache`` and
+#: its access time ``...-atime``
+ENTRY_NAME = re.compile(r"^.+-[0-9a-f]{64}-(cache|atime)$")
+#: other names JAX keeps in the folder (its eviction's lock)
+JAX_FILES = (".lockfile",)
+
+
+def foreign_files(folder: Path) -> list[str]:
+    """The names in ``folder`` that JAX's compilation cache did not write (sorted; ``[]`` for
+    a folder that does not exist or cannot be read)."""
+    try:
+        names = [p.name for p in folder.iterdir()]
+    except OSError:
+        return []
+    return sorted(n for n in names if not ENTRY_NAME.match(n) and n not in JAX_FILES)
+
+
+#: the end of every entry this package writes: a tag and the SHA-256 of the entry's key and
+#: bytes (``_SealedCache``)
+SEAL_TAG = b"cognet-jax-seal-1"
+SEAL_BYTES = len(SEAL_TAG) + 32
+
+
+def _seal(key: str, body: bytes) -> bytes:
+    return SEAL_TAG + hashlib.sha256(key.encode() + b"\0" + body).digest()
+
+
+class _SealedCache:
+    """JAX's compilation cache with every entry sealed to its key: ``put`` appends
+    ``_seal(key, bytes)``, ``get`` returns an entry only when its seal matches, and removes it
+    otherwise (damaged, swapped with another program's, or written without a seal), so JAX
+    compiles afresh: an entry that loads under the wrong key would run another program (XLA
+    aborts the process on a sharding mismatch, past any error handling)."""
+
+    def __init__(self, base, folder: Path):
+        self._base, self._folder = base, folder
+
+    def __getattr__(self, name):
+        return getattr(self._base, name)
+
+    def get(self, key: str):
+        value = self._base.get(key)
+        if value is None:
+            return None
+        body, seal = value[:-SEAL_BYTES], value[-SEAL_BYTES:]
+        if len(value) >= SEAL_BYTES and seal == _seal(key, body):
+            return body
+        _remove_entry(self._folder, key)
+        cache_note(
+            f"compilation cache {self._folder}: an entry that does not match its program "
+            "(damaged, swapped or written by another version) is removed and compiled afresh"
+        )
+        return None
+
+    def put(self, key: str, value: bytes) -> None:
+        self._base.put(key, value + _seal(key, value))
+
+
+def _seal_entries(folder: Path) -> bool:
+    """Make JAX's compilation cache of ``folder`` a ``_SealedCache`` (when it is built, at the
+    first compile); ``False`` (with one note: programs are then not kept) when this JAX has no
+    hook for it."""
+    try:
+        from jax._src import compilation_cache as jax_cache
+
+        make = jax_cache.get_file_cache
+    except (ImportError, AttributeError):
+        cache_note(f"compilation cache {folder}: this JAX cannot seal its entries; not kept")
+        return False
+    if getattr(make, "sealed", False):
+        return True
+
+    def sealed(path: str):
+        made = make(path)
+        return None if made is None else (_SealedCache(made[0], Path(path)), made[1])
+
+    sealed.sealed = True
+    jax_cache.get_file_cache = sealed
+    return True
 
 
 def repair_cache_folder(folder: Path) -> None:
@@ -73,9 +164,10 @@ def repair_cache_folder(folder: Path) -> None:
         names = {p.name for p in folder.iterdir()}
     except OSError:  # not there yet, or unreadable: JAX reports what it cannot do
         return
+    names = {n for n in names if ENTRY_NAME.match(n)}  # never a file of anyone else
     for name in sorted(names):  # an entry that is not a regular file is unusable: removed
         path = folder / name
-        if name.endswith(("-cache", "-atime")) and not path.is_file():
+        if not path.is_file():
             if path.is_dir():
                 shutil.rmtree(path, ignore_errors=True)
             else:

@@ -90,7 +90,8 @@ def check_made_fits(make, args: tuple, memory: int | None, what: str) -> None:
     if size > limit:
         raise ResourceError(
             f"{what} take {gb(size)}, over the memory budget of {gb(limit)}; lower the sizes "
-            "in the config (algorithm.nodes, network.hidden) or raise run.memory_gb"
+            "in the config (algorithm.nodes, algorithm.candidates, network.hidden) or raise "
+            "run.memory_gb"
         )
 
 
@@ -240,6 +241,30 @@ def check_traced(traced, memory: int | None, what: str = "one iteration") -> Non
             f"{what} needs an array of {shape} {aval.dtype}, about {gb(size)}, over "
             f"the memory budget of {gb(memory)}; lower the sizes in the config (nodes, samples, "
             "candidates, rollouts, horizon) or raise run.memory_gb"
+        )
+
+
+def check_compiled(compiled, memory: int | None, what: str = "one iteration") -> None:
+    """Refuse a compiled program whose buffers at once (its arguments, outputs and XLA's
+    temporaries, by XLA's memory analysis) exceed ``memory`` bytes. XLA on CPU allocates a
+    program's temporaries as one block, which the largest-array check before compiling
+    (``check_traced``) does not see: e.g. one iteration of thousands of runs side by side."""
+    memory = budget_bytes() if memory is None else memory
+    try:
+        stats = compiled.memory_analysis()
+    except Exception:  # a backend without the analysis: the check before compiling stands
+        return
+    if stats is None:
+        return
+    temp = int(stats.temp_size_in_bytes)
+    total = temp + int(stats.argument_size_in_bytes) + int(stats.output_size_in_bytes)
+    total -= int(stats.alias_size_in_bytes)
+    if total > memory:
+        raise ResourceError(
+            f"{what} needs about {gb(total)} at once ({gb(temp)} of them XLA's temporaries), "
+            f"over the memory budget of {gb(memory)}; lower the sizes in the config (nodes, "
+            "samples, candidates, rollouts, horizon), run fewer seeds side by side, or raise "
+            "run.memory_gb"
         )
 
 

@@ -45,7 +45,7 @@ from cognet_jax.api import (
 )
 from cognet_jax.config import Config
 from cognet_jax.errors import InputError
-from cognet_jax.memory import budget_bytes, trace_checked
+from cognet_jax.memory import budget_bytes, check_compiled, trace_checked
 from cognet_jax.registry import (
     algorithm_entry,
     env_entry,
@@ -231,7 +231,7 @@ def compiled_program(
         trace_checked(jitted, leaves, memory, what)
         before_compile()
 
-    return compile_kept(fn, args, key, check)
+    return compile_kept(fn, args, key, check, lambda c: check_compiled(c, memory, what))
 
 
 #: program identities whose memory ``Program.check_memory`` found within the budget
@@ -333,10 +333,11 @@ class Program:
         return self.compiled("the initial states", self._init_one, self.data)(*self.data)
 
     def check_memory(self) -> None:
-        """What ``init`` and ``compile_step`` check before they compile, and nothing more
-        (``cognet-jax check``): the initial state's and one iteration's programs traced and
-        held to ``run.memory_gb`` (``memory.trace_checked``). One run only."""
-        memory = budget_bytes(self.config.run.memory_gb)
+        """What ``init`` and ``compile_step`` check (``cognet-jax check``), and nothing more:
+        the initial state's and one iteration's programs compiled as a run compiles them (and
+        kept for it, ``compiled``), each held to ``run.memory_gb`` before compiling
+        (``memory.trace_checked``) and after (``memory.check_compiled``); nothing runs. One
+        run only."""
         identity = json.dumps(
             program_identity(self.config, search=True), sort_keys=True, default=str
         )
@@ -346,10 +347,9 @@ class Program:
             return
         init = self._one(self.algorithm.init)
         args = (self.k_init, self.held)
-        trace_checked(jax.jit(init), args, memory, "the initial state")
-        state = jax.eval_shape(init, *args)
+        state = self.compiled("the initial state", init, args).out_shapes
         step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
-        trace_checked(jax.jit(step), (self.k_run, state, self.held), memory, "one iteration")
+        self.compiled("one iteration", step, (self.k_run, state, self.held))
         _MEMORY_CHECKED.add(key)
 
     def compile_step(self, state, before_compile=lambda: None):

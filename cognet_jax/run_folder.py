@@ -78,6 +78,13 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
                 advice = f"no {missing} to resume: give another --out, or replace it with "
                 advice += "--overwrite"
         raise UsageError(f"{out} already holds a run of `{other}` ({found}); {advice}")
+    if not found and not overwrite and out.is_dir():
+        theirs = _files_a_run_writes(out)
+        if theirs:
+            raise UsageError(
+                f"{out} holds no run but files a run writes ({', '.join(theirs[:3])}): give "
+                "another --out, or replace them with --overwrite"
+            )
     for name in RUN_FILES:
         if (out / name).is_dir():
             raise UsageError(f"{out / name} is a folder; the run writes a file of that name")
@@ -103,6 +110,16 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
     finally:
         os.close(fd)  # releases the lock
+
+
+def _files_a_run_writes(out: Path) -> list[str]:
+    """The names in ``out`` a run would write over: its tables (``STALE_FILES``) and figures
+    (``*.png``: every search draws its own), sorted."""
+    try:
+        names = [p.name for p in out.iterdir() if p.is_file()]
+    except OSError:
+        return []
+    return sorted(n for n in names if n in STALE_FILES or n.endswith(".png"))
 
 
 def worth_keeping(out: Path) -> bool:

@@ -44,6 +44,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -219,11 +220,16 @@ def _caller(compiled, out_tree) -> Callable:
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(args)))
 
     call.out_shapes = jax.tree.unflatten(out_tree, compiled.out_info)
+    call.compiled = compiled
     return call
 
 
 def compile_kept(
-    fn: Callable, args: tuple, key: str | None, check: Callable[[Callable, tuple], None]
+    fn: Callable,
+    args: tuple,
+    key: str | None,
+    check: Callable[[Callable, tuple], None],
+    check_compiled: Callable[[Any], None] = lambda compiled: None,
 ) -> Callable:
     """``fn(*args)`` compiled ahead of time, as ``call(*args) -> fn(*args)`` (with
     ``call.out_shapes``, the output's shapes).
@@ -232,20 +238,25 @@ def compile_kept(
     ``check(jitted, leaves)`` runs before a program is traced afresh (the memory check), with
     ``fn`` jitted as a function of the flat leaves of ``args``; a kept program passed it when it
     was traced. When ``check`` traces (the memory check does), the export reads that trace
-    (JAX keeps it with the jitted function) instead of tracing again. A program compiled
-    earlier in this process is returned as it is (see the module docstring)."""
+    (JAX keeps it with the jitted function) instead of tracing again. ``check_compiled`` sees
+    every program compiled or loaded here (XLA's memory analysis: the memory check after
+    compiling) before it is returned. A program compiled earlier in this process is returned as
+    it is (see the module docstring)."""
     folder = trace_cache_dir()
     keep = key is not None and folder is not None
     if not keep:
         jitted, leaves, out_trees = _flat(fn, args)
         check(jitted, leaves)
-        return _caller(_compile(jitted, leaves), out_trees[0])
+        caller = _caller(_compile(jitted, leaves), out_trees[0])
+        check_compiled(caller.compiled)
+        return caller
     in_process = _in_process_key(key)
     with _COMPILED_LOCK:
         if in_process in _COMPILED:
             _COMPILED.move_to_end(in_process)
             return _COMPILED[in_process]
     caller = _compiled_from_file(fn, args, folder / f"{key}.bin", check)
+    check_compiled(caller.compiled)
     with _COMPILED_LOCK:
         _COMPILED[in_process] = caller
         while len(_COMPILED) > KEPT_IN_PROCESS:

@@ -110,3 +110,47 @@ def test_damaged_compilation_cache_entries_are_removed_not_blocking(tmp_path):
     assert sum(line.startswith("note:") for line in log.splitlines()) == 1, log
     again, log = _train(tmp_path / "d", cache)
     assert again["final_value"] == first["final_value"] and "note:" not in log, log
+
+
+def test_an_entry_swapped_with_a_sweeps_program_is_compiled_afresh(tmp_path):
+    """An entry holding another command's program (a sweep's, sharded over two devices) under
+    the key of a train program: every entry is sealed to its key, so it is removed and
+    compiled afresh with one note (XLA aborted the process on loading it before)."""
+    cache = tmp_path / "cache"
+    first, _ = _train(tmp_path / "a", cache)
+    trains = set(_entries(cache, "jit_call-"))
+    sweep = ["sweep", "tagging-thesis-spec-n3", "--seeds", "2", "--out", str(tmp_path / "s")]
+    _cli(
+        cache,
+        *sweep,
+        "--no-progress",
+        "--cpu-devices",
+        "2",
+        *[x for s in TINY for x in ("--set", s)],
+    )
+    sweeps = set(_entries(cache, "jit_call-")) - trains
+    assert trains and sweeps
+    mine = max(trains, key=lambda p: p.stat().st_size)
+    theirs = max(sweeps, key=lambda p: p.stat().st_size)
+    blob_mine, blob_theirs = mine.read_bytes(), theirs.read_bytes()
+    mine.write_bytes(blob_theirs)
+    theirs.write_bytes(blob_mine)
+    swapped, log = _train(tmp_path / "b", cache)
+    assert swapped["final_value"] == first["final_value"]
+    assert sum(line.startswith("note:") for line in log.splitlines()) == 1, log
+    again, log = _train(tmp_path / "c", cache)
+    assert again["final_value"] == first["final_value"] and "note:" not in log, log
+
+
+def test_a_folder_of_other_files_is_not_used_as_the_cache(tmp_path):
+    """COGNET_JAX_CACHE pointed at a folder of the user's own (names like a cache's entries):
+    nothing in it is removed or added, one note says programs are not kept there."""
+    mine = tmp_path / "project"
+    (mine / "build-cache").mkdir(parents=True)
+    (mine / "build-cache" / "data.txt").write_text("mine")
+    (mine / "report-atime").write_text("mine")
+    (mine / "data-cache").write_text("mine")
+    before = sorted(p.relative_to(mine) for p in mine.rglob("*"))
+    _, log = _train(tmp_path / "a", mine)
+    assert sorted(p.relative_to(mine) for p in mine.rglob("*")) == before
+    assert "not compiled programs" in log and "build-cache" in log, log

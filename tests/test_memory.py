@@ -210,3 +210,19 @@ def test_made_arrays_over_the_budget_are_refused_without_making_them():
     memory.check_made_fits(make, (key, jnp.zeros(10)), 40_000, "ten rows")
     with pytest.raises(memory.ResourceError, match="ten thousand rows take 0.04 GB"):
         memory.check_made_fits(make, (key, jnp.zeros(10_000)), 40_000, "ten thousand rows")
+
+
+@pytest.mark.parametrize("command", ["check", "train"])
+def test_temporaries_over_the_budget_are_refused_after_compiling(capsys, tmp_path, command):
+    """10^8 rollouts per candidate: no single array is over the budget, but XLA's
+    temporaries of one iteration are (26.8 GB); ``check`` and ``train`` both refuse it in one
+    line, exit 2, by XLA's memory analysis of the compiled iteration (``check_compiled``),
+    instead of an out-of-memory error when it runs."""
+    out = tmp_path / "never"
+    argv = [command, "tagging-thesis-n3", *sets("algorithm.eval_rollouts=100000000")]
+    argv += ["--out", str(out), "--no-progress"] if command == "train" else []
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: one iteration needs about"), err
+    assert "XLA's temporaries" in err[-1] and "Traceback" not in "".join(err)
+    assert not out.exists()

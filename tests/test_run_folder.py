@@ -82,7 +82,9 @@ def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
     from cognet_jax.registry import load_config
 
     keys = []
-    monkeypatch.setattr(program, "compile_kept", lambda fn, args, key, check: keys.append(key))
+    monkeypatch.setattr(
+        program, "compile_kept", lambda fn, args, key, check, checked: keys.append(key)
+    )
     monkeypatch.setattr(program, "program_key", lambda *a: "a key")
     config = load_config("tagging-thesis-n3")
     program.compiled_program(config, "p", None, (), None, {})

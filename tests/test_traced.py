@@ -210,20 +210,25 @@ def test_a_cache_folder_filled_without_the_size_bound_is_repaired(tmp_path):
     without them JAX warns at every write and never stores a new entry."""
     from cognet_jax.compile_cache import repair_cache_folder
 
-    (tmp_path / "a-cache").write_bytes(b"x")
-    (tmp_path / "b-cache").write_bytes(b"y")
-    (tmp_path / "b-atime").write_bytes(b"12345678")
-    (tmp_path / "c-atime").write_bytes(b"12345678")
+    H = "0" * 64  # entry names as JAX writes them: <program>-<sha256 hex>-cache
+    (tmp_path / f"a-{H}-cache").write_bytes(b"x")
+    (tmp_path / f"b-{H}-cache").write_bytes(b"y")
+    (tmp_path / f"b-{H}-atime").write_bytes(b"12345678")
+    (tmp_path / f"c-{H}-atime").write_bytes(b"12345678")
     repair_cache_folder(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "a-atime",
-        "a-cache",
-        "b-atime",
-        "b-cache",
+        f"a-{H}-atime",
+        f"a-{H}-cache",
+        f"b-{H}-atime",
+        f"b-{H}-cache",
     ]
-    assert (tmp_path / "a-atime").read_bytes() == bytes(8)
-    assert (tmp_path / "b-atime").read_bytes() == b"12345678"
+    assert (tmp_path / f"a-{H}-atime").read_bytes() == bytes(8)
+    assert (tmp_path / f"b-{H}-atime").read_bytes() == b"12345678"
     repair_cache_folder(tmp_path / "absent")  # nothing to repair: no error
+    (tmp_path / "build-cache").mkdir()  # names that are no entry of JAX's are never touched
+    (tmp_path / "notes-atime").write_text("mine")
+    repair_cache_folder(tmp_path)
+    assert (tmp_path / "build-cache").is_dir() and (tmp_path / "notes-atime").is_file()
 
 
 def test_a_run_says_at_most_one_line_about_its_caches(capsys, monkeypatch):

@@ -427,9 +427,9 @@ def _check_values(env, env_params, owner: str) -> None:
     for what, x in zip(("observation", "reward"), first):
         x = np.asarray(x)
         if jnp.issubdtype(x.dtype, jnp.floating) and not np.isfinite(x).all():
-            kind = "NaN" if np.isnan(x).any() else "infinite"
+            kind = "a NaN" if np.isnan(x).any() else "an infinite"
             raise SimulatorError(
-                f"{owner}: step returned a {kind} {what} ({x[~np.isfinite(x)][:4]} ...)"
+                f"{owner}: step returned {kind} {what} ({x[~np.isfinite(x)][:4]} ...)"
             )
     rewards = np.asarray(rewards, np.float32)  # [episodes, steps]
     for what, bad, nan in (
@@ -437,10 +437,10 @@ def _check_values(env, env_params, owner: str) -> None:
         ("reward", ~np.isfinite(rewards), np.isnan(rewards)),
     ):
         if bad.any():
-            kind = "NaN" if nan.any() else "infinite"
+            kind = "a NaN" if nan.any() else "an infinite"
             at = int(np.argmax(bad.any(axis=0))) + 1
             raise SimulatorError(
-                f"{owner}: step returned a {kind} {what} at step {at} of an episode of random "
+                f"{owner}: step returned {kind} {what} at step {at} of an episode of random "
                 f"actions ({int(bad.sum())} of {bad.size} steps of {CHECK_EPISODES} episodes)"
             )
     with np.errstate(all="ignore"):  # the sum a rollout accumulates, in its float32
