@@ -163,9 +163,7 @@ def _row(problem: str, horizon: int, runs: list, optimum: float, counts: dict) -
     counts["runs"] = counts.get("runs", 0) + len(values)
     evaluator = runs[0][0].get("resolved", {}).get("evaluator", "")
     before = [finish_of(r).get("value_before") for r, _ in runs]
-    responses = [
-        finish_of(r).get("best_responses_applied", 0) for r, _ in runs
-    ]
+    responses = [finish_of(r).get("best_responses_applied", 0) for r, _ in runs]
     return (
         f"| {problem} | {horizon} | {optimum} | {', '.join(f'{v:.4f}' for v in values)} "
         f"| {', '.join('' if b is None else f'{b:.3f}' for b in before)} "
