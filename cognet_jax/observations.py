@@ -243,14 +243,11 @@ def input_statistics(env, controller, pipeline, env_params, memory=None):
     check_made_fits(controller.init, (jax.random.key(0),), memory, "one joint policy's arrays")
     template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
     uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
-    # the policy an argument, not a constant: a large controller's arrays baked into the
-    # program make XLA compile for minutes
-    play = jax.jit(
-        lambda k, p: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, p, record=True)
+    record = jax.jit(
+        lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
     )
     what = f"the input statistics ({STATS_ROLLOUTS} recorded rollouts)"
-    trace_checked(play, (jax.random.key(0), uniform), memory, what)  # traced only: no rollout
-    record = lambda k: play(k, uniform)  # noqa: E731
+    trace_checked(record, (jax.random.key(0),), memory, what)  # traced only: no rollout
     if pipeline.kind != "raw":
         return _statistics(record, pipeline)
     shape = (controller.num_agents, controller.num_nodes, controller.num_actions)

@@ -226,3 +226,14 @@ def test_temporaries_over_the_budget_are_refused_after_compiling(capsys, tmp_pat
     assert err[-1].startswith("error: one iteration needs about"), err
     assert "XLA's temporaries" in err[-1] and "Traceback" not in "".join(err)
     assert not out.exists()
+
+
+def test_the_pilots_candidates_are_sized_before_the_input_statistics_compile(capsys):
+    """3000 nodes: one policy fits, the noise pilot's 64 candidates (50.7 GB) do not. They are
+    sized first, by their shapes, so the refusal comes in seconds (the input statistics'
+    rollouts of a 3000-node controller compiled for minutes before it)."""
+    start = time.perf_counter()
+    assert main(["check", "hearing-tiger-n7", *sets("algorithm.nodes=3000")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: the noise pilot's 64 candidates take"), err
+    assert time.perf_counter() - start < 60

@@ -16,17 +16,20 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     resolve_search,
     resolve_standardize,
 )
-from cognet_jax.algorithms.noise_pilot import measure_noise_cached
+from cognet_jax.algorithms.noise_pilot import check_pilot_fits, measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.observations import build_pipeline, input_statistics, neural_controller
 from cognet_jax.registry import env_description, fields_from, register_algorithm
 
 
-def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
+def build(
+    config, env, env_params, memory: int | None = None, statistics: bool = True
+) -> CognetWeights:
     """The search of ``config`` (``[algorithm]`` with ``experiment.algorithm = "cognet-dice"``,
     ``[network]``) on ``env``; with ``standardize_inputs`` the input statistics, and with
     ``polish_share`` the features' spread, are those of ``env_params``
-    (``input_statistics``)."""
+    (``input_statistics``). ``statistics=False``: built without them (no rollout), a search
+    whose shapes only are read (``noise_pilot.check_pilot_fits``)."""
     settings = fields_from(WeightsSettings, config.algorithm, config.network)
     pipeline, controller = neural_controller(
         env, settings.nodes, settings.hidden, build_pipeline(config, env)
@@ -34,8 +37,10 @@ def build(config, env, env_params, memory: int | None = None) -> CognetWeights:
     if settings.standardize_inputs == "auto":  # not resolved: a config made in code
         decided = resolve_standardize(config, env, env_params).standardize_inputs
         settings = dataclasses.replace(settings, standardize_inputs=decided)
+    if not statistics:
+        settings = dataclasses.replace(settings, standardize_inputs=False)
     stats = None
-    if settings.standardize_inputs or settings.polish_share > 0:
+    if statistics and (settings.standardize_inputs or settings.polish_share > 0):
         stats = input_statistics(env, controller, pipeline, env_params, memory)
     mean, scale = stats if stats is not None else (None, None)
     kept = stats if settings.standardize_inputs else None
@@ -61,6 +66,8 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
         if k not in (*SIZE_FIELDS, "budget", "budget_minutes")
     }
     network = dataclasses.asdict(config.network) if config.network is not None else None
+    # the pilot's candidates sized first: the input statistics compile a large controller long
+    check_pilot_fits(build(config, env, env_params, statistics=False))
     noise = measure_noise_cached(
         [env_description(config), shown, network],
         lambda: (build(config, env, env_params), env_params),

@@ -70,15 +70,29 @@ def noise_of_returns(returns: np.ndarray) -> Noise:
     return Noise(within, between)
 
 
+def check_pilot_fits(algorithm) -> None:
+    """Refuse (``ResourceError``, before anything is made) a search whose pilot candidates'
+    arrays are over its memory budget (``algorithm.memory``); only their shapes are read, so a
+    search built without its input statistics may be checked first."""
+    memory, key = getattr(algorithm, "memory", None), jax.random.key(PILOT_KEY)
+    check_made_fits(algorithm.controller.init, (key,), memory, "one joint policy's arrays")
+    check_made_fits(algorithm.init_distribution, (), memory, "the search's distribution")
+
+    def drawn(k):
+        return algorithm.to_policy(
+            algorithm.draw(k, algorithm.init_distribution(), PILOT_CANDIDATES)
+        )
+
+    check_made_fits(drawn, (key,), memory, f"the noise pilot's {PILOT_CANDIDATES} candidates")
+
+
 def measure_noise(algorithm, env_params) -> Noise:
     """``Noise`` of ``algorithm``'s initial distribution on the simulator of ``env_params``
     (``algorithm``: a search with ``init_distribution``, ``draw``, ``to_policy``, ``env`` and
     ``controller``, as ``CognetWeights``)."""
     draw_key, rollout_key = jax.random.split(jax.random.key(PILOT_KEY))
     dist = algorithm.init_distribution()
-    what = f"the noise pilot's {PILOT_CANDIDATES} candidates"
-    drawn = lambda k: algorithm.to_policy(algorithm.draw(k, dist, PILOT_CANDIDATES))  # noqa: E731
-    check_made_fits(drawn, (draw_key,), getattr(algorithm, "memory", None), what)
+    check_pilot_fits(algorithm)
     samples = algorithm.draw(draw_key, dist, PILOT_CANDIDATES)
     policies = algorithm.to_policy(samples)
 
