@@ -162,7 +162,7 @@ class RunSection:
     #: SIGKILL then loses at most S seconds
     checkpoint_seconds: float = 60.0
     #: lay every batch of rollouts (and the candidates' evaluations) over all local devices
-    #: (``program.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
+    #: (``compiled.rollout_mesh``); for hosts with several accelerators -- on a CPU split into
     #: devices it is slower than one device (benchmarks/NOTES.md)
     shard_rollouts: bool = False
     #: GB the rollouts in flight may take (0: half of this machine's memory); candidates are

@@ -20,10 +20,7 @@ reproduce it.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import functools
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -37,22 +34,22 @@ from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
     Built,
     build,
-    final_returns,
     iteration_step,
     params_of,
     seed_keys,
     split_seed_key,
 )
-from cognet_jax.config import Config
-from cognet_jax.errors import InputError
-from cognet_jax.memory import budget_bytes, check_compiled, trace_checked
-from cognet_jax.registry import (
-    algorithm_entry,
-    env_entry,
-    foreign_code,
-    is_builtin,
+from cognet_jax.compiled import (
+    baked_constants,
+    compiled_program,
+    hoist_large,
+    program_identity,
 )
-from cognet_jax.traced import compile_kept, program_key
+from cognet_jax.config import Config
+from cognet_jax.honest_value import final_value
+from cognet_jax.registry import (
+    env_entry,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,37 +113,6 @@ def take(tree, r: int):
     return jax.tree.map(lambda x: x[r], tree)
 
 
-#: arrays of a single run's params larger than this are arguments of its compiled programs,
-#: not constants: each program holds its own copy of a constant (a 2025-state model's 262 MB
-#: transition table, once in the step, once in the finish, once in the evaluation)
-CONSTANT_BYTES = 16 * 2**20
-
-
-def hoist_large(params):
-    """``(held, rebuild)``: the array leaves of ``params`` larger than ``CONSTANT_BYTES`` and
-    ``rebuild(held) -> params`` with them put back (traced arguments inside a program); the
-    other leaves stay constants."""
-    leaves, treedef = jax.tree.flatten(params)
-    where = [i for i, x in enumerate(leaves) if _held(x)]
-
-    def rebuild(held):
-        out = list(leaves)
-        for i, x in zip(where, held, strict=True):
-            out[i] = x
-        return jax.tree.unflatten(treedef, out)
-
-    return tuple(leaves[i] for i in where), rebuild
-
-
-def _held(x) -> bool:
-    return getattr(x, "nbytes", 0) > CONSTANT_BYTES
-
-
-def baked_constants(params) -> list:
-    """The array leaves of ``params`` that ``hoist_large`` leaves as constants."""
-    return [x for x in jax.tree.leaves(params) if not _held(x)]
-
-
 def per_run(fn, sharding, num_args: int):
     """``vmap(fn)`` over the leading ``[runs]`` axis of every argument and output, each device
     running ``vmap(fn)`` on its own block of runs (``shard_map``): runs never talk to each
@@ -159,79 +125,6 @@ def per_run(fn, sharding, num_args: int):
         out_specs=spec,
         check_vma=False,  # carries start as constants; runs are independent anyway
     )
-
-
-def rollout_mesh(config: Config):
-    """The context a run's iterations are compiled in: with ``run.shard_rollouts`` a 1-D mesh
-    ``("rollouts",)`` over the local devices is set (``jax.set_mesh``), and the rollout
-    engine lays every batch of rollouts (and so the candidates' evaluations) over it
-    (``rollout.shard_rollouts``); otherwise nothing changes."""
-    if not config.run.shard_rollouts:
-        return contextlib.nullcontext()
-    return jax.set_mesh(Mesh(np.array(jax.local_devices()), ("rollouts",)))
-
-
-#: ``run`` fields that only drive a run (progress, plots, checkpoints): left out of the keys of
-#: its programs, which do not depend on them
-DRIVING_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds", "probe_seconds")
-
-
-def program_identity(config: Config, search: bool = False, **extra) -> dict:
-    """What a program of ``config`` depends on besides its constants and argument shapes: the
-    config without its ``DRIVING_FIELDS`` (and without its ``evaluation`` section for the
-    ``search``'s own programs, which never read it), the bytes of the files it reads
-    (``Config.input_files``: a model, a VAE, whose weights may be baked in), its memory budget
-    in bytes, and ``extra``."""
-    sections = config.to_dict()
-    sections["run"] = {k: v for k, v in sections["run"].items() if k not in DRIVING_FIELDS}
-    if search:
-        del sections["evaluation"]
-    digests = [file_digest(Path(f).expanduser()) for f in config.input_files()]
-    memory = budget_bytes(config.run.memory_gb)
-    return {"config": sections, "files": digests, "memory": memory, **extra}
-
-
-def file_digest(path: Path) -> str:
-    """SHA-256 of a file's bytes (computed once per size and modification time); "" for a
-    missing file."""
-    try:
-        path = path.resolve()
-        stat = path.stat()
-    except OSError:
-        return ""
-    if not path.is_file():  # a folder a field names: no bytes of its own
-        return "not a file"
-    return _digest_of(path, stat.st_size, stat.st_mtime_ns)
-
-
-@functools.lru_cache(maxsize=64)
-def _digest_of(path: Path, size: int, mtime_ns: int) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def compiled_program(
-    config: Config, what: str, fn, args: tuple, constants, identity: dict, before_compile=None
-):
-    """``fn(*args)`` compiled once (``traced.compile_kept``: kept in this process and, traced,
-    between processes, while the compilation cache is on), ``what`` naming it in the memory
-    check's refusal (``before_compile()`` is called once the check passed, when it is
-    compiled afresh); ``constants`` are the arrays of ``config``'s params baked into it. A
-    simulator or algorithm registered from outside the package is compiled afresh each time
-    (its source is not in the key)."""
-    before_compile = before_compile or (lambda: None)
-    builtin = (
-        not foreign_code()
-        and is_builtin(env_entry(config.env.name))
-        and is_builtin(algorithm_entry(config.experiment.algorithm))
-    )
-    key = program_key(what, identity, constants, args) if builtin else None
-    memory = budget_bytes(config.run.memory_gb)
-
-    def check(jitted, leaves):
-        trace_checked(jitted, leaves, memory, what)
-        before_compile()
-
-    return compile_kept(fn, args, key, check, lambda c: check_compiled(c, memory, what))
 
 
 #: program identities whose memory ``Program.check_memory`` found within the budget
@@ -413,51 +306,3 @@ class Program:
             found = [final_value(self.algorithm, config, params, self.lanes)]
             self._evaluations.append((params.env, found[0]))
         return found[0](self.seed_keys[r], policy)
-
-
-def final_value(algorithm, config: Config, params: SearchParams, lanes: int = 1):
-    """``evaluate(seed_key, policy) -> {"mean", "stderr", "rollouts"}``: the one honest
-    evaluation (``api.final_returns`` with ``config.evaluation``), ``params`` constants of
-    the compiled program (``compiled_program``: checked against ``run.memory_gb`` when first
-    traced, kept by ``traced.compile_kept``), the mean and standard error summed in float64 on
-    the host. ``lanes``: the searches ``algorithm`` was built to run side by side."""
-    held, rebuild = hoist_large(params)
-    run = final_returns(algorithm, config.evaluation)
-    returns = lambda k, p, h: run(k, p, rebuild(h))  # noqa: E731
-    constants = baked_constants(params)
-    identity = program_identity(config, lanes=lanes)
-    compiled: dict = {}  # by the policy's shapes and types
-
-    def evaluate(key, policy):
-        args = (key, jax.tree.map(jnp.asarray, policy), held)
-        shapes = str(jax.tree.map(lambda x: (x.shape, x.dtype), args[1]))
-        if shapes not in compiled:
-            compiled[shapes] = compiled_program(
-                config, "the honest evaluation", returns, args, constants, identity
-            )
-        return final_value_of(compiled[shapes](*args))
-
-    return evaluate
-
-
-def final_value_of(returns) -> dict:
-    """The honest value (results.json's ``final_value``: ``{"mean", "stderr", "rollouts"}``)
-    of a 1-D array of returns (in float64); an ``InputError`` when a return is NaN or not
-    finite (float32 overflowed: rewards too large for the horizon)."""
-    returns = np.asarray(returns, dtype=np.float64)
-    if np.isnan(returns).any():
-        raise InputError(
-            "the returns are NaN: the simulator's rewards or observations are NaN on some "
-            "states (or an infinite reward met its negative), or the policy chose an action "
-            "its agent lacks or a node its controller lacks"
-        )
-    if not np.isfinite(returns).all():
-        raise InputError(
-            "the returns are not finite: the rewards overflow float32 over this horizon "
-            "(lower the rewards or the horizon)"
-        )
-    return {
-        "mean": float(returns.mean()),
-        "stderr": float(returns.std(ddof=1) / np.sqrt(returns.size)),
-        "rollouts": int(returns.size),
-    }

@@ -30,6 +30,7 @@ from cognet_jax.checkpoint import (
     save_checkpoint,
     stack_history,
 )
+from cognet_jax.compiled import file_digest
 from cognet_jax.config import Config, with_added_fields
 from cognet_jax.errors import (
     CorruptFileError,
@@ -38,7 +39,7 @@ from cognet_jax.errors import (
     UsageError,
 )
 from cognet_jax.plugins import one_line
-from cognet_jax.program import Program, Run, file_digest
+from cognet_jax.program import Program, Run
 from cognet_jax.registry import (
     env_entry,
     foreign_code,

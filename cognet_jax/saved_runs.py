@@ -34,8 +34,8 @@ from cognet_jax.config import (
     with_added_fields,
 )
 from cognet_jax.errors import CorruptFileError, MismatchError, read_json
+from cognet_jax.honest_value import final_value
 from cognet_jax.observations import legacy_run_files
-from cognet_jax.program import final_value
 from cognet_jax.records import RUN_OWN_FILES, current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,

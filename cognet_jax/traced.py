@@ -13,7 +13,7 @@ loads. First and later runs compile the very same program, so they give the same
 The key is a SHA-256 of everything the traced program depends on: the source of every module
 of the package, the JAX, jaxlib and Python versions, the JAX settings that change tracing
 (64-bit mode, the PRNG implementation and its partitioning), the mesh it is traced under and
-the number of local devices, the config and the files it reads (``program.program_identity``),
+the number of local devices, the config and the files it reads (``compiled.program_identity``),
 the model arrays baked in as constants, the memory budget the program was checked against,
 and the shapes, types and layouts of the arguments. A program of a simulator or algorithm
 registered from outside the package (``--import``) is never kept: its source is not in the

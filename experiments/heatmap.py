@@ -406,7 +406,7 @@ def noise_study(seed: int, rollouts: int, eval_seed: int = 12345) -> dict:
     "stderrs", "replaced": {name: [mean, stderr]}}, "stds": [...], ...}``."""
     import jax
 
-    from cognet_jax.program import final_value_of
+    from cognet_jax.honest_value import final_value_of
     from cognet_jax.saved_runs import load_run
 
     out = {"stds": list(NOISE_STDS), "rollouts": rollouts, "eval_seed": eval_seed, "seed": seed}

@@ -161,14 +161,14 @@ def test_check_and_train_refuse_the_same_values(capsys, tmp_path, monkeypatch):
     """Values of the value family through ``check`` and through ``train`` (both stopped where
     they would compile, after every check before it): the two refuse the same ones, with the
     same line."""
-    from cognet_jax import program, traced
+    from cognet_jax import compiled, traced
 
     def admit(fn, args, key, check, check_compiled=None):  # the memory check, then stop
         jitted, leaves, _ = traced._flat(fn, args)
         check(jitted, leaves)
         raise _Admitted
 
-    monkeypatch.setattr(program, "compile_kept", admit)
+    monkeypatch.setattr(compiled, "compile_kept", admit)
     rnd = random.Random(5)
     base = [x for s in TINY for x in ("--set", s)]
     config = load_config("tagging-thesis-n3")

@@ -78,7 +78,7 @@ def test_imported_code_or_a_replaced_builtin_keeps_no_program(monkeypatch):
 
 
 def test_with_imported_code_the_driver_keeps_no_program(monkeypatch):
-    from cognet_jax import program
+    from cognet_jax import compiled as program
     from cognet_jax.registry import load_config
 
     keys = []

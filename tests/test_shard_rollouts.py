@@ -26,7 +26,7 @@ import json, sys
 import jax
 from cognet_jax.cli import set_up_process
 from cognet_jax.driver import train
-from cognet_jax.program import rollout_mesh
+from cognet_jax.compiled import rollout_mesh
 from cognet_jax.registry import load_config
 set_up_process()  # as the executable's process
 assert jax.local_device_count() == 2, jax.local_devices()

@@ -416,11 +416,11 @@ def test_a_sweep_is_sized_before_its_runs_are_prepared(capsys):
 
 
 def test_the_honest_evaluation_of_several_runs_shows_its_progress(capsys):
-    """``driver._FinishLine``: a line of runs evaluated when there are several runs and
+    """``after_search.FinishLine``: a line of runs evaluated when there are several runs and
     progress is on; none for one run or without progress; none started after ``close``."""
-    from cognet_jax.driver import _FinishLine
+    from cognet_jax.after_search import FinishLine
 
-    line = _FinishLine(True, algorithm=None)
+    line = FinishLine(True, algorithm=None)
     line.evaluating(3)
     for _ in range(3):
         line.evaluated()
@@ -428,7 +428,7 @@ def test_the_honest_evaluation_of_several_runs_shows_its_progress(capsys):
     shown = capsys.readouterr().err.replace("\r", "\n")
     assert "honest evaluation" in shown and "3/3" in shown
     for progress, runs in ((True, 1), (False, 3)):
-        quiet = _FinishLine(progress, algorithm=None)
+        quiet = FinishLine(progress, algorithm=None)
         quiet.evaluating(runs)
         quiet.evaluated()
         quiet.close()

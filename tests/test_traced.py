@@ -146,7 +146,7 @@ def test_the_identity_of_a_program_holds_the_bytes_of_the_files_it_reads(tmp_pat
     into the program."""
     import os
 
-    from cognet_jax.program import program_identity
+    from cognet_jax.compiled import program_identity
     from cognet_jax.registry import load_config
 
     vae = tmp_path / "vae.msgpack"

@@ -267,7 +267,7 @@ class GuardedSteps:
     """The honest evaluation's simulator: ``env`` whose step adds NaN to its reward when an
     observation is not finite or an action is outside its agent's ``action_counts`` (a search
     of one's own drew it; JAX would clamp it silently), and 0 otherwise. Such an episode's
-    return is NaN, which the honest evaluation refuses (``program.final_value_of``) as it
+    return is NaN, which the honest evaluation refuses (``honest_value.final_value_of``) as it
     refuses NaN rewards; every other return is the same to the bit (``x + 0.0 == x``)."""
 
     env: Any
