@@ -81,13 +81,18 @@ JAX_FILES = (".lockfile",)
 
 
 def foreign_files(folder: Path) -> list[str]:
-    """The names in ``folder`` that JAX's compilation cache did not write (sorted; ``[]`` for
-    a folder that does not exist or cannot be read)."""
+    """The names in ``folder`` that JAX's compilation cache did not write: other names, and
+    folders under an entry's name (a run folder, say); sorted, ``[]`` for a folder that does
+    not exist or cannot be read."""
     try:
-        names = [p.name for p in folder.iterdir()]
+        paths = list(folder.iterdir())
     except OSError:
         return []
-    return sorted(n for n in names if not ENTRY_NAME.match(n) and n not in JAX_FILES)
+    return sorted(
+        p.name
+        for p in paths
+        if p.name not in JAX_FILES and (not ENTRY_NAME.match(p.name) or p.is_dir())
+    )
 
 
 #: the end of every entry this package writes: a tag and the SHA-256 of the entry's key and
@@ -168,9 +173,7 @@ def repair_cache_folder(folder: Path) -> None:
     for name in sorted(names):  # an entry that is not a regular file is unusable: removed
         path = folder / name
         if not path.is_file():
-            if path.is_dir():
-                shutil.rmtree(path, ignore_errors=True)
-            else:
+            if not path.is_dir():  # a folder is someone's (the cache is then not used)
                 path.unlink(missing_ok=True)
             names.discard(name)
     for name in names:

@@ -154,3 +154,10 @@ def test_a_folder_of_other_files_is_not_used_as_the_cache(tmp_path):
     _, log = _train(tmp_path / "a", mine)
     assert sorted(p.relative_to(mine) for p in mine.rglob("*")) == before
     assert "not compiled programs" in log and "build-cache" in log, log
+    # a folder under an entry's name in a cache in use (a run folder put there) is kept too
+    cache = tmp_path / "cache"
+    _train(tmp_path / "b", cache)
+    run = cache / f"run-{'a' * 64}-cache"
+    _train(run, cache)
+    _, log = _train(tmp_path / "c", cache)
+    assert (run / "results.json").is_file() and "not compiled programs" in log, log
