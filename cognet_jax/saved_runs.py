@@ -26,6 +26,7 @@ from cognet_jax.checkpoint import (
     read_checkpoint,
     read_policy,
 )
+from cognet_jax.compiled import DRIVING_FIELDS
 from cognet_jax.config import (
     Config,
     ConfigError,
@@ -131,20 +132,17 @@ def load_run(
     return LoadedRun(config, algorithm, params, policy, results)
 
 
-#: ``run`` fields that change no number of an evaluation (how a run shows and keeps itself)
-PRESENTATION_FIELDS = ("progress", "plots", "checkpoint_every", "checkpoint_seconds")
-
-
 def _check_built(built: Built, config: Config, kept_fields: set, run_dir: Path) -> None:
     """Refuse a ``built`` run whose config is not ``config`` (the folder's, with the
-    caller's overrides), but for the presentation fields and the fields of kept files."""
+    caller's overrides), but for the ``run`` fields that only drive a run
+    (``compiled.DRIVING_FIELDS``) and the fields of kept files."""
     mine, theirs = config.to_dict(), built.config.to_dict()
     differ = []
     for section in sorted(set(mine) | set(theirs)):
         a, b = mine.get(section) or {}, theirs.get(section) or {}
         for key in sorted(set(a) | set(b)):
             name = f"{section}.{key}"
-            skip = name in kept_fields or (section == "run" and key in PRESENTATION_FIELDS)
+            skip = name in kept_fields or (section == "run" and key in DRIVING_FIELDS)
             if not skip and a.get(key) != b.get(key):
                 differ.append(f"{name} ({b.get(key)!r}, the run's {a.get(key)!r})")
     if differ:
