@@ -91,8 +91,8 @@ def measure_noise(algorithm, env_params) -> Noise:
     (``algorithm``: a search with ``init_distribution``, ``draw``, ``to_policy``, ``env`` and
     ``controller``, as ``CognetWeights``)."""
     draw_key, rollout_key = jax.random.split(jax.random.key(PILOT_KEY))
+    check_pilot_fits(algorithm)  # before anything is made
     dist = algorithm.init_distribution()
-    check_pilot_fits(algorithm)
     samples = algorithm.draw(draw_key, dist, PILOT_CANDIDATES)
     policies = algorithm.to_policy(samples)
 
