@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from cognet_jax import status
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
     Built,
@@ -240,9 +241,16 @@ class Program:
             return
         init = self._one(self.algorithm.init)
         args = (self.k_init, self.held)
-        state = self.compiled("the initial state", init, args).out_shapes
+        told = []
+
+        def announce():  # once, when a program is compiled afresh (seconds): a line first
+            if not told:
+                told.append(True)
+                status.say(f"compiling {self.config.experiment.name} to check it ...")
+
+        state = self.compiled("the initial state", init, args, announce).out_shapes
         step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
-        self.compiled("one iteration", step, (self.k_run, state, self.held))
+        self.compiled("one iteration", step, (self.k_run, state, self.held), announce)
         _MEMORY_CHECKED.add(key)
 
     def compile_step(self, state, before_compile=lambda: None):
