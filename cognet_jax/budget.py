@@ -52,11 +52,12 @@ def check_budget(config: Config, env) -> float:
         )
     seconds = estimated_seconds(config, env)
     if seconds > ABSURD_SECONDS:
-        field = "evaluation.rollouts" if evaluation > search else _largest_size(config)
+        field = "evaluation.rollouts" if evaluation > search else _largest_size(config, env)
+        fixed = "" if field else f"the simulator's horizon of {env.horizon} steps: "
         raise ConfigError(
             field,
-            f"the run simulates {search + evaluation:.3g} agent-steps (horizon {env.horizon}, "
-            f"{env.num_agents} agents): at least {seconds / 86400:.0f} days at "
+            f"{fixed}the run simulates {search + evaluation:.3g} agent-steps (horizon "
+            f"{env.horizon}, {env.num_agents} agents): at least {seconds / 86400:.0f} days at "
             f"{FASTEST_RATE:.0e} agent-steps/s, over the limit of {ABSURD_SECONDS / 86400:.0f} "
             "days",
         )
@@ -67,22 +68,30 @@ def check_budget(config: Config, env) -> float:
 TYPICAL_HORIZON = 100
 
 
-def _largest_size(config: Config) -> str:
-    """The size field of the search that is the largest multiple of its default (the one to
-    blame when the run's agent-steps are absurd): the horizon or an integer field of
-    ``[algorithm]``."""
+def _largest_size(config: Config, env) -> str:
+    """The size field of the search that is the largest multiple of its reference (the one to
+    blame when the run's agent-steps are absurd): the horizon, or a number of ``[algorithm]``
+    (an integer, or one the section's ``size_references(env)`` names: its "auto" sizes and
+    budget, measured against what its rules give by default). The reference of an integer
+    is its default; of the horizon, ``TYPICAL_HORIZON`` when the simulator's default is not
+    a number. "" names the simulator's own horizon, when its section has no such field."""
+    section = config.algorithm
+    references = getattr(section, "size_references", lambda env: {})(env)
     horizon = "problem" if "problem" in env_entry(config.env.name).reads else "env"
-    candidates = [(f"{horizon}.horizon", getattr(config, horizon), "horizon")]
-    candidates += [(f"algorithm.{f.name}", config.algorithm, f.name) for f in _int_fields(config)]
-    default_of = {}
-    for name, section, field in candidates:
-        default = {f.name: f.default for f in dataclasses.fields(type(section))}.get(field)
-        if field == "horizon" and not isinstance(default, int):
-            default = TYPICAL_HORIZON  # a simulator whose horizon comes from its setting
-        value = getattr(section, field, None)
-        if isinstance(value, int) and isinstance(default, int) and default > 0:
-            default_of[name] = value / default
-    return max(default_of, key=default_of.get) if default_of else "algorithm.iterations"
+    own = getattr(getattr(config, horizon), "horizon", None)
+    horizon_default = {f.name: f.default for f in dataclasses.fields(getattr(config, horizon))}
+    horizon_default = horizon_default.get("horizon")
+    if not isinstance(horizon_default, int) or isinstance(horizon_default, bool):
+        horizon_default = TYPICAL_HORIZON  # a simulator whose horizon comes from its setting
+    name = f"{horizon}.horizon" if isinstance(own, int) else ""
+    ratios = {name: env.horizon / horizon_default}
+    defaults = {f.name: f.default for f in dataclasses.fields(type(section))}
+    for field in [f.name for f in _int_fields(config)] + sorted(references):
+        value, reference = getattr(section, field, None), references.get(field, defaults[field])
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if number and isinstance(reference, (int, float)) and reference > 0:
+            ratios[f"algorithm.{field}"] = value / reference
+    return max(ratios, key=ratios.get)
 
 
 def _int_fields(config: Config):

@@ -226,9 +226,9 @@ def _sweep_claimed(args, experiment, seeds, grid, overrides, out, run_sets, main
         run_overrides=run_sets,
     )
     if main_process:
-        write_outputs(result, out)
+        names = ", ".join(p.name for p in write_outputs(result, out))
         print((out / "summary.md").read_text())
-        print(f"wrote {out}/runs.csv, runs.json, summary.md, values.png; each run's policy in")
+        print(f"wrote {names} in {out}; each run's policy in")
         print(f"  {out}/runs/setting{{k}}-seed{{s}}/ (cognet-jax evaluate works on it)")
     return 0
 

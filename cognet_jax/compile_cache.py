@@ -26,6 +26,10 @@ CACHE_VARIABLE = "COGNET_JAX_CACHE"
 #: the cache may hold this many bytes; JAX evicts the least recently used programs above it
 #: (with the ``filelock`` package, which torch brings; without it the folder is not bounded)
 CACHE_MAX_BYTES = 2 * 10**9
+#: an entry of either cache larger than this is removed unread (a cache reads an entry whole,
+#: several copies at once): the programs this library keeps are far smaller, since arrays
+#: larger than ``compiled.CONSTANT_BYTES`` are arguments, never constants of a program
+ENTRY_MAX_BYTES = CACHE_MAX_BYTES // 4
 
 
 def compile_cache_dir() -> Path | None:
@@ -162,9 +166,9 @@ def _seal_entries(folder: Path) -> bool:
 def repair_cache_folder(folder: Path) -> None:
     """Make ``folder`` one JAX's size-bounded cache can use: every ``NAME-cache`` entry gets the
     ``NAME-atime`` file JAX's eviction reads (time 0: evicted first), and access-time files
-    without an entry are removed, as are entries that are not regular files. A folder filled by
-    runs without the bound lacks them, and JAX then warns at every write and never stores a
-    new entry."""
+    without an entry are removed, as are entries that are not regular files or are larger than
+    ``ENTRY_MAX_BYTES``. A folder filled by runs without the bound lacks them, and JAX then
+    warns at every write and never stores a new entry."""
     try:
         names = {p.name for p in folder.iterdir()}
     except OSError:  # not there yet, or unreadable: JAX reports what it cannot do
@@ -172,6 +176,9 @@ def repair_cache_folder(folder: Path) -> None:
     names = {n for n in names if ENTRY_NAME.match(n)}  # never a file of anyone else
     for name in sorted(names):  # an entry that is not a regular file is unusable: removed
         path = folder / name
+        if path.is_file() and not path.is_symlink() and _size(path) > ENTRY_MAX_BYTES:
+            path.unlink(missing_ok=True)
+            cache_note(f"compilation cache {folder}: {name[:24]}... is removed unread (too large)")
         if not path.is_file():
             if not path.is_dir():  # a folder is someone's (the cache is then not used)
                 path.unlink(missing_ok=True)
@@ -184,6 +191,13 @@ def repair_cache_folder(folder: Path) -> None:
                 (folder / name).unlink()
         except OSError:
             pass
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 def _one_cache_warning(folder: Path) -> None:

@@ -236,9 +236,9 @@ def _run(runs, opts: GroupOptions, t_start: float):
         "resumed_from_iteration": done.start or None,
     }
     with deferred_stop() as flag:
-        records = _write_runs(program, done, stacked, opts, timing, finished)
+        records, drawn = _write_runs(program, done, stacked, opts, timing, finished)
     if opts.announce:
-        _log_run(records[0], runs[0], program.algorithm, opts.log)
+        _log_run(records[0], runs[0], program.algorithm, opts.log, drawn[0])
     if flag["signum"] is not None:
         raise Stopped(flag["signum"])
     return records, timing
@@ -246,9 +246,9 @@ def _run(runs, opts: GroupOptions, t_start: float):
 
 def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> list:
     """Every run's record (results.json) written with its folder (plots: ``opts.announce``
-    and ``run.plots``)."""
+    and ``run.plots``), and whether each run's figures were drawn."""
     iterations = program.config.algorithm.iterations
-    records = []
+    records, drawn = [], []
     for r, run in enumerate(program.runs):
         history = history_fields(
             stacked, r if program.batched else None, iterations, program.algorithm
@@ -269,12 +269,12 @@ def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> lis
         if finished.probed[r] is not None:
             record["probes"] = finished.probed[r]
         plots = opts.announce and run.config.run.plots
-        write_run(run, record, finished.best[r], program.algorithm, plots=plots)
+        drawn.append(write_run(run, record, finished.best[r], program.algorithm, plots=plots))
         records.append(record)
-    return records
+    return records, drawn
 
 
-def _log_run(record: dict, run: Run, algorithm, log) -> None:
+def _log_run(record: dict, run: Run, algorithm, log, drawn: bool) -> None:
     final = record["final_value"]
     line = algorithm.finish_line(record["finish"]) if record["finish"] is not None else None
     if line:
@@ -287,7 +287,7 @@ def _log_run(record: dict, run: Run, algorithm, log) -> None:
         f"{record['compile_s']:.1f} s)"
     )
     if run.folder is not None:
-        plots = " and plots" if run.config.run.plots else ""
+        plots = " and plots" if drawn else ""
         log(f"wrote {run.folder}/results.json, policy.msgpack{plots}")
 
 

@@ -281,6 +281,8 @@ def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iter
             f"{what}: {size} does not fit the 32-bit integers arrays are indexed with; lower "
             "the sizes in the config (nodes, samples, candidates, rollouts, horizon)"
         ) from None
+    except ResourceError as err:  # this library's own draws (``prng``)
+        raise ResourceError(f"{what}: {err}") from None
     except ValueError as err:
         if "random draws" in str(err) or "too large" in str(err):
             raise ResourceError(

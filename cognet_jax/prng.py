@@ -40,6 +40,8 @@ import jax.extend.random
 import jax.numpy as jnp
 import numpy as np
 
+from cognet_jax.errors import ResourceError
+
 _GOLDEN = np.uint32(0x9E3779B9)
 _SPLIT_TWEAK = np.uint32(0x5BD1E995)
 _FOLD_TWEAK = np.uint32(0x27D4EB2F)
@@ -93,7 +95,10 @@ def _counters(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.Ar
     "Ninth pass"). The same numbers."""
     n = math.prod(shape)
     if n >= 2**32:
-        raise ValueError(f"random draws of {n} >= 2**32 elements at once are not supported")
+        raise ResourceError(  # a user's sizes, found where the draws are traced or lowered
+            f"random draws of {n} >= 2**32 elements at once are not supported; lower the sizes "
+            "in the config (nodes, samples, candidates, rollouts)"
+        )
     zero = (key[0] > np.uint32(2**32 - 1)).astype(jnp.uint32)
     low = (jax.lax.iota(jnp.uint32, n) + zero).reshape(shape)
     return jnp.zeros(shape, jnp.uint32), low

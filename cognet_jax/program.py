@@ -48,6 +48,7 @@ from cognet_jax.compiled import (
 )
 from cognet_jax.config import Config
 from cognet_jax.honest_value import final_value
+from cognet_jax.memory import budget_bytes, trace_checked
 from cognet_jax.registry import (
     env_entry,
 )
@@ -243,14 +244,22 @@ class Program:
         args = (self.k_init, self.held)
         told = []
 
-        def announce():  # once, when a program is compiled afresh (seconds): a line first
-            if not told:
-                told.append(True)
-                status.say(f"compiling {self.config.experiment.name} to check it ...")
+        step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
+
+        def announce(step_checked: bool = False):
+            """Once, when a program is compiled afresh (seconds): a line first. The iteration's
+            trace is checked before that line, so that a refusal is the only line printed."""
+            if told:
+                return
+            told.append(True)
+            if not step_checked:
+                shapes = jax.eval_shape(init, *args)
+                memory = budget_bytes(self.config.run.memory_gb)
+                trace_checked(jax.jit(step), (self.k_run, shapes, self.held), memory)
+            status.say(f"compiling {self.config.experiment.name} to check it ...")
 
         state = self.compiled("the initial state", init, args, announce).out_shapes
-        step = lambda k, s, h: self._step(k, s, self._rebuild(h))  # noqa: E731
-        self.compiled("one iteration", step, (self.k_run, state, self.held), announce)
+        self.compiled("one iteration", step, (self.k_run, state, self.held), lambda: announce(True))
         _MEMORY_CHECKED.add(key)
 
     def compile_step(self, state, before_compile=lambda: None):

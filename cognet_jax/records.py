@@ -251,13 +251,13 @@ def numeric_settings() -> dict:
     }
 
 
-def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> None:
+def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> bool:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
     ``results.json`` (with the policy file's ``policy_sha256``), the search's ``run_files``
     (recorded under ``run_files``: each one's config field and sha256) and, with ``plots``,
-    the figures (``reporting.write_plots``)."""
+    the figures (``reporting.write_plots``). Returns whether the figures were drawn."""
     if run.folder is None:
-        return
+        return False
     run.folder.mkdir(parents=True, exist_ok=True)
     policy_file = policy_bytes(policy, fingerprint(run.config))
     atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
@@ -278,6 +278,7 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
     if plots and record.get("status") == "complete":
         try:
             write_plots(run.config, algorithm, policy, record, run.folder)
+            return True
         except OSError as err:  # the run's results stand; figures of a run replaced go
             warnings.warn(  # (``run_folder.claim``), so no older figure stays beside them
                 f"{run.folder}: the figures could not be written ({one_line(err)}); the run's "
@@ -285,3 +286,4 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
                 OneLineWarning,
                 stacklevel=2,
             )
+    return False

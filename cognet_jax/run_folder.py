@@ -8,7 +8,8 @@ they write ``out``:
   policy) is refused unless the command continues it (``--resume``) or replaces it
   (``--overwrite``: once the new run has finished, what the replaced run left and the new one
   did not write again -- ``STALE_FILES``, its policy and checkpoint, a sweep's earlier run
-  folders -- is removed; a stop before then leaves the old run as it was);
+  folders -- is removed; a stop before then leaves the old run's results as they were, and
+  ``REPLACING_NAME`` says that the checkpoint beside them is the new run's, for ``--resume``);
 * an exclusive lock (``flock`` on ``out/.lock``, released by the kernel when the process ends,
   however it ends) makes a second writer of the same folder fail at once, naming the process
   that holds it;
@@ -31,6 +32,9 @@ RUN_FILES = ("results.json", "runs.json", "checkpoint.msgpack", "sweep.json", "p
 #: of those, the files (and non-empty folders) of a sweep's folder; the others are a ``train``'s
 SWEEP_FILES = ("runs.json", "sweep.json", "runs", "sweep-state")
 LOCK_NAME = ".lock"
+#: written while ``--overwrite`` replaces a run (removed when the new run finishes): a
+#: checkpoint of another run beside the old results.json is then the new run's, to resume
+REPLACING_NAME = ".replacing"
 #: files of a replaced run (``--overwrite``) that describe it and that a new run may not write
 STALE_FILES = ("evaluations.jsonl", "results.json", "runs.json", "runs.csv", "summary.md")
 
@@ -106,8 +110,11 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
             if (out / sub).is_dir():
                 _check_writable(out / sub)
         replaced = _replaced_files(out, kind) if found and overwrite else {}
+        if replaced:
+            (out / REPLACING_NAME).write_text(f"{os.getpid()}\n")
         yield out
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
+        (out / REPLACING_NAME).unlink(missing_ok=True)  # a replacing run (or its resume) ended
     finally:
         os.close(fd)  # releases the lock
 

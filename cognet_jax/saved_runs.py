@@ -41,6 +41,7 @@ from cognet_jax.records import RUN_OWN_FILES, current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,
 )
+from cognet_jax.run_folder import REPLACING_NAME
 
 
 def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, int]:
@@ -55,8 +56,39 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
     if len(meta.get("runs", [])) != 1:
         raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")
     stored = with_added_fields(meta["configs"][0])
+    seed = int(meta["runs"][0][1])
+    _refuse_another_runs_checkpoint(Path(run_dir), stored, seed)
     config = config_from_dict(apply_overrides(stored, overrides or []))
-    return config, int(meta["runs"][0][1])
+    return config, seed
+
+
+def _refuse_another_runs_checkpoint(run_dir: Path, stored: dict, seed: int) -> None:
+    """Refuse to resume a checkpoint of another run than the finished one whose results.json
+    is beside it (e.g. copied there): resuming would replace those results. A run started with
+    ``--overwrite`` and stopped (``run_folder.REPLACING_NAME`` present) is the exception: its
+    checkpoint is meant to replace them. The ``run`` section may differ (resume changes it)."""
+    results_path = run_dir / "results.json"
+    if not results_path.is_file() or (run_dir / REPLACING_NAME).exists():
+        return
+    results = read_json(results_path, ("config", "seed"))
+    if not isinstance(results["config"], dict):
+        raise CorruptFileError(results_path, "its config is not a table of sections")
+    finished = with_added_fields(results["config"])
+    differing = sorted(
+        f"{section}.{key}"
+        for section in set(stored) | set(finished)
+        if section != "run"
+        for key in set(stored.get(section, {})) | set(finished.get(section, {}))
+        if stored.get(section, {}).get(key) != finished.get(section, {}).get(key)
+    )
+    if results["seed"] != seed:
+        differing.insert(0, "seed")
+    if differing:
+        raise MismatchError(
+            f"{run_dir / CHECKPOINT_NAME} is the checkpoint of another run than "
+            f"{results_path} ({', '.join(differing[:4])} differ); resuming it would replace "
+            "that run's results: give the checkpoint a folder of its own"
+        )
 
 
 @dataclasses.dataclass

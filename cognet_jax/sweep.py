@@ -41,6 +41,7 @@ import itertools
 import json
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,8 +54,9 @@ from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions, run_group
-from cognet_jax.errors import MismatchError, UsageError, read_json
+from cognet_jax.errors import MismatchError, OneLineWarning, UsageError, read_json
 from cognet_jax.plots import plot_sweep_values
+from cognet_jax.plugins import one_line
 from cognet_jax.program import Run
 from cognet_jax.registry import config_from_dict, dynamic_fields, load_config
 
@@ -389,7 +391,9 @@ def _setting_label(values: dict) -> str:
 
 
 def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
-    """``runs.csv``, ``runs.json``, ``summary.md`` and ``values.png`` in ``out_dir``."""
+    """``runs.csv``, ``runs.json``, ``summary.md`` and, unless the sweep's ``run.plots`` is
+    false, ``values.png`` in ``out_dir``; returns the paths written. A figure that cannot be
+    written (a full disk) is a warning: the tables stand."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result["grid"])
@@ -442,5 +446,16 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
             row += f" {mean:.6f} [{lo:.6f}, {hi:.6f}] |"
         lines.append(row)
     atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
-    plot_sweep_values(result, out / "values.png", _setting_label)
-    return [out / n for n in ("runs.csv", "runs.json", "summary.md", "values.png")]
+    written = [out / n for n in ("runs.csv", "runs.json", "summary.md")]
+    if result.get("config", {}).get("run", {}).get("plots", True):
+        try:
+            plot_sweep_values(result, out / "values.png", _setting_label)
+            written.append(out / "values.png")
+        except OSError as err:
+            warnings.warn(
+                f"{out}: values.png could not be written ({one_line(err)}); the sweep's tables "
+                "are saved",
+                OneLineWarning,
+                stacklevel=2,
+            )
+    return written

@@ -49,7 +49,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from cognet_jax.compile_cache import cache_note, compiled_despite_cache
+from cognet_jax.compile_cache import ENTRY_MAX_BYTES, cache_note, compiled_despite_cache
 
 #: programs whose constants (model arrays baked in) take more bytes than this are not kept:
 #: exporting them holds further copies of the constants (the 2025-state fire fighting model's
@@ -277,6 +277,9 @@ def _compiled_from_file(fn: Callable, args: tuple, path: Path, check) -> Callabl
     earlier by a single process is read all the same: its key names the devices). A file that
     cannot be read, does not fit the arguments or does not compile (torn, edited, swapped
     between keys) is removed with one line on stderr, and the program traced afresh."""
+    size = path.stat().st_size if path.is_file() else 0
+    if size > ENTRY_MAX_BYTES:  # no program this library keeps: removed unread
+        _discard(path, ValueError(f"{size} bytes, too large to be read"))
     kept = _load(path)
     if kept is None and (path.exists() or path.is_symlink()):
         _discard(path, ValueError("cannot be read"))

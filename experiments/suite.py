@@ -899,6 +899,14 @@ AFTER_AXES = {
         "START moves and extension",
         "paper-budget-1of64-polish",
     ),
+    "paper-budget-1of8-axes": (
+        "tagging-paper-auto",
+        ["algorithm.budget=3.75e10", "run.probe_seconds=10"],
+        3,
+        "1/8 of the paper's 3e11 agent-steps under the defaults with the polish's AXIS and "
+        "START moves and extension",
+        "paper-budget-1of64-axes",
+    ),
     **earlier_defaults(
         "before-axes", "the defaults before the polish's AXIS and START moves and its extension"
     ),
@@ -945,6 +953,20 @@ AFTER_AXES = {
             f"{experiment}-defaults-axes",
         )
         for experiment in ("tagging-thesis-n3", "tagging-thesis-n6")
+    },
+    **{
+        f"{name}-spread{spread}": (
+            experiment,
+            [*extra, "algorithm.start_draw=true", f"algorithm.start_spread={spread}"],
+            seeds,
+            f"candidate: start_draw from a first categorical with {spread} of its mass spread "
+            "evenly over the nodes, the rest on node 0 (start_spread)",
+            f"{name}-start",
+        )
+        for name, experiment, extra, seeds in (
+            ("hearing-tiger-noisy", "hearing-tiger-noisy-n7", [], SEEDS),
+        )
+        for spread in (0.3,)
     },
     "hearing-tiger-noisy-n9-axes": (
         "hearing-tiger-noisy-n7",

@@ -776,3 +776,7 @@ def test_a_drawn_start_runs_the_controller_from_that_nodes_role():
     elites = jax.tree.map(lambda x: x[np.flatnonzero(start[:, 1] == 2)[:4]], b)
     new = on.update_distribution(d_on, elites, params.hyper.replace(alpha=1.0))
     assert float(new.start_probs[1, 2]) > 0.9
+    peaked, _ = small_algorithm(start_draw=True, start_spread=0.3)
+    probs = np.asarray(peaked.init_distribution().start_probs)  # [agents, nodes]
+    np.testing.assert_allclose(probs, [[0.8, 0.1, 0.1]] * 2, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(d_on.start_probs), np.full((2, 3), 1 / 3, np.float32))

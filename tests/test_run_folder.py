@@ -434,8 +434,9 @@ def test_figures_of_a_replaced_run_never_stay_beside_another_runs_results(tmp_pa
     capsys.readouterr()
     argv = ["train", "--out", str(out), "--seed", "1", "--overwrite", *TINY_TRAIN]
     assert cli.main([*argv, "--set", "run.plots=true"]) == 0
-    err = capsys.readouterr().err
-    assert "figures could not be written" in err and "results are saved" in err
+    said = capsys.readouterr()
+    assert "figures could not be written" in said.err and "results are saved" in said.err
+    assert "and plots" not in said.out  # the line naming what was written does not claim them
     assert json.loads((out / "results.json").read_text())["seed"] == 1
     assert [p.name for p in out.glob("*.png") if p.is_file()] == []  # no old figure
     assert (out / "values.png").is_dir()  # a folder of the user's is not removed
@@ -443,3 +444,28 @@ def test_figures_of_a_replaced_run_never_stay_beside_another_runs_results(tmp_pa
     assert cli.main([*argv, "--set", "run.plots=true", "--seed", "2"]) == 0
     assert cli.main([*argv, "--set", "run.plots=false", "--seed", "3"]) == 0
     assert list(out.glob("*.png")) == []
+
+
+def test_another_runs_checkpoint_beside_finished_results_is_not_resumed(tmp_path, capsys):
+    """A checkpoint of another run copied into a finished run's folder: ``--resume`` refuses
+    it, naming what differs, and the finished results stay. The checkpoint of a run started
+    with ``--overwrite`` and stopped is resumed, and replaces the old results."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert cli.main(["train", "--out", str(a), *TINY_TRAIN]) == 0
+    assert cli.main(["train", "--out", str(b), "--seed", "1", *TINY_TRAIN]) == 0
+    finished = (a / "results.json").read_bytes()
+    copied = (b / "checkpoint.msgpack").read_bytes()
+    (a / "checkpoint.msgpack").write_bytes(copied)
+    capsys.readouterr()
+    assert cli.main(["train", "--resume", str(a)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "checkpoint of another run" in err[0] and "seed" in err[0], err
+    assert (a / "results.json").read_bytes() == finished
+    with pytest.raises(KeyboardInterrupt):  # --overwrite with seed 1, stopped after a checkpoint
+        with claim(a, overwrite=True):
+            (a / "checkpoint.msgpack").write_bytes(copied)
+            raise KeyboardInterrupt
+    assert (a / "results.json").read_bytes() == finished  # the old run stays until then
+    assert cli.main(["train", "--resume", str(a)]) == 0
+    assert json.loads((a / "results.json").read_text())["seed"] == 1
+    assert not (a / ".replacing").exists()

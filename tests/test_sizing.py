@@ -130,3 +130,24 @@ def test_a_budget_in_minutes_becomes_agent_steps_at_the_measured_rate(monkeypatc
     with pytest.raises(ConfigError) as err:
         load_config("hearing-tiger-n7", ["algorithm.budget_minutes=1", "algorithm.budget=1e9"])
     assert err.value.field == "algorithm.budget_minutes"
+
+
+@pytest.mark.parametrize(
+    ("experiment", "setting", "blamed"),
+    [
+        # the sizes grown from the budget are not blamed
+        ("tagging-paper-auto", "algorithm.budget=1e16", "algorithm.budget"),
+        # an "auto" size given as a number
+        ("tagging-paper-auto", "algorithm.iterations=1000000000", "algorithm.iterations"),
+        ("tagging-thesis-n3", "env.horizon=1000000", "env.horizon"),
+    ],
+)
+def test_a_run_too_long_names_the_size_that_made_it_so(experiment, setting, blamed, capsys):
+    """``budget.check_budget`` refuses a run of weeks naming the field that is the largest
+    multiple of its reference: "auto" sizes and the budget are measured against what the
+    sizing rules give by default, not skipped."""
+    from cognet_jax import cli
+
+    assert cli.main(["check", experiment, "--set", setting]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"config field '{blamed}'" in err[0] and "days" in err[0], err

@@ -376,6 +376,10 @@ def test_summary_reports_exact_values_of_tabular_runs(tmp_path):
     assert "| in-loop best | exact | exact_infinite |" in summary
     assert "| 32.165667 [30.999000, 33.499000] | 32.166667 [31.000000, 33.500000] |" in summary
     assert "| 5.000000 [5.000000, 5.000000] |" in summary
+    assert (tmp_path / "values.png").is_file()  # run.plots true where the config is silent
+    plotless = tmp_path / "plotless"
+    written = write_outputs({**result, "config": {"run": {"plots": False}}}, plotless)
+    assert not (plotless / "values.png").exists() and written[-1].name == "summary.md"
 
 
 def test_many_runs_are_stacked_in_chunks_to_the_same_arrays():

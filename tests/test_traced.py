@@ -3,6 +3,7 @@ instead of traced, gives the same numbers, and every input of the trace is in it
 
 from __future__ import annotations
 
+import os
 from collections import OrderedDict
 from pathlib import Path
 
@@ -189,7 +190,16 @@ def _swap(path, other):
     other.write_bytes(a)
 
 
-@pytest.mark.parametrize("damage", [_flip, _swap], ids=["flipped-bytes", "swapped-between-keys"])
+def _grow(path, _other):
+    """Past ``ENTRY_MAX_BYTES`` (sparse: no disk is used): removed unread."""
+    from cognet_jax.compile_cache import ENTRY_MAX_BYTES
+
+    os.truncate(path, ENTRY_MAX_BYTES + 1)
+
+
+@pytest.mark.parametrize(
+    "damage", [_flip, _swap, _grow], ids=["flipped-bytes", "swapped-between-keys", "too-large"]
+)
 def test_a_damaged_or_swapped_file_is_traced_afresh_with_one_line(cache, damage, capsys):
     from cognet_jax import compile_cache
 
@@ -224,6 +234,13 @@ def test_a_cache_folder_filled_without_the_size_bound_is_repaired(tmp_path):
     ]
     assert (tmp_path / f"a-{H}-atime").read_bytes() == bytes(8)
     assert (tmp_path / f"b-{H}-atime").read_bytes() == b"12345678"
+    from cognet_jax.compile_cache import ENTRY_MAX_BYTES
+
+    huge = tmp_path / f"d-{H}-cache"  # sparse: no disk is used; removed unread
+    huge.write_bytes(b"")
+    os.truncate(huge, ENTRY_MAX_BYTES + 1)
+    repair_cache_folder(tmp_path)
+    assert not huge.exists() and not (tmp_path / f"d-{H}-atime").exists()
     repair_cache_folder(tmp_path / "absent")  # nothing to repair: no error
     (tmp_path / "build-cache").mkdir()  # names that are no entry of JAX's are never touched
     (tmp_path / "notes-atime").write_text("mine")

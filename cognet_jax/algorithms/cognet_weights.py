@@ -272,8 +272,15 @@ class CognetWeights(PolishFinish, NeuralSearch):
             ),
             distinct_probs=full((a, 2), 0.5) if s.distinct_actions else None,
             redraw=full((), 0.0) if s.refine_redraw > 0 and s.refine > 0 else None,
-            start_probs=full((a, q), 1.0 / q) if s.start_draw else None,
+            start_probs=self._first_start_probs() if s.start_draw else None,
         )
+
+    def _first_start_probs(self) -> jax.Array:
+        """``[agents, nodes]``: ``start_spread`` of the mass evenly on every node, the rest
+        on node 0 (where a controller starts without ``start_draw``)."""
+        a, q, spread = self.controller.num_agents, self.settings.nodes, self.settings.start_spread
+        probs = jnp.full((a, q), spread / q, jnp.float32)
+        return probs.at[:, 0].add(1.0 - spread)
 
     @property
     def _agents_can_tie(self) -> bool:

@@ -18,6 +18,7 @@ from cognet_jax.algorithms.cognet_weights_settings import (
 )
 from cognet_jax.algorithms.noise_pilot import check_pilot_fits, measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
+from cognet_jax.budget import check_budget
 from cognet_jax.observations import build_pipeline, input_statistics, neural_controller
 from cognet_jax.registry import env_description, fields_from, register_algorithm
 
@@ -53,7 +54,12 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     distribution (``noise_pilot``, measured once per simulator and distribution in a process),
     so rollouts per candidate follow what tells candidates apart on this simulator. With
     ``budget_minutes`` the budget is those minutes at the pilot's measured rate
-    (``minutes_to_budget``)."""
+    (``minutes_to_budget``). A budget or sizes of an absurd run are refused first, as
+    ``api.build`` would refuse the sized run (``budget.check_budget``), before the seconds of
+    statistics and pilot: the noise moves the budget between rollouts and candidates, it does
+    not shrink it."""
+    if config.algorithm.budget_minutes <= 0:
+        check_budget(dataclasses.replace(config, algorithm=sized(config.algorithm, env)), env)
     config = dataclasses.replace(config, algorithm=resolve_search(config.algorithm, env))
     section = resolve_standardize(config, env, env_params)
     config = dataclasses.replace(config, algorithm=section)

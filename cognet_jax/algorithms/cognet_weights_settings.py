@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from cognet_jax.algorithms.sizing import SIZE_FIELDS
+from cognet_jax.algorithms.sizing import AUTO_BUDGET_ROLLOUTS, SIZE_FIELDS, sized
 from cognet_jax.config import (
     NetworkSection,
     require,
@@ -64,7 +64,9 @@ class CognetWeightsSection:
     (START); ``polish_extend``: while each sweep applies a move, the polish goes on past its
     share up to that many times it (1: never); ``start_draw``: every candidate also draws,
     per agent, the node whose role it starts in (a categorical refit to the elites; tied
-    agents share a controller and may start apart). The hidden width is ``network.hidden``."""
+    agents share a controller and may start apart), from a first categorical that puts
+    ``start_spread`` of its mass evenly on every node and the rest on node 0 (1: uniform). The
+    hidden width is ``network.hidden``."""
 
     nodes: int = 3
     iterations: int | Literal["auto"] = "auto"
@@ -104,10 +106,20 @@ class CognetWeightsSection:
     polish_axes: bool = True
     polish_extend: float = 2.0
     start_draw: bool = False
+    start_spread: float = 1.0
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""
         return rollouts_per_iteration(self)
+
+    def size_references(self, env) -> dict[str, float]:
+        """The sizes this section's "auto" rules give by default on ``env`` (the default budget,
+        no noise measured), and that budget: what a too-long run's sizes are compared with to
+        name the one to lower (``budget.check_budget``)."""
+        auto = dict.fromkeys((*SIZE_FIELDS, "budget"), "auto")
+        default = sized(dataclasses.replace(self, **auto), env)
+        references = {f: getattr(default, f) for f in SIZE_FIELDS}
+        return {**references, "budget": AUTO_BUDGET_ROLLOUTS * env.horizon * env.num_agents}
 
     @staticmethod
     def given_warnings(given: dict) -> list[str]:
@@ -127,6 +139,11 @@ class CognetWeightsSection:
             self.budget == "auto" or 1 <= self.budget <= 1e16,
             "algorithm.budget",
             f"agent-steps, in 1 .. 1e16, or 'auto'; got {self.budget}",
+        )
+        require(
+            0 <= self.start_spread <= 1,
+            "algorithm.start_spread",
+            f"a share of the first start roles' mass, in 0 .. 1, got {self.start_spread}",
         )
         require(
             0 <= self.budget_minutes <= 1e5,
