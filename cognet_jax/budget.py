@@ -31,10 +31,26 @@ def simulated_agent_steps(config: Config, env) -> tuple[int, int]:
     return search, config.evaluation.rollouts * per_rollout
 
 
+#: seconds one search iteration takes at least, whatever it simulates: a call of a compiled
+#: program that draws and ranks its candidates (an iteration that values them exactly, G-DICE
+#: on a small model, simulates nothing)
+FASTEST_ITERATION = 1e-4
+
+
+def _search_seconds(config: Config, env) -> tuple[float, bool]:
+    """``(seconds, by_iterations)``: the search's least time -- its agent-steps at
+    ``FASTEST_RATE``, or its iterations at ``FASTEST_ITERATION`` each when that is longer
+    (``by_iterations`` then true)."""
+    steps = simulated_agent_steps(config, env)[0] / FASTEST_RATE
+    iterations = getattr(config.algorithm, "iterations", 0)
+    floor = iterations * FASTEST_ITERATION if isinstance(iterations, int) else 0.0
+    return max(steps, floor), floor > steps
+
+
 def estimated_seconds(config: Config, env) -> float:
-    """Seconds a run of ``config`` takes at least: its agent-steps (search and honest
-    evaluation, ``simulated_agent_steps``) at ``FASTEST_RATE``. An estimate, no check."""
-    return sum(simulated_agent_steps(config, env)) / FASTEST_RATE
+    """Seconds a run of ``config`` takes at least: its search (``_search_seconds``) and the
+    honest evaluation's agent-steps at ``FASTEST_RATE``. An estimate, no check."""
+    return _search_seconds(config, env)[0] + simulated_agent_steps(config, env)[1] / FASTEST_RATE
 
 
 def check_budget(config: Config, env) -> float:
@@ -51,6 +67,13 @@ def check_budget(config: Config, env) -> float:
             "evaluation.rollouts or raise run.memory_gb"
         )
     seconds = estimated_seconds(config, env)
+    if seconds > ABSURD_SECONDS and _search_seconds(config, env)[1]:
+        raise ConfigError(
+            "algorithm.iterations",
+            f"{config.algorithm.iterations} iterations take at least {seconds / 86400:.0f} days "
+            f"at {FASTEST_ITERATION * 1e6:.0f} us each, over the limit of "
+            f"{ABSURD_SECONDS / 86400:.0f} days",
+        )
     if seconds > ABSURD_SECONDS:
         field = "evaluation.rollouts" if evaluation > search else _largest_size(config, env)
         fixed = "" if field else f"the simulator's horizon of {env.horizon} steps: "

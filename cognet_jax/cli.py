@@ -344,7 +344,7 @@ def _check(args) -> int:
     built = build(config)
     Program([Run(config, args.seed)], built).check_memory()
     seconds = built.seconds
-    print(f"{config.experiment.name}: valid; at least {seconds:.3g} s of simulation")
+    print(f"{config.experiment.name}: valid; at least {seconds:.3g} s of search and evaluation")
     return 0
 
 

@@ -151,3 +151,27 @@ def test_a_run_too_long_names_the_size_that_made_it_so(experiment, setting, blam
     assert cli.main(["check", experiment, "--set", setting]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"config field '{blamed}'" in err[0] and "days" in err[0], err
+
+
+def test_an_iteration_that_simulates_nothing_still_takes_time():
+    """A search whose iterations value their candidates exactly simulates no agent-steps: its
+    least time is its iterations at ``FASTEST_ITERATION`` each, and a count of them that takes
+    weeks is refused naming ``algorithm.iterations``."""
+    from types import SimpleNamespace
+
+    from cognet_jax import budget
+    from cognet_jax.config import ConfigError
+
+    def config(iterations):
+        algorithm = SimpleNamespace(iterations=iterations, rollouts_per_iteration=lambda: 0)
+        return SimpleNamespace(
+            algorithm=algorithm,
+            evaluation=SimpleNamespace(rollouts=10_000),
+            run=SimpleNamespace(memory_gb=0.0),
+        )
+
+    env = SimpleNamespace(horizon=4, num_agents=2)
+    least = budget.estimated_seconds(config(2_000_000), env)
+    assert least == pytest.approx(2_000_000 * budget.FASTEST_ITERATION + 8e4 / budget.FASTEST_RATE)
+    with pytest.raises(ConfigError, match="algorithm.iterations.*iterations take at least"):
+        budget.check_budget(config(2 * 10**10), env)
