@@ -960,13 +960,21 @@ AFTER_AXES = {
             [*extra, "algorithm.start_draw=true", f"algorithm.start_spread={spread}"],
             seeds,
             f"candidate: start_draw from a first categorical with {spread} of its mass spread "
-            "evenly over the nodes, the rest on node 0 (start_spread)",
+            "evenly over the nodes, the rest on node 0 (start_spread)"
+            + (": the start roles move in the refine phase only" if spread == 0 else ""),
             f"{name}-start",
         )
-        for name, experiment, extra, seeds in (
-            ("hearing-tiger-noisy", "hearing-tiger-noisy-n7", [], SEEDS),
+        for name, experiment, extra, seeds, spreads in (
+            ("hearing-tiger-noisy", "hearing-tiger-noisy-n7", [], SEEDS, (0.3, 0.0)),
+            (
+                "paper-budget-1of64",
+                "tagging-paper-auto",
+                ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+                3,
+                (0.0,),
+            ),
         )
-        for spread in (0.3,)
+        for spread in spreads
     },
     "hearing-tiger-noisy-n9-axes": (
         "hearing-tiger-noisy-n7",
