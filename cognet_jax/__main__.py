@@ -1,3 +1,3 @@
-from cognet_jax.cli import run
+from cognet_jax.entry import run
 
 run()

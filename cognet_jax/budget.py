@@ -31,6 +31,11 @@ def simulated_agent_steps(config: Config, env) -> tuple[int, int]:
     return search, config.evaluation.rollouts * per_rollout
 
 
+#: bytes the honest evaluation holds per rollout at its peak: the returns in float32, their
+#: float64 copy on the host and the standard deviation's float64 temporary
+#: (``honest_value.final_value_of``)
+EVALUATION_BYTES_PER_ROLLOUT = 20
+
 #: seconds one search iteration takes at least, whatever it simulates: a call of a compiled
 #: program that draws and ranks its candidates (an iteration that values them exactly, G-DICE
 #: on a small model, simulates nothing)
@@ -59,12 +64,13 @@ def check_budget(config: Config, env) -> float:
     ``ABSURD_SECONDS``), ``ResourceError`` when the honest evaluation's returns cannot fit the
     memory budget ``run.memory_gb``."""
     search, evaluation = simulated_agent_steps(config, env)
-    returns = 4 * config.evaluation.rollouts
+    returns = EVALUATION_BYTES_PER_ROLLOUT * config.evaluation.rollouts
     if returns > budget_bytes(config.run.memory_gb):
         raise ResourceError(
-            f"evaluation.rollouts: {config.evaluation.rollouts} returns need {gb(returns)}, over "
-            f"the memory budget of {gb(budget_bytes(config.run.memory_gb))}; lower "
-            "evaluation.rollouts or raise run.memory_gb"
+            f"evaluation.rollouts: {config.evaluation.rollouts} returns need {gb(returns)} "
+            f"({EVALUATION_BYTES_PER_ROLLOUT} bytes each), over the memory budget of "
+            f"{gb(budget_bytes(config.run.memory_gb))}; lower evaluation.rollouts or raise "
+            "run.memory_gb"
         )
     seconds = estimated_seconds(config, env)
     if seconds > ABSURD_SECONDS and _search_seconds(config, env)[1]:

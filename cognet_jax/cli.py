@@ -60,7 +60,7 @@ from cognet_jax.hosts import (
 from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line, user_code_error
 from cognet_jax.registry import load_config
-from cognet_jax.run_folder import check_out, claim, held_run, worth_keeping
+from cognet_jax.run_folder import check_out, claim, held_run, reading, worth_keeping
 from cognet_jax.signals import (
     Stopped,
     exit_on_stop,
@@ -242,21 +242,22 @@ def _evaluate(args) -> int:
         parse_override(o)[0] == ["evaluation", "rollouts"] for o in args.overrides
     ):
         raise UsageError("--rollouts and --set evaluation.rollouts both set the rollouts; give one")
-    # in a worker thread: a stop signal ends the command at once, not after the evaluation
-    value = in_background(
-        lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, status.say)
-    )
-    print(
-        f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
-        f"seed {value['seed']}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
-    )
-    log = Path(args.run_dir) / "evaluations.jsonl"
-    try:
-        with log.open("a") as f:
-            f.write(json.dumps(value) + "\n")
-    except OSError as err:  # the value stands; only its log could not be kept
-        print(f"warning: not appended to {log}: {err.strerror}", file=sys.stderr)
-        return 0
+    with reading(Path(args.run_dir)):  # no writer replaces the run while it is evaluated
+        # in a worker thread: a stop signal ends the command at once, not after the evaluation
+        value = in_background(
+            lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, status.say)
+        )
+        print(
+            f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
+            f"seed {value['seed']}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
+        )
+        log = Path(args.run_dir) / "evaluations.jsonl"
+        try:
+            with log.open("a") as f:
+                f.write(json.dumps(value) + "\n")
+        except OSError as err:  # the value stands; only its log could not be kept
+            print(f"warning: not appended to {log}: {err.strerror}", file=sys.stderr)
+            return 0
     print(f"appended to {log}")
     return 0
 

@@ -240,7 +240,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
     if opts.announce:
         _log_run(records[0], runs[0], program.algorithm, opts.log, drawn[0])
     if flag["signum"] is not None:
-        raise Stopped(flag["signum"])
+        raise Stopped(flag["signum"], after="the results were written")
     return records, timing
 
 

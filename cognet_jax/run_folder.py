@@ -112,7 +112,13 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         replaced = _replaced_files(out, kind) if found and overwrite else {}
         if replaced:
             (out / REPLACING_NAME).write_text(f"{os.getpid()}\n")
-        yield out
+        try:
+            yield out
+        except BaseException:
+            checkpoint = out / "checkpoint.msgpack"
+            if replaced and _mtime(checkpoint) == replaced.get(checkpoint, 0):
+                (out / REPLACING_NAME).unlink(missing_ok=True)  # stopped before a checkpoint
+            raise
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
         (out / REPLACING_NAME).unlink(missing_ok=True)  # a replacing run (or its resume) ended
     finally:
@@ -218,7 +224,8 @@ def _remove_unwritten(replaced: dict[Path, float]) -> None:
 
 
 def _lock(fd: int, out: Path) -> None:
-    """Exclusive, non-blocking ``flock`` on ``fd``; ``UsageError`` naming the holder's pid."""
+    """Exclusive, non-blocking ``flock`` on ``fd``; ``UsageError`` naming the holder's pid
+    (a writer's; an ``evaluate`` that reads the folder holds a shared lock, ``reading``)."""
     try:
         import fcntl
     except ImportError:  # not a POSIX system: no lock
@@ -228,6 +235,45 @@ def _lock(fd: int, out: Path) -> None:
     except OSError:
         holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
         raise UsageError(
-            f"{out} is being written by another cognet-jax process (pid {holder}); wait for "
-            "it or choose another --out"
+            f"{out} is being written by another cognet-jax process (pid {holder}), or read "
+            "by a `cognet-jax evaluate`; wait for it or choose another --out"
         ) from None
+
+
+@contextlib.contextmanager
+def reading(out: Path):
+    """Hold a shared lock on the run folder ``out`` while ``evaluate`` reads it and appends
+    to its evaluations log: refused at once (``UsageError``) while a ``train`` or ``sweep``
+    writes it, and a writer that starts meanwhile (``--overwrite``) is refused until it ends,
+    so no evaluation of a replaced policy lands beside a new run. A folder without results, or
+    where no lock file can be made (read-only: nothing can write it either), is read without
+    one."""
+    out = Path(out)
+    lock = out / LOCK_NAME
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: no lock
+        yield out
+        return
+    if not (out / "results.json").is_file():  # no run to read: the evaluation says so
+        yield out
+        return
+    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
+        raise UsageError(f"{lock}: not a regular file (the run's lock); remove it")
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    except OSError:
+        yield out
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise UsageError(
+                f"{out} is being written by another cognet-jax process (pid {holder}); "
+                "evaluate it when that has finished"
+            ) from None
+        yield out
+    finally:
+        os.close(fd)

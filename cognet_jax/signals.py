@@ -53,11 +53,33 @@ def _heeded() -> list:
 
 
 class Stopped(KeyboardInterrupt):
-    """A stop signal arrived where nothing is kept; ``signum`` is the signal."""
+    """A stop signal arrived where nothing is kept; ``signum`` is the signal, ``after`` what
+    was done before it was heeded (e.g. "the run's results were written"), said with it."""
 
-    def __init__(self, signum: int):
-        self.signum = int(signum)
-        super().__init__(signal.Signals(self.signum).name)
+    def __init__(self, signum: int, after: str = ""):
+        self.signum, self.after = int(signum), after
+        name = signal.Signals(self.signum).name
+        super().__init__(f"{name} after {after}" if after else name)
+
+
+def heed_while_starting() -> None:
+    """The executable's first step, before JAX's seconds of import: until
+    ``install_stop_handlers`` a stop signal ends the process at once, with one line and status
+    ``128 + signal`` (nothing has started that could be kept)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum, frame):
+        import os
+        import sys
+
+        with contextlib.suppress(OSError, ValueError):
+            name = signal.Signals(signum).name
+            print(f"error: stopped by {name} while starting", file=sys.stderr, flush=True)
+        os._exit(128 + int(signum))
+
+    for sig in _heeded():
+        signal.signal(sig, handler)
 
 
 def _raise_stopped(signum, frame):
@@ -92,8 +114,9 @@ def restore_stop_handlers() -> list[str]:
 
 def exit_on_stop() -> None:
     """Once a command's work is done: a stop signal ends the process at once, status ``128 +
-    signal``, with nothing printed (raising ``Stopped`` then could only land in the
-    interpreter's shutdown or in a callback that prints it as an ignored exception)."""
+    signal``, with one line saying the command had finished (raising ``Stopped`` then could
+    only land in the interpreter's shutdown or in a callback that prints it as an ignored
+    exception)."""
     if threading.current_thread() is not threading.main_thread():
         return
 
@@ -101,9 +124,15 @@ def exit_on_stop() -> None:
         import os
         import sys
 
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError):
-                stream.flush()
+        with contextlib.suppress(OSError, ValueError):
+            sys.stdout.flush()
+        with contextlib.suppress(OSError, ValueError):
+            name = signal.Signals(signum).name
+            print(
+                f"error: stopped by {name} after the command finished (its output is complete)",
+                file=sys.stderr,
+                flush=True,
+            )
         os._exit(128 + int(signum))
 
     for sig in _heeded():

@@ -416,14 +416,20 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     atomic_write_text(out / "runs.csv", table.getvalue())
     atomic_write_text(out / "runs.json", json.dumps(result, indent=1))
     summary = summarize(result)
+    counts = sorted({r["final_value"]["rollouts"] for r in result["rows"]})
+    rollouts = (
+        f"{counts[0]} rollouts"
+        if len(counts) == 1
+        else f"{counts[0]} to {counts[-1]} rollouts by setting: runs.csv's final_rollouts"
+    )
     lines = [
         f"# Sweep of {result['experiment']}",
         "",
         f"{len(result['seeds'])} seeds ({result['seeds'][0]}..{result['seeds'][-1]}), "
         f"{len(summary)} setting(s), {len(result['groups'])} compiled group(s); wall "
         f"{result['wall_s']:.1f} s. Honest value: mean over seeds of each run's fresh "
-        f"evaluation of its best policy ({result['rows'][0]['final_value']['rollouts']} "
-        "rollouts, the seed's eval key); +- is the standard error over seeds.",
+        f"evaluation of its best policy ({rollouts}, the seed's eval key); +- is the standard "
+        "error over seeds.",
     ]
     added = [k for k in added_keys if all(k in s["added"] for s in summary)]
     if added:

@@ -146,7 +146,7 @@ def test_evaluate_checks_the_rollouts_it_was_given(counts, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["train", "tagging-thesis-n3", "--out", str(out), *TINY_TRAIN]) == 0
     capsys.readouterr()
-    small = ["--set", "run.memory_gb=0.001"]  # 1e6 returns need 4 MB
+    small = ["--set", "run.memory_gb=0.01"]  # 1e6 returns need 20 MB
     assert main(["evaluate", str(out), "--rollouts", "1000000", *small]) == 2
     assert "evaluation.rollouts" in capsys.readouterr().err
     # a large evaluation says its size and least time before it compiles (h 3, 2 agents)

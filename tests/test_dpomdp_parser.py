@@ -682,3 +682,23 @@ def test_the_parser_loads_without_jax():
     code = "import sys, cognet_jax.io.dpomdp; print('jax' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_a_binary_or_oversized_file_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """A sparse or binary file (NUL bytes in its first 64 KiB) is refused naming the line of
+    its first NUL, and a file over ``MAX_FILE_BYTES`` by its size, both without reading it
+    whole (a 3 GB sparse file took 6.5 GB of memory before)."""
+    import os
+
+    from cognet_jax.io import dpomdp
+
+    sparse = tmp_path / "sparse.dpomdp"
+    sparse.write_bytes(b"agents: 2\n")
+    os.truncate(sparse, 3 * 2**30)  # no disk used
+    with pytest.raises(dpomdp.DpomdpParseError, match=r"sparse.dpomdp:2: a NUL byte"):
+        dpomdp.parse_dpomdp(sparse)
+    big = tmp_path / "big.dpomdp"
+    big.write_text("agents: 2\n" + "# a comment\n" * 200)
+    monkeypatch.setattr(dpomdp, "MAX_FILE_BYTES", 1000)
+    with pytest.raises(dpomdp.DpomdpParseError, match=r"big.dpomdp: .*GiB, over the"):
+        dpomdp.parse_dpomdp(big)

@@ -461,6 +461,10 @@ def test_another_runs_checkpoint_beside_finished_results_is_not_resumed(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "checkpoint of another run" in err[0] and "seed" in err[0], err
     assert (a / "results.json").read_bytes() == finished
+    with pytest.raises(KeyboardInterrupt):  # --overwrite stopped before its first checkpoint
+        with claim(a, overwrite=True):
+            raise KeyboardInterrupt
+    assert not (a / ".replacing").exists()  # the checkpoint there is still the old run's
     with pytest.raises(KeyboardInterrupt):  # --overwrite with seed 1, stopped after a checkpoint
         with claim(a, overwrite=True):
             (a / "checkpoint.msgpack").write_bytes(copied)
@@ -469,3 +473,42 @@ def test_another_runs_checkpoint_beside_finished_results_is_not_resumed(tmp_path
     assert cli.main(["train", "--resume", str(a)]) == 0
     assert json.loads((a / "results.json").read_text())["seed"] == 1
     assert not (a / ".replacing").exists()
+
+
+@pytest.mark.parametrize("discount", [float("nan"), float("inf"), 1.5, 0.0, -0.5])
+def test_a_simulator_whose_discount_is_not_in_zero_one_is_named(discount):
+    """A NaN discount made every return NaN, blamed on the rewards after the whole search; one
+    above 1 trained to returns that grow without bound: refused at the simulator's check."""
+    from cognet_jax.envs.base import _CHECKED, check_simulator
+    from cognet_jax.envs.tagging import make_tagging
+    from cognet_jax.errors import SimulatorError
+
+    env, params = make_tagging("thesis")
+    check_simulator(env, params, "tagging", values=False)
+    bad = params.replace(discount=discount)
+    with pytest.raises(SimulatorError, match=r"simulator 'tagging' .*discount is .*\(0, 1\]"):
+        check_simulator(env, bad, "tagging", values=False)
+    assert (id(env), id(bad), False) not in _CHECKED
+
+
+def test_evaluate_and_a_writer_of_the_same_folder_exclude_each_other(tmp_path, capsys):
+    """``evaluate`` holds a shared lock on the run folder (``run_folder.reading``): refused
+    while a ``train`` writes it, and a ``train --overwrite`` started meanwhile is refused, so no
+    evaluation of the replaced policy is appended beside the new run's results."""
+    from cognet_jax.run_folder import reading
+
+    out = tmp_path / "run"
+    assert cli.main(["train", "--out", str(out), *TINY_TRAIN]) == 0
+    with claim(out, resume=True):  # a writer (here one that would continue the run)
+        with pytest.raises(UsageError, match="being written by another cognet-jax process"):
+            with reading(out):
+                pass
+    capsys.readouterr()
+    with reading(out):
+        argv = ["train", "--out", str(out), "--overwrite", "--seed", "1", *TINY_TRAIN]
+        assert cli.main(argv) == 2
+        assert "read by a `cognet-jax evaluate`" in capsys.readouterr().err
+    with reading(out), reading(out):  # readers share it
+        pass
+    assert cli.main(["evaluate", str(out)]) == 0
+    assert len((out / "evaluations.jsonl").read_text().splitlines()) == 1

@@ -154,10 +154,11 @@ def test_sigterm_during_a_long_evaluate_ends_it_within_ten_seconds(tmp_path):
     assert rest and rest[-1].startswith("error: stopped by"), rest
 
 
-def test_a_stop_signal_after_the_work_ends_the_process_quietly():
+def test_a_stop_signal_after_the_work_ends_the_process_with_one_line():
     """Once a command is done (``cli.run`` calls ``exit_on_stop``), a late SIGTERM ends the
-    process with 143 and prints nothing: before, it could land in a callback of JAX's garbage
-    collector and print a traceback of an ignored exception, status 0."""
+    process with 143 and one line saying the output is complete: before, it could land in a
+    callback of JAX's garbage collector and print a traceback of an ignored exception, status
+    0."""
     import subprocess
     import sys
 
@@ -172,7 +173,21 @@ def test_a_stop_signal_after_the_work_ends_the_process_quietly():
         "sys.exit(5)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert (done.returncode, done.stdout, done.stderr) == (143, "done\n", "")
+    assert (done.returncode, done.stdout) == (143, "done\n")
+    assert done.stderr.splitlines() == [
+        "error: stopped by SIGTERM after the command finished (its output is complete)"
+    ]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_while_the_command_starts_is_one_line(tmp_path, sig):
+    """A signal in the first second, while the command line still imports JAX: one line and
+    status 128 + the signal (no traceback of the import, no silent exit), nothing written."""
+    proc, lines = _start(tmp_path / "run", TINY)
+    time.sleep(0.4)
+    rest = _stopped(proc, lines, sig)
+    assert len(rest) == 1 and rest[0].startswith(f"error: stopped by {sig.name}"), rest
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_stop_raised_inside_a_compiled_call_is_reported_as_the_stop(monkeypatch, capsys):

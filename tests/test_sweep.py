@@ -380,6 +380,10 @@ def test_summary_reports_exact_values_of_tabular_runs(tmp_path):
     plotless = tmp_path / "plotless"
     written = write_outputs({**result, "config": {"run": {"plots": False}}}, plotless)
     assert not (plotless / "values.png").exists() and written[-1].name == "summary.md"
+    assert "(100 rollouts, the seed's eval key)" in summary
+    result["rows"][3]["final_value"] = {**result["rows"][3]["final_value"], "rollouts": 1000}
+    write_outputs(result, plotless)  # evaluation.rollouts in the grid: each setting its own
+    assert "(100 to 1000 rollouts by setting" in (plotless / "summary.md").read_text()
 
 
 def test_many_runs_are_stacked_in_chunks_to_the_same_arrays():

@@ -196,6 +196,7 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
         return
     owner = f"simulator {name!r} ({type(env).__module__}.{type(env).__name__})"
     _check_sizes(env, owner)
+    _check_discount(env_params, owner)
     u_reset = jax.ShapeDtypeStruct((env.reset_noise,), jnp.float32)
     u_step = jax.ShapeDtypeStruct((env.step_noise,), jnp.float32)
     actions = jax.ShapeDtypeStruct((env.num_agents,), jnp.int32)
@@ -260,6 +261,21 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     if values:
         _check_values(env, env_params, owner)
     _CHECKED[key] = (env, env_params)  # held, so the ids stay theirs
+
+
+def _check_discount(env_params, owner: str) -> None:
+    """The params' ``discount`` (every return is summed with it) a number in (0, 1], as the
+    built-in simulators' ``discount`` fields are: a NaN one makes every return NaN, which
+    would be blamed on the rewards, and one above 1 grows the returns without bound."""
+    discount = getattr(env_params, "discount", None)
+    try:
+        value = float(np.asarray(discount))
+    except (TypeError, ValueError):
+        raise SimulatorError(
+            f"{owner}: its params' discount is {discount!r}, expected a number in (0, 1]"
+        ) from None
+    if not (math.isfinite(value) and 0.0 < value <= 1.0):
+        raise SimulatorError(f"{owner}: its params' discount is {value}, expected one in (0, 1]")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -258,8 +258,34 @@ def _read_source(path_or_text, name: str | None) -> tuple[str, str]:
             )
     if path.exists() and not path.is_file():  # a folder, a FIFO, a device: never read
         raise DpomdpParseError(label, None, "not a regular file")
+    _check_size_and_head(path, label)
     data = path.read_bytes()
     return _decode(data, label), label
+
+
+#: the largest model file read: its tokens take about 20 bytes of memory per byte of text
+MAX_FILE_BYTES = 2**30
+
+
+def _check_size_and_head(path: Path, label: str) -> None:
+    """Refuse, before reading it whole, a file over ``MAX_FILE_BYTES`` or one whose first
+    64 KiB hold NUL bytes (binary data, e.g. a sparse or corrupt file; a gzip file is read)."""
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return  # missing or unreadable: ``read_bytes`` says so
+    if head[:2] != b"\x1f\x8b" and b"\x00" in head:
+        line = head[: head.index(b"\x00")].count(b"\n") + 1
+        raise DpomdpParseError(label, line, "a NUL byte: binary data, not a .dpomdp text")
+    if size > MAX_FILE_BYTES:
+        raise DpomdpParseError(
+            label,
+            None,
+            f"{size / 2**30:.1f} GiB, over the {MAX_FILE_BYTES / 2**30:.0f} GiB a model file may "
+            "have (its tokens take about 20 bytes of memory per byte of text)",
+        )
 
 
 def _decode(data: bytes, label: str) -> str:
