@@ -15,6 +15,7 @@ from tqdm.auto import tqdm
 
 from cognet_jax.budget import evaluation_line
 from cognet_jax.compiled import rollout_mesh
+from cognet_jax.hook_results import FINAL_VALUE_FIELDS, checked_record
 from cognet_jax.program import Program, same_tree, take
 from cognet_jax.signals import Stopped, in_background
 
@@ -78,7 +79,10 @@ def finish_and_evaluate(program: Program, state, progress: bool, probes=None) ->
         if info is not None:
             info = jax.device_get(info)
         infos = [take(info, r) if program.batched and info is not None else info for r in runs]
-        records = [algorithm.finish_record(i, seconds) for i in infos]
+        records = [
+            checked_record(algorithm, "finish_record", algorithm.finish_record(i, seconds)) or None
+            for i in infos
+        ]
         best = program.best_policies(finished)
         what = "the best policy" if len(best) == 1 else f"{len(best)} best policies"
         big = evaluation_line(program.config, program.built.env, what)
@@ -88,7 +92,8 @@ def finish_and_evaluate(program: Program, state, progress: bool, probes=None) ->
         line.evaluating(len(program.runs))
         for r, run in enumerate(program.runs):
             final = program.final_value(r, best[r])
-            final.update(algorithm.exact_record(run.config, best[r]) or {})
+            exact = algorithm.exact_record(run.config, best[r])
+            final.update(checked_record(algorithm, "exact_record", exact, FINAL_VALUE_FIELDS))
             finals.append(final)
             line.evaluated()
         line.close()

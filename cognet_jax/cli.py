@@ -152,6 +152,11 @@ def _sweep(args) -> int:
         experiment, seeds, grid = spec["experiment"], spec["seeds"], spec["grid"]
         overrides, out = spec["overrides"], Path(args.resume)
         run_sets = args.overrides + run_sets
+        if len(seeds) * math.prod(len(v) for v in grid.values()) > MAX_RUNS:  # edited by hand
+            raise UsageError(
+                f"{args.resume}: its sweep.json holds more than {MAX_RUNS} runs (settings x "
+                "seeds), more than a sweep may have"
+            )
     else:
         n = 1 if args.seeds is None else args.seeds
         if n < 1:
@@ -264,6 +269,8 @@ def _evaluate(args) -> int:
 
 #: ``vae train``'s largest ``--epochs`` (an epoch is one pass over 1,872 patches: milliseconds)
 VAE_MAX_EPOCHS = 100_000
+#: ... ``--kl-weight``: beyond it the KL term alone drives the code (and past float32, NaN)
+VAE_MAX_KL_WEIGHT = 1e6
 #: ... and ``--latent``: a code no wider than the 4 x 4 patch it encodes
 VAE_MAX_LATENT = 16
 
@@ -271,14 +278,14 @@ VAE_MAX_LATENT = 16
 def _vae(args) -> int:
     if not 1 <= args.epochs <= VAE_MAX_EPOCHS:
         raise UsageError(f"--epochs must be in 1 .. {VAE_MAX_EPOCHS}, got {args.epochs}")
-    if args.seed < 0:
-        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if not 0 <= args.seed < 2**31:
+        raise UsageError(f"--seed must be in 0 .. 2147483647, got {args.seed}")
     if not 1 <= args.latent <= VAE_MAX_LATENT:
         raise UsageError(
             f"--latent must be in 1 .. {VAE_MAX_LATENT} (a patch has 16 pixels), got {args.latent}"
         )
-    if not (args.kl_weight > 0 and math.isfinite(args.kl_weight)):
-        raise UsageError("--kl-weight must be a finite number > 0")
+    if not 0 < args.kl_weight <= VAE_MAX_KL_WEIGHT:
+        raise UsageError(f"--kl-weight must be in (0, {VAE_MAX_KL_WEIGHT:g}], got {args.kl_weight}")
     check_out(args.out)
     out = Path(args.out)
     held = held_run(out) if out.is_dir() else None
@@ -293,6 +300,9 @@ def _vae(args) -> int:
 
 
 def _train_vae(args, out: Path) -> int:
+    import jax
+    import numpy as np
+
     from cognet_jax.controllers.figures import plot_vae_mu
     from cognet_jax.vae import diagnostics, save_vae, train_vae
 
@@ -310,6 +320,13 @@ def _train_vae(args, out: Path) -> int:
             progress=progress,
             latent=args.latent,
             kl_weight=args.kl_weight,
+        )
+    if not np.isfinite(losses).all() or not all(
+        bool(np.isfinite(np.asarray(x)).all()) for x in jax.tree.leaves(vae.params)
+    ):
+        raise UsageError(
+            f"the VAE's training diverged (loss {losses[-1]:.3g}; --kl-weight "
+            f"{args.kl_weight:g}): nothing written; lower --kl-weight"
         )
     info = diagnostics(vae)
     info.update(

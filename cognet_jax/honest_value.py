@@ -30,6 +30,7 @@ def final_value(algorithm, config: Config, params: SearchParams, lanes: int = 1)
     compiled: dict = {}  # by the policy's shapes and types
 
     def evaluate(key, policy):
+        _refuse_nan_policy(policy)
         args = (key, jax.tree.map(jnp.asarray, policy), held)
         shapes = str(jax.tree.map(lambda x: (x.shape, x.dtype), args[1]))
         if shapes not in compiled:
@@ -39,6 +40,19 @@ def final_value(algorithm, config: Config, params: SearchParams, lanes: int = 1)
         return final_value_of(compiled[shapes](*args))
 
     return evaluate
+
+
+def _refuse_nan_policy(policy) -> None:
+    """An ``InputError`` for a policy with a NaN parameter: no search makes one, and its
+    rollouts still give finite returns (a NaN distribution samples some action), so its
+    value would be a number that means nothing."""
+    for leaf in jax.tree.leaves(policy):
+        x = np.asarray(leaf) if not isinstance(leaf, jax.Array) else leaf
+        if jnp.issubdtype(x.dtype, jnp.floating) and bool(jnp.isnan(x).any()):
+            raise InputError(
+                "the policy holds NaN parameters (its checkpoint or policy file was damaged or "
+                "edited): it has no honest value"
+            )
 
 
 def final_value_of(returns) -> dict:

@@ -123,12 +123,16 @@ def check_jax_settings() -> None:
         )
 
 
+#: ``XLA_FLAGS`` values a probe of this process found XLA to accept
+_ACCEPTED_FLAGS: set[str] = set()
+
+
 def check_xla_flags() -> None:
     """``UsageError`` when XLA refuses the environment's ``XLA_FLAGS`` (an unknown flag):
     XLA aborts the process that starts a backend with them, so a child process starts one
     first and its last line is the report. Nothing is started without ``XLA_FLAGS``."""
     flags = os.environ.get("XLA_FLAGS", "").strip()
-    if not flags:
+    if not flags or flags in _ACCEPTED_FLAGS:  # (a process that runs several commands)
         return
     probe = [sys.executable, "-c", "import jax; jax.devices()"]
     try:
@@ -136,6 +140,7 @@ def check_xla_flags() -> None:
     except (OSError, subprocess.TimeoutExpired):
         return  # no verdict: the command itself will tell
     if done.returncode == 0:
+        _ACCEPTED_FLAGS.add(flags)
         return
     lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
     said = next((line for line in lines if "XLA_FLAGS" in line), lines[-1] if lines else "")

@@ -160,7 +160,8 @@ def resolve_vae(
     if vae_path:
         path = Path(vae_path).expanduser()
         if not path.is_file():
-            raise ConfigError("network.vae_path", f"no such file: {vae_path}")
+            what = "not a regular file" if path.exists() else "no such file"
+            raise ConfigError("network.vae_path", f"{what}: {vae_path}")
         try:
             vae = load_vae(path)
         except Exception as err:  # msgpack's and the blob's errors: not a VAE file, or torn

@@ -38,6 +38,7 @@ from cognet_jax.errors import (
     OneLineWarning,
     UsageError,
 )
+from cognet_jax.hook_results import RUN_RECORD_FIELDS, checked_record
 from cognet_jax.plugins import one_line
 from cognet_jax.program import Program, Run
 from cognet_jax.registry import (
@@ -165,9 +166,32 @@ def restore_group(program: Program, state, path: Path):
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
         raise MismatchError(f"{path}: stored run keys do not match the seeds")
     restored = restore_state(jax.device_get(state), raw)
+    _check_restored(restored, state, raw, path, program.config.algorithm.iterations)
     # laid out as the initial state (its programs are compiled for that layout)
     state = jax.tree.map(lambda x, like: jax.device_put(x, like.sharding), restored, state)
     return state, raw, int(raw["iteration"])
+
+
+def _check_restored(restored, initial, raw: dict, path: Path, iterations: int) -> None:
+    """``CorruptFileError`` naming ``path`` when its iteration is not a count in 0 ..
+    ``iterations`` or an array of its state has another shape or dtype than the run's initial
+    state (a checkpoint edited or damaged by hand: the search would fail inside a compiled
+    call, or run from a history that is not its own)."""
+    iteration = raw.get("iteration")
+    if not isinstance(iteration, int | np.integer) or not 0 <= int(iteration) <= iterations:
+        raise CorruptFileError(path, f"iteration {iteration!r} is not in 0 .. {iterations}")
+    paths = jax.tree_util.tree_flatten_with_path(initial)[0]
+    got = jax.tree.leaves(restored)
+    if len(got) != len(paths):
+        raise CorruptFileError(path, "its search state has other arrays than the run's")
+    for (where, like), x in zip(paths, got):
+        shape, dtype = tuple(getattr(x, "shape", ())), getattr(x, "dtype", type(x))
+        if shape != tuple(like.shape) or dtype != like.dtype:
+            name = jax.tree_util.keystr(where)
+            raise CorruptFileError(
+                path,
+                f"state{name} is {dtype}{list(shape)}, the run's is {like.dtype}{list(like.shape)}",
+            )
 
 
 def restored_history(step, raw: dict, path: Path) -> list:
@@ -191,7 +215,9 @@ def run_record(run: Run, program: Program, **fields) -> dict:
         "setting": run.setting,
         "grid": run.grid,
         "config": config.to_dict(),
-        "resolved": program.algorithm.settings_record(),
+        "resolved": checked_record(
+            program.algorithm, "settings_record", program.algorithm.settings_record()
+        ),
         "iterations": config.algorithm.iterations,
         "runs_in_program": len(program.runs),
         "jax_version": jax.__version__,
@@ -216,7 +242,8 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
         "values_per_iteration": np.asarray(h.value).tolist(),
         "in_loop_best_per_iteration": np.asarray(h.in_loop_best).tolist(),
     }
-    fields.update(algorithm.history_record(h))  # the search's own per-run figures
+    own = algorithm.history_record(h)  # the search's own per-run figures
+    fields.update(checked_record(algorithm, "history_record", own, RUN_RECORD_FIELDS))
     return fields
 
 
@@ -279,8 +306,12 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
         try:
             write_plots(run.config, algorithm, policy, record, run.folder)
             return True
-        except OSError as err:  # the run's results stand; figures of a run replaced go
-            warnings.warn(  # (``run_folder.claim``), so no older figure stays beside them
+        # the run's results stand; figures of a run replaced go (``run_folder.claim``), so no
+        # older figure stays beside them. ValueError: matplotlib refuses what it cannot draw
+        # (a policy whose responses are not finite, e.g. read through an encoder of huge
+        # weights)
+        except (OSError, ValueError) as err:
+            warnings.warn(
                 f"{run.folder}: the figures could not be written ({one_line(err)}); the run's "
                 "results are saved",
                 OneLineWarning,

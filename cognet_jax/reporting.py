@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cognet_jax import plots
+from cognet_jax.hook_results import checked_paths
 from cognet_jax.plots import run_title
 from cognet_jax.registry import env_entry
 
@@ -27,7 +28,8 @@ def write_plots(config, algorithm, policy, results: dict, out_dir) -> list[Path]
     search, then the search's own figures of its best policy (``algorithm.write_plots``);
     returns the paths written."""
     written = [write_value_plot(config, results, out_dir)]
-    return written + [Path(p) for p in algorithm.write_plots(config, policy, results, out_dir)]
+    own = algorithm.write_plots(config, policy, results, out_dir)
+    return written + checked_paths(algorithm, "write_plots", own)
 
 
 def in_loop_best_series(results: dict) -> list:

@@ -54,7 +54,13 @@ from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_text
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions, run_group
-from cognet_jax.errors import MismatchError, OneLineWarning, UsageError, read_json
+from cognet_jax.errors import (
+    CorruptFileError,
+    MismatchError,
+    OneLineWarning,
+    UsageError,
+    read_json,
+)
 from cognet_jax.plots import plot_sweep_values
 from cognet_jax.plugins import one_line
 from cognet_jax.program import Run
@@ -220,6 +226,7 @@ def _run_one_group(
         stored = read_json(done, ("runs", "rows", "timing"))
         if stored["runs"] != [list(r) for r in group.runs]:
             raise MismatchError(f"{done} was written by another sweep")
+        _check_rows(stored["rows"], len(group.runs), done)
         return stored["rows"], stored["timing"]
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}
@@ -318,6 +325,38 @@ def run_sweep(
     }
 
 
+def _check_rows(rows, count: int, path: Path) -> None:
+    """``CorruptFileError`` naming ``path`` unless ``rows`` are ``count`` runs' records, each
+    with a finite honest value (a rows file edited or damaged by hand is never published)."""
+    if not isinstance(rows, list) or len(rows) != count:
+        raise CorruptFileError(path, f"expected the records of {count} runs")
+    for k, row in enumerate(rows):
+        final = row.get("final_value") if isinstance(row, dict) else None
+        numbers = [final.get(f) for f in ("mean", "stderr")] if isinstance(final, dict) else []
+        if len(numbers) != 2 or not all(
+            isinstance(x, int | float) and math.isfinite(x) for x in numbers
+        ):
+            raise CorruptFileError(path, f"run {k} has no finite honest value")
+
+
+def _check_spec(spec: dict, path: Path) -> None:
+    """``CorruptFileError`` naming ``path`` unless its grid is a table of non-empty lists,
+    its seeds a non-empty list of seeds and its overrides a list of strings."""
+    grid, seeds, overrides = spec["grid"], spec["seeds"], spec["overrides"]
+    if not isinstance(grid, dict) or not all(
+        isinstance(v, list) and v and isinstance(k, str) for k, v in grid.items()
+    ):
+        raise CorruptFileError(path, "grid is not a table of non-empty lists")
+    if (
+        not isinstance(seeds, list)
+        or not seeds
+        or not all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2**31 for x in seeds)
+    ):
+        raise CorruptFileError(path, "seeds is not a list of seeds in 0 .. 2147483647")
+    if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
+        raise CorruptFileError(path, "overrides is not a list of section.key=value strings")
+
+
 def read_spec(out) -> dict:
     """The arguments of the sweep in ``out`` (``--resume``); ``experiment`` is the ``Config``
     the sweep was given, when it was given one (its ``config``), else its name."""
@@ -325,6 +364,7 @@ def read_spec(out) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: is {out} a sweep folder?")
     spec = read_json(path, ("experiment", "seeds", "grid", "overrides"))
+    _check_spec(spec, path)
     if "config" in spec:
         spec["experiment"] = config_from_dict(spec.pop("config"))
     return spec

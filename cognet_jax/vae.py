@@ -235,10 +235,31 @@ def save_vae(path: str | Path, vae: TrainedVAE) -> None:
     atomic_write_bytes(path, vae_bytes(vae))
 
 
+#: the largest VAE file read: a patch VAE's parameters take a few KiB
+MAX_VAE_BYTES = 2**24
+
+
 def load_vae(path: str | Path) -> TrainedVAE:
-    blob = serialization.msgpack_restore(Path(path).read_bytes())
-    model = PatchVAE(latent=int(blob["latent"]), hidden=int(blob["hidden"]))
+    """The VAE of a ``save_vae`` file; ``ValueError`` for a file too large to be one, sizes
+    out of range, parameters of other shapes than its sizes give, or parameters that are not
+    finite (a VAE whose training diverged encodes every patch as NaN)."""
+    path = Path(path)
+    if path.stat().st_size > MAX_VAE_BYTES:
+        raise ValueError(f"{path.stat().st_size} bytes, over the {MAX_VAE_BYTES} a VAE file has")
+    blob = serialization.msgpack_restore(path.read_bytes())
+    latent, hidden = int(blob["latent"]), int(blob["hidden"])
+    if not (1 <= latent <= PATCH_FEATURES and 1 <= hidden <= 4096):
+        raise ValueError(f"latent {latent} and hidden {hidden} out of range")
+    model = PatchVAE(latent=latent, hidden=hidden)
     params = jax.tree.map(jnp.asarray, blob["params"])
+    shapes = jax.eval_shape(
+        model.init, jax.random.key(0), jnp.zeros((1, PATCH_FEATURES)), jnp.zeros((1, latent))
+    )
+    want = jax.tree.map(lambda x: tuple(x.shape), shapes)
+    if jax.tree.map(lambda x: tuple(x.shape), params) != want:
+        raise ValueError(f"its parameters do not fit latent {latent} and hidden {hidden}")
+    if not all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(params)):
+        raise ValueError("its parameters are not finite (its training diverged)")
     return TrainedVAE(model, params)
 
 

@@ -272,3 +272,55 @@ def test_actions_or_nodes_a_plugin_draws_out_of_range_are_refused(tmp_path, caps
     argv = ["--import", str(module), "train", str(toml), "--out", str(tmp_path / "run")]
     assert main([*argv, "--no-progress"]) == 2
     assert said in capsys.readouterr().err
+
+
+#: (what the plug-in's hook returns instead, what the refusal names)
+BAD_HOOKS = {
+    "exact-over-the-honest-value": (
+        '    def exact_record(self, config, policy):\n        return {"mean": 999.0}\n',
+        "exact_record() (the search's code) returned mean",
+    ),
+    "history-over-the-seed": (
+        '    def history_record(self, history):\n        return {"seed": 77}\n',
+        "history_record() (the search's code) returned seed",
+    ),
+    "history-not-json": (
+        '    def history_record(self, history):\n        return {"x": {1, 2}}\n',
+        "history_record() (the search's code) returned a value JSON cannot write",
+    ),
+    "history-not-a-dict": (
+        "    def history_record(self, history):\n        return [1]\n",
+        "history_record() (the search's code) returned list",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_HOOKS))
+def test_a_record_hook_that_returns_the_drivers_fields_or_no_record_is_named(
+    tmp_path, capsys, case
+):
+    """A plug-in's record hooks add fields to results.json: one that would replace the
+    honest value or the seed (evaluate then gave another number), or returns what JSON
+    cannot hold, is refused in one line naming the hook, before any results are written."""
+    code, says = BAD_HOOKS[case]
+    name = f"thresholds-{case}"
+    source = THRESHOLD_SEARCH.replace(
+        "    def write_plots(self, config, policy, record, out_dir):",
+        code + "\n    def write_plots(self, config, policy, record, out_dir):",
+    ).replace('register_algorithm("thresholds"', f'register_algorithm("{name}"')
+    if case.startswith("history"):  # the hook replaces the module's own history_record
+        source = source.replace(
+            "    def history_record(self, history):  # its own",
+            "    def _own(self, history):  # its own",
+        )
+    module = tmp_path / f"hook_{case.replace('-', '_')}.py"
+    module.write_text(source)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text(f'[experiment]\nalgorithm = "{name}"\n[evaluation]\nrollouts = 200\n')
+    out = tmp_path / "r"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()  # after the compile's progress lines
+    assert [line for line in err if line.startswith("error:")] == err[-1:], err
+    assert says in err[-1] and "internal error" not in err[-1], err
+    assert not (out / "results.json").exists()

@@ -512,3 +512,39 @@ def test_evaluate_and_a_writer_of_the_same_folder_exclude_each_other(tmp_path, c
         pass
     assert cli.main(["evaluate", str(out)]) == 0
     assert len((out / "evaluations.jsonl").read_text().splitlines()) == 1
+
+
+def test_a_checkpoint_edited_by_hand_is_named_on_resume(tmp_path, capsys):
+    """A checkpoint whose iteration is negative or past the run's, or whose state holds an
+    array of another shape, is refused naming the file (it rewrote the run's history, or
+    failed inside a compiled call); one whose best policy holds NaN has no honest value."""
+    import numpy as np
+    from flax import serialization
+
+    base = tmp_path / "base"
+    assert cli.main(["train", "--out", str(base), *TINY_TRAIN]) == 0
+    blob = serialization.msgpack_restore((base / "checkpoint.msgpack").read_bytes())
+
+    def resumed(name, edit):
+        import shutil
+
+        folder = tmp_path / name
+        shutil.copytree(base, folder)
+        damaged = serialization.msgpack_restore((base / "checkpoint.msgpack").read_bytes())
+        edit(damaged)
+        (folder / "checkpoint.msgpack").write_bytes(serialization.msgpack_serialize(damaged))
+        capsys.readouterr()
+        code = cli.main(["train", "--resume", str(folder), "--no-progress"])
+        return code, capsys.readouterr().err.strip().splitlines()
+
+    code, err = resumed("negative", lambda b: b.update(iteration=-3))
+    assert code == 2 and "checkpoint.msgpack" in err[-1] and "iteration -3" in err[-1], err
+    first = sorted(blob["state"]["distribution"])[0]
+    shape = np.asarray(blob["state"]["distribution"][first]).shape
+
+    def reshape(b):
+        b["state"]["distribution"][first] = np.zeros((*shape, 2), np.float32)
+        b["iteration"] = 1
+
+    code, err = resumed("shape", reshape)
+    assert code == 2 and f"state.distribution.{first}" in err[-1], err

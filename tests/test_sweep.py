@@ -443,3 +443,30 @@ def test_the_honest_evaluation_of_several_runs_shows_its_progress(capsys):
     line.evaluating(3)  # closed: a worker left running after a stop starts no new line
     line.evaluated()
     assert "honest evaluation" not in capsys.readouterr().err
+
+
+def test_a_damaged_sweep_state_is_named_not_published(tmp_path):
+    """``sweep --resume`` of a sweep.json whose grid, seeds or overrides were edited into
+    other types, or of a rows file with a NaN honest value or runs missing: the file is named
+    (``CorruptFileError``), nothing is published and no internal error escapes."""
+    from cognet_jax.errors import CorruptFileError
+    from cognet_jax.sweep import _check_rows, _check_spec
+
+    spec = {"grid": {"algorithm.alpha": [0.1]}, "seeds": [0, 1], "overrides": []}
+    _check_spec(spec, tmp_path / "sweep.json")
+    for field, value in (
+        ("grid", {"algorithm.alpha": []}),
+        ("grid", 5),
+        ("grid", {"algorithm.alpha": 0.3}),
+        ("seeds", [-1, 0]),
+        ("seeds", []),
+        ("overrides", "run.plots=false"),
+    ):
+        with pytest.raises(CorruptFileError, match=f"sweep.json.*{field}"):
+            _check_spec({**spec, field: value}, tmp_path / "sweep.json")
+    row = {"final_value": {"mean": 1.0, "stderr": 0.1, "rollouts": 10}}
+    _check_rows([row, row], 2, tmp_path / "rows.json")
+    nan = {"final_value": {"mean": float("nan"), "stderr": 0.1, "rollouts": 10}}
+    for rows in ([row, nan], [row], [row, {"final_value": None}], [row, "x"]):
+        with pytest.raises(CorruptFileError, match="rows.json"):
+            _check_rows(rows, 2, tmp_path / "rows.json")

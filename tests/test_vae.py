@@ -78,3 +78,32 @@ def test_low_kl_weight_2d_latent_keeps_the_orientation_of_the_patch():
     assert (low.std(0) > 0.3).all()
     plain = np.asarray(train_vae(seed=0, epochs=60, latent=2)[0].encode(x)[0])
     assert np.sort(plain.std(0))[0] < 0.1
+
+
+def test_a_vae_file_with_other_shapes_or_non_finite_weights_is_refused(tmp_path):
+    """``load_vae`` checks the parameters against the sizes its header gives and refuses
+    non-finite ones (a diverged training encodes every patch as NaN)."""
+    import jax
+    from flax import serialization
+
+    from cognet_jax.vae import load_vae, save_vae
+
+    vae, _ = train_vae(seed=0, epochs=1)
+    good = tmp_path / "good.msgpack"
+    save_vae(good, vae)
+    load_vae(good)
+    blob = serialization.msgpack_restore(good.read_bytes())
+    for name, edit, says in (
+        ("hidden", lambda b: b.update(hidden=7), "do not fit latent 1 and hidden 7"),
+        (
+            "nan",
+            lambda b: b.update(params=jax.tree.map(lambda x: x * np.nan, b["params"])),
+            "not finite",
+        ),
+    ):
+        damaged = dict(blob)
+        edit(damaged)
+        path = tmp_path / f"{name}.msgpack"
+        path.write_bytes(serialization.msgpack_serialize(damaged))
+        with pytest.raises(ValueError, match=says):
+            load_vae(path)
