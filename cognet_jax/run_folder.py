@@ -110,7 +110,10 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
             if (out / sub).is_dir():
                 _check_writable(out / sub)
         replaced = _replaced_files(out, kind) if found and overwrite else {}
-        if replaced:
+        if resume and (out / REPLACING_NAME).exists():  # continues a replacing run: the old
+            replaced = _replaced_files(out, kind)  # run's files go when it finishes, as they
+            replaced.pop(out / "checkpoint.msgpack", None)  # would have (the checkpoint: new)
+        if replaced and not resume:
             (out / REPLACING_NAME).write_text(f"{os.getpid()}\n")
         try:
             yield out

@@ -470,9 +470,11 @@ def test_another_runs_checkpoint_beside_finished_results_is_not_resumed(tmp_path
             (a / "checkpoint.msgpack").write_bytes(copied)
             raise KeyboardInterrupt
     assert (a / "results.json").read_bytes() == finished  # the old run stays until then
+    (a / "evaluations.jsonl").write_text('{"mean": 1.0}\n')  # an evaluation of the old run
     assert cli.main(["train", "--resume", str(a)]) == 0
     assert json.loads((a / "results.json").read_text())["seed"] == 1
     assert not (a / ".replacing").exists()
+    assert not (a / "evaluations.jsonl").exists()  # it described the replaced run
 
 
 @pytest.mark.parametrize("discount", [float("nan"), float("inf"), 1.5, 0.0, -0.5])
