@@ -216,13 +216,20 @@ def _group_runs(group: Group, out: Path | None) -> list[Run]:
 def _run_one_group(
     group: Group, g_index: int, out: Path | None, resume: bool, progress, log, desc, built=None
 ):
-    """``(rows, timing)`` of one group: from its finished rows when a resumed sweep has them,
-    else by the driver (checkpointed under ``OUT/sweep-state/``); ``built``: the group's
-    ``api.build``, when the caller made it."""
+    """``(rows, timing)`` of one group: from its finished rows when a resumed sweep has them
+    and its run folders are whole, else by the driver (checkpointed under
+    ``OUT/sweep-state/``: a group whose run folders were deleted since is run again from its
+    checkpoint, to the same numbers); ``built``: the group's ``api.build``, when the caller
+    made it."""
     tag = f"group{g_index}-p{jax.process_index()}"
     state = None if out is None else out / STATE_DIR
     done = None if state is None else state / f"{tag}.rows.json"
-    if done is not None and resume and done.exists():
+    whole = out is None or all(
+        (run.folder / name).is_file()
+        for run in _group_runs(group, out)
+        for name in ("results.json", "policy.msgpack")
+    )
+    if done is not None and resume and done.exists() and whole:
         stored = read_json(done, ("runs", "rows", "timing"))
         if stored["runs"] != [list(r) for r in group.runs]:
             raise MismatchError(f"{done} was written by another sweep")
@@ -353,6 +360,8 @@ def _check_spec(spec: dict, path: Path) -> None:
         or not all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x < 2**31 for x in seeds)
     ):
         raise CorruptFileError(path, "seeds is not a list of seeds in 0 .. 2147483647")
+    if overrides is None:  # a sweep of a ``Config``: none
+        return
     if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
         raise CorruptFileError(path, "overrides is not a list of section.key=value strings")
 

@@ -470,3 +470,22 @@ def test_a_damaged_sweep_state_is_named_not_published(tmp_path):
     for rows in ([row, nan], [row], [row, {"final_value": None}], [row, "x"]):
         with pytest.raises(CorruptFileError, match="rows.json"):
             _check_rows(rows, 2, tmp_path / "rows.json")
+
+
+def test_a_resumed_sweep_writes_again_the_run_folders_deleted_since(tmp_path):
+    """A finished sweep whose run folder was deleted by hand: ``--resume`` runs that group
+    again from its checkpoint, to the same numbers, and the folder is back (it said before
+    that the runs' policies were there)."""
+    import shutil
+
+    out = tmp_path / "sweep"
+    args = ["sweep", "tagging-thesis-n3", "--seeds", "2", "--out", str(out), "--no-progress"]
+    args += ["--set", "algorithm.iterations=3", "--set", "run.plots=false"]
+    assert main(args) == 0
+    first = json.loads((out / "runs.json").read_text())["rows"]
+    folder = out / "runs" / "setting0-seed1"
+    shutil.rmtree(folder)
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    assert (folder / "results.json").is_file() and (folder / "policy.msgpack").is_file()
+    again = json.loads((out / "runs.json").read_text())["rows"]
+    assert [r["final_value"] for r in again] == [r["final_value"] for r in first]
