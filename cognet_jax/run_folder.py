@@ -236,11 +236,15 @@ def _lock(fd: int, out: Path) -> None:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
-        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
         raise UsageError(
-            f"{out} is being written by another cognet-jax process (pid {holder}), or read "
+            f"{out} is being written by another cognet-jax process (pid {_holder(fd)}), or read "
             "by a `cognet-jax evaluate`; wait for it or choose another --out"
         ) from None
+
+
+def _holder(fd: int) -> str:
+    """The pid the last writer wrote into the lock file ``fd`` ("?" when none)."""
+    return os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
 
 
 @contextlib.contextmanager
@@ -272,9 +276,8 @@ def reading(out: Path):
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except OSError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
             raise UsageError(
-                f"{out} is being written by another cognet-jax process (pid {holder}); "
+                f"{out} is being written by another cognet-jax process (pid {_holder(fd)}); "
                 "evaluate it when that has finished"
             ) from None
         yield out
