@@ -59,6 +59,12 @@ def use_compile_cache(args) -> None:
     if folder.exists() and not folder.is_dir():
         cache_note(f"{CACHE_VARIABLE}={folder}: not a folder; compiled programs are not kept")
         return
+    try:  # a link to nothing, a path under a file, a folder it may not write: said here
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        reason = "a link to nothing" if folder.is_symlink() else err.strerror or type(err).__name__
+        cache_note(f"{CACHE_VARIABLE}={folder}: cannot be made ({reason}); programs are not kept")
+        return
     foreign = foreign_files(folder)
     if foreign:  # JAX's eviction and the repair below would remove or rewrite them
         cache_note(

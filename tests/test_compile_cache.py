@@ -161,3 +161,19 @@ def test_a_folder_of_other_files_is_not_used_as_the_cache(tmp_path):
     _train(run, cache)
     _, log = _train(tmp_path / "c", cache)
     assert (run / "results.json").is_file() and "not compiled programs" in log, log
+
+
+def test_a_cache_folder_that_cannot_be_made_is_said_once_and_the_run_goes_on(tmp_path):
+    """``COGNET_JAX_CACHE`` naming a link to nothing, or a path under a file: one note naming
+    the variable and why (it blamed a cache entry before), and the command runs."""
+    (tmp_path / "dangling").symlink_to(tmp_path / "missing" / "x")
+    (tmp_path / "afile").write_text("")
+    for cache, why in (
+        (tmp_path / "dangling", "a link to nothing"),
+        (tmp_path / "afile" / "sub", "Not a directory"),
+    ):
+        err = _cli(cache, "check", "tagging-thesis-n3").splitlines()
+        notes = [line for line in err if line.startswith("note:")]
+        assert notes == [
+            f"note: COGNET_JAX_CACHE={cache}: cannot be made ({why}); programs are not kept"
+        ]
