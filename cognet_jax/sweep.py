@@ -232,7 +232,10 @@ def _run_one_group(
     if done is not None and resume and done.exists() and whole:
         stored = read_json(done, ("runs", "rows", "timing"))
         if stored["runs"] != [list(r) for r in group.runs]:
-            raise MismatchError(f"{done} was written by another sweep")
+            raise MismatchError(
+                f"{done} holds other runs than {state / SWEEP_SPEC} describes (settings x "
+                "seeds): one of the two was edited, or copied from another sweep"
+            )
         _check_rows(stored["rows"], len(group.runs), done)
         return stored["rows"], stored["timing"]
     if not group.runs:
