@@ -92,12 +92,10 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
     for name in RUN_FILES:
         if (out / name).is_dir():
             raise UsageError(f"{out / name} is a folder; the run writes a file of that name")
-    lock = out / LOCK_NAME
-    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
-        raise UsageError(f"{lock}: not a regular file (the run's lock); remove it")
+    lock = _checked_lock_file(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        fd = _open_lock(lock)
     except OSError as err:
         raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
     try:
@@ -233,18 +231,37 @@ def _lock(fd: int, out: Path) -> None:
         import fcntl
     except ImportError:  # not a POSIX system: no lock
         return
+    _flock(
+        fd,
+        fcntl.LOCK_EX,
+        f"{out} is being written by another cognet-jax process (pid {{pid}}), or read by a "
+        "`cognet-jax evaluate`; wait for it or choose another --out",
+    )
+
+
+def _flock(fd: int, mode: int, refusal: str) -> None:
+    """Non-blocking ``flock`` of ``mode`` on ``fd``; ``UsageError(refusal)`` when another
+    process holds it, ``{pid}`` in ``refusal`` the pid its last writer wrote there."""
+    import fcntl
+
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, mode | fcntl.LOCK_NB)
     except OSError:
-        raise UsageError(
-            f"{out} is being written by another cognet-jax process (pid {_holder(fd)}), or read "
-            "by a `cognet-jax evaluate`; wait for it or choose another --out"
-        ) from None
+        pid = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+        raise UsageError(refusal.replace("{pid}", pid, 1)) from None
 
 
-def _holder(fd: int) -> str:
-    """The pid the last writer wrote into the lock file ``fd`` ("?" when none)."""
-    return os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+def _checked_lock_file(out: Path) -> Path:
+    """``out``'s lock file; ``UsageError`` when it is a link or no regular file."""
+    lock = out / LOCK_NAME
+    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
+        raise UsageError(f"{lock}: not a regular file (the run's lock); remove it")
+    return lock
+
+
+def _open_lock(lock: Path) -> int:
+    """The lock file opened (made when missing), never through a link."""
+    return os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
 
 
 @contextlib.contextmanager
@@ -256,7 +273,6 @@ def reading(out: Path):
     where no lock file can be made (read-only: nothing can write it either), is read without
     one."""
     out = Path(out)
-    lock = out / LOCK_NAME
     try:
         import fcntl
     except ImportError:  # not a POSIX system: no lock
@@ -265,21 +281,19 @@ def reading(out: Path):
     if not (out / "results.json").is_file():  # no run to read: the evaluation says so
         yield out
         return
-    if lock.is_symlink() or (lock.exists() and not lock.is_file()):
-        raise UsageError(f"{lock}: not a regular file (the run's lock); remove it")
+    lock = _checked_lock_file(out)
     try:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        fd = _open_lock(lock)
     except OSError:
         yield out
         return
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except OSError:
-            raise UsageError(
-                f"{out} is being written by another cognet-jax process (pid {_holder(fd)}); "
-                "evaluate it when that has finished"
-            ) from None
+        _flock(
+            fd,
+            fcntl.LOCK_SH,
+            f"{out} is being written by another cognet-jax process (pid {{pid}}); evaluate it "
+            "when that has finished",
+        )
         yield out
     finally:
         os.close(fd)
