@@ -27,7 +27,7 @@ import numpy as np
 from flax import serialization
 
 from cognet_jax.atomic_files import atomic_write_bytes
-from cognet_jax.errors import CorruptFileError, MismatchError
+from cognet_jax.errors import CorruptFileError, InputError, MismatchError
 from cognet_jax.prng import impl_of
 
 CHECKPOINT_NAME = "checkpoint.msgpack"
@@ -168,6 +168,11 @@ def read_policy(path: str | Path, template, fingerprint: dict | None = None):
     policy of another kind or other shapes, or whose stored fingerprint differs from
     ``fingerprint`` in any key both have, is a ``MismatchError``."""
     path = Path(path)
+    if not path.is_file():  # deleted or moved: not a damaged file
+        raise InputError(
+            f"{path}: no policy file there (the run folder lost it: train the run again, or "
+            "evaluate the folder it was copied from)"
+        )
     try:
         raw = serialization.msgpack_restore(path.read_bytes())
     except Exception as err:  # truncated or foreign bytes
@@ -215,24 +220,39 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
         stored = json.loads(stored)
     except (TypeError, ValueError):
         raise CorruptFileError(path, "the fingerprint is not valid JSON") from None
+    if not isinstance(stored, dict):
+        raise CorruptFileError(path, "the fingerprint is not a record")
     for key, (what, remedy) in FINGERPRINT_KEYS.items():
-        if key in stored and key in expected and isinstance(stored[key], dict):
-            # a setting recorded since the policy was written is not a difference
-            expected = dict(expected, **{key: _known(stored[key], expected[key])})
-        if key in stored and key in expected and stored[key] != expected[key]:
-            differ = ""
-            if isinstance(stored[key], dict) and isinstance(expected[key], dict):
-                names = sorted(set(stored[key]) | set(expected[key]))
-                differ = "; ".join(
-                    f"{n}: trained {stored[key].get(n)!r}, now {expected[key].get(n)!r}"
-                    for n in names
-                    if stored[key].get(n) != expected[key].get(n)
-                )
-                differ = f" ({differ})"
+        differ = fingerprint_difference(stored, expected, (key,))
+        if differ:
             raise MismatchError(
-                f"{path}: this policy does not belong to {what}{differ}; evaluating it would "
-                f"give a number of another policy ({remedy})"
+                f"{path}: this policy does not belong to {what}{differ[len(key) :]}; "
+                f"evaluating it would give a number of another policy ({remedy})"
             )
+
+
+def fingerprint_difference(stored: dict, expected: dict, keys=tuple(FINGERPRINT_KEYS)) -> str:
+    """The first of ``keys`` in which fingerprint ``stored`` (as written) and ``expected``
+    (now) differ, as words: ``"numerics (prng: trained 'rbg', now 'threefry2x32')"``; "" when
+    they agree. A name recorded only now is no difference (``_known``)."""
+    for key in keys:
+        if key not in stored or key not in expected:
+            continue
+        old, now = stored[key], expected[key]
+        if isinstance(old, dict):  # a setting recorded since the file was written
+            now = _known(old, now)
+        if old == now:
+            continue
+        if isinstance(old, dict) and isinstance(now, dict):
+            names = sorted(set(old) | set(now))
+            parts = "; ".join(
+                f"{n}: trained {old.get(n)!r}, now {now.get(n)!r}"
+                for n in names
+                if old.get(n) != now.get(n)
+            )
+            return f"{key} ({parts})"
+        return f"{key} ({'model file digest' if key == 'model' else key} differs)"
+    return ""
 
 
 def _known(stored: dict, expected) -> dict:

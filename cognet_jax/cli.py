@@ -59,7 +59,7 @@ from cognet_jax.hosts import (
 )
 from cognet_jax.io.dpomdp import parse_dpomdp
 from cognet_jax.plugins import import_plugin, one_line, user_code_error
-from cognet_jax.registry import load_config
+from cognet_jax.registry import begin_command, load_config
 from cognet_jax.run_folder import check_out, claim, held_run, reading, worth_keeping
 from cognet_jax.signals import (
     Stopped,
@@ -528,6 +528,7 @@ def main(argv: list[str] | None = None) -> int:
         args = merge_common(parser().parse_args(argv))
         if not args.debug:  # a callback's error is reported in one line (``callback_failure``)
             logging.getLogger("jax._src.callback").setLevel(logging.CRITICAL)
+        begin_command()  # a name two of this command's --import modules register is named
         for name in args.imports:
             import_plugin(name)
         if args.imports:

@@ -360,6 +360,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
+    except RecursionError:  # arrays or tables nested thousands deep
+        raise ConfigError(".".join(path), "the value is nested too deeply") from None
     return path, value
 
 
@@ -439,6 +441,8 @@ def read_experiment(name_or_path: str) -> dict:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError("", f"{origin}: invalid TOML: {err}") from None
+    except RecursionError:  # arrays or tables nested thousands deep
+        raise ConfigError("", f"{origin}: invalid TOML: a value is nested too deeply") from None
     data.setdefault("experiment", {}).setdefault(
         "name", path.stem if path.exists() else name_or_path
     )

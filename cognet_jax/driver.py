@@ -34,6 +34,7 @@ from cognet_jax.loop import STOP_GRACE_S, Checkpointing, iterate
 from cognet_jax.memory import peak_rss_bytes
 from cognet_jax.program import Program, Run
 from cognet_jax.records import (
+    check_finite_values,
     history_fields,
     restore_group,
     restored_history,
@@ -223,6 +224,7 @@ def _run(runs, opts: GroupOptions, t_start: float):
     program, done = _search(runs, opts, t_start)
     iterations = program.config.algorithm.iterations
     stacked = stack_history(done.history)  # on the host: a jnp.stack of 500 arrays compiles
+    check_finite_values(stacked, program)
     t_end = time.perf_counter()
     try:
         finished = finish_and_evaluate(program, done.state, opts.progress, done.probes)

@@ -22,6 +22,7 @@ from cognet_jax.api import (
 )
 from cognet_jax.atomic_files import atomic_write_bytes, atomic_write_text
 from cognet_jax.checkpoint import (
+    fingerprint_difference,
     policy_bytes,
     read_checkpoint,
     restore_history,
@@ -36,6 +37,7 @@ from cognet_jax.errors import (
     CorruptFileError,
     MismatchError,
     OneLineWarning,
+    SimulatorError,
     UsageError,
 )
 from cognet_jax.hook_results import RUN_RECORD_FIELDS, checked_record
@@ -81,6 +83,19 @@ def _run_keys(program: Program):
     return keys[0] if not program.batched else keys
 
 
+def _run_fingerprints(program: Program) -> list[dict]:
+    """Per run, what besides its config shapes its numbers (``fingerprint`` without the
+    config: the model file's digest, the numeric settings and imported modules), taken once
+    per group: a model edited while the search runs is a difference on resume."""
+    cached = getattr(program, "_run_fingerprints", None)
+    if cached is None:
+        cached = [
+            {k: v for k, v in fingerprint(r.config).items() if k != "config"} for r in program.runs
+        ]
+        program._run_fingerprints = cached
+    return cached
+
+
 def save_group(program: Program, path: Path, iteration: int, state, history) -> None:
     save_checkpoint(
         path,
@@ -88,8 +103,35 @@ def save_group(program: Program, path: Path, iteration: int, state, history) -> 
         keys={"run": _run_keys(program)},
         iteration=iteration,
         history=stack_history(history),
-        meta=_meta(program.runs),
+        meta={**_meta(program.runs), "fingerprints": _run_fingerprints(program)},
     )
+
+
+#: a fingerprint's keys in the words of a refused resume
+RESUME_DIFFERENCES = {
+    "model": "another model file",
+    "numerics": "other numeric settings or --import modules",
+}
+
+
+def _check_run_fingerprints(path: Path, stored, program: Program) -> None:
+    """``MismatchError`` naming what differs when the group was started under another model
+    file, numeric settings or imported modules than it resumes under (``checkpoint``'s
+    rules for a policy: a setting not recorded then is no difference)."""
+    if not isinstance(stored, list):  # written before fingerprints
+        return
+    for old, now in zip(stored, _run_fingerprints(program)):
+        if not isinstance(old, dict):
+            raise CorruptFileError(path, "its fingerprints are not a list of records")
+        differ = fingerprint_difference(old, now)
+        if differ:
+            key, _, detail = differ.partition(" ")
+            what = RESUME_DIFFERENCES.get(key, key)
+            raise MismatchError(
+                f"{path}: the run was started with {what} {detail}; resuming would go on "
+                "with another simulator's or generator's numbers (resume with the model file, "
+                "settings and --import modules it was started with, or start again)"
+            )
 
 
 def current_meta(meta: dict, path) -> dict:
@@ -140,6 +182,9 @@ def restore_group(program: Program, state, path: Path):
     ``read_checkpoint`` read, whose history ``restore_history`` restores); ``MismatchError``
     when another group (configs, seeds or generator) wrote it."""
     raw = read_checkpoint(path)
+    if not isinstance(raw["meta"], dict):
+        raise CorruptFileError(path, "its meta is not a record")
+    stored_fingerprints = raw["meta"].pop("fingerprints", None)
     raw["meta"] = current_meta(raw["meta"], path)
     stored_meta, meta = _without_run_section(raw["meta"]), _without_run_section(_meta(program.runs))
     if isinstance(stored_meta.get("configs"), list):  # fields whose default changed the search
@@ -161,6 +206,7 @@ def restore_group(program: Program, state, path: Path):
             f"{', '.join(sorted(stored_impl))}; its keys continue only with that generator "
             "(drop the --set run.prng_impl)"
         )
+    _check_run_fingerprints(path, stored_fingerprints, program)
     stored = restore_key(raw, "run", impl)
     expected = jax.random.key_data(_run_keys(program))
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
@@ -248,6 +294,24 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     own = algorithm.history_record(h)  # the search's own per-run figures
     fields.update(checked_record(algorithm, "history_record", own, RUN_RECORD_FIELDS))
     return fields
+
+
+def check_finite_values(history, program: Program) -> None:
+    """``SimulatorError`` when an iteration's value (``history.value``, ``[iterations]`` or
+    ``[iterations, runs]``) is NaN: the simulator returned a NaN reward or observation for
+    policies the search drew (``check_simulator``'s random episodes never reached them), so
+    its elites were chosen among NaN means; nothing is written."""
+    value = np.asarray(history.value, np.float64)
+    nan = np.isnan(value.reshape(value.shape[0], -1)).any(axis=1)
+    if nan.any():
+        env = program.algorithm.env
+        owner = f"{type(env).__module__}.{type(env).__name__}"
+        raise SimulatorError(
+            f"simulator {program.config.env.name!r} ({owner}): the search's value is NaN at "
+            f"iteration {int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): "
+            "its step returned a NaN reward or observation for policies the search drew; "
+            "nothing is written"
+        )
 
 
 def fingerprint(config: Config, written: dict | None = None) -> dict:

@@ -54,7 +54,7 @@ from cognet_jax.config import (
 )
 from cognet_jax.envs.base import build_from_fields, check_simulator
 from cognet_jax.envs.base import dynamic_fields as params_fields
-from cognet_jax.errors import ConfigWarning
+from cognet_jax.errors import ConfigWarning, OneLineWarning
 
 #: built-in simulator name -> the module that registers it
 BUILTIN_ENVS = {
@@ -198,8 +198,34 @@ def register_env(
     entry = EnvEntry(
         name, section, build, tuple(dynamic), tuple(reads), dict(references or {}), reference_field
     )
+    _warn_if_replaced(_ENVS.get(name), entry, "simulator")
     _ENVS[name] = entry
     return entry
+
+
+#: ``(kind, name) -> module`` of the registrations made since ``begin_command`` (the modules
+#: of one command's ``--import``s)
+_REGISTERED_NOW: dict[tuple[str, str], str] = {}
+
+
+def begin_command() -> None:
+    """Start a command's record of registrations (``_warn_if_replaced``)."""
+    _REGISTERED_NOW.clear()
+
+
+def _warn_if_replaced(old, new, kind: str) -> None:
+    """One line when a registration replaces one another module made in the same command
+    (two ``--import`` files registering one name): the last one wins, which a user who
+    imported both rarely means. A module registering its own name again stays silent."""
+    module = new.build.__module__
+    was = _REGISTERED_NOW.get((kind, new.name))
+    _REGISTERED_NOW[(kind, new.name)] = module
+    if old is not None and was is not None and was != module:
+        warnings.warn(
+            f"{kind} {new.name!r} registered by {was} is replaced by the one of {module}",
+            OneLineWarning,
+            stacklevel=3,
+        )
 
 
 def register_fields_env(name: str, section: type, env_cls: type, params_cls: type) -> EnvEntry:
@@ -240,6 +266,7 @@ def register_algorithm(
     entry = AlgorithmEntry(
         name, section, build, hyper, tuple(dynamic), discrete, tuple(reads), resolve
     )
+    _warn_if_replaced(_ALGORITHMS.get(name), entry, "algorithm")
     _ALGORITHMS[name] = entry
     return entry
 

@@ -97,7 +97,7 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
         out.mkdir(parents=True, exist_ok=True)
         fd = _open_lock(lock)
     except OSError as err:
-        raise UsageError(f"{out}: cannot write there ({err.strerror})") from None
+        raise UsageError(f"{out}: cannot write there ({_why_not(out, err)})") from None
     try:
         _lock(fd, out)
         os.ftruncate(fd, 0)
@@ -156,6 +156,17 @@ def _sweep_holding(out: Path) -> Path | None:
         if (sweep / "sweep-state").is_dir() or (sweep / "runs.json").is_file():
             return sweep
     return None
+
+
+def _why_not(out: Path, err: OSError) -> str:
+    """Why ``out`` cannot be made or written, in words: a symbolic link that leads nowhere is
+    named as one (its error is "File exists", which misleads)."""
+    if out.is_symlink():
+        try:
+            out.resolve(strict=True)
+        except (OSError, RuntimeError):  # RuntimeError: a loop, before Python 3.13
+            return "a symbolic link that leads nowhere: a loop, or a target that does not exist"
+    return err.strerror or str(err)
 
 
 def _check_writable(out: Path) -> None:

@@ -8,6 +8,7 @@ import dataclasses
 import hashlib
 import json
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +35,10 @@ from cognet_jax.config import (
     parse_override,
     with_added_fields,
 )
-from cognet_jax.errors import CorruptFileError, MismatchError, read_json
+from cognet_jax.errors import CorruptFileError, MismatchError, OneLineWarning, read_json
 from cognet_jax.honest_value import final_value
 from cognet_jax.observations import legacy_run_files
-from cognet_jax.records import RUN_OWN_FILES, current_meta, fingerprint
+from cognet_jax.records import RESULTS_SCHEMA, RUN_OWN_FILES, current_meta, fingerprint
 from cognet_jax.registry import (
     config_from_dict,
 )
@@ -124,6 +125,13 @@ def load_run(
     results = read_json(results_path, ("config",))
     if not isinstance(results["config"], dict):
         raise CorruptFileError(results_path, "its config is not a table of sections")
+    schema = results.get("schema", 1)
+    if isinstance(schema, bool) or not isinstance(schema, int) or not 1 <= schema <= RESULTS_SCHEMA:
+        raise CorruptFileError(
+            results_path,
+            f"schema {schema!r}: this cognet-jax reads results.json schemas 1 .. "
+            f"{RESULTS_SCHEMA} (a newer version wrote it, or it was edited)",
+        )
     ran = with_added_fields(results["config"])  # results.json as written: the fingerprint's
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
@@ -228,6 +236,23 @@ def _check_digest(path: Path, digest, field: str) -> None:
         )
 
 
+def _note_other_chunks(run, config: Config) -> None:
+    """One line when ``evaluation.batch`` differs from the run's and the rollouts do not fit
+    in one batch of either: the rollouts are drawn in other chunks (each from its own key,
+    ``rollout.many_returns``), so the value is another honest sample, not the run's number."""
+    section = run.results["config"].get("evaluation")
+    ran = section.get("batch", 10_000) if isinstance(section, dict) else 10_000
+    now, n = config.evaluation.batch, config.evaluation.rollouts
+    if ran != now and n > min(ran, now):
+        warnings.warn(
+            f"evaluation.batch {now} where the run had {ran}: its {n} rollouts are drawn in "
+            "other chunks, so the value is another honest sample of the policy (within its "
+            "standard error), not the run's number",
+            OneLineWarning,
+            stacklevel=3,
+        )
+
+
 def evaluate_run(
     run_dir,
     rollouts: int | None = None,
@@ -253,6 +278,7 @@ def evaluate_run(
     if seed is None and (not isinstance(stored, int) or isinstance(stored, bool) or stored < 0):
         raise CorruptFileError(Path(run_dir) / "results.json", f"seed {stored!r} is no seed")
     seed = stored if seed is None else seed
+    _note_other_chunks(run, config)
     evaluate = final_value(run.algorithm, config, run.params)
     value = evaluate(seed_key(config, seed), run.policy)
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)

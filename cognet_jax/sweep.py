@@ -139,7 +139,7 @@ def plan(
     )
     for index, combo in enumerate(shown):
         values = dict(zip(names, combo, strict=True))
-        sets = overrides + [f"{n}={json.dumps(v)}" for n, v in values.items()]
+        sets = overrides + [f"{n}={_toml_literal(v)}" for n, v in values.items()]
         config = _setting_config(experiment, sets)
         d = config.to_dict()
         for n in dynamic_fields(config):
@@ -152,6 +152,20 @@ def plan(
             Setting(index=index, values=values, config=config)
         )
     return list(groups.values())
+
+
+def _mean_se(mean: float, se: float) -> str:
+    """``mean +- s.e.``; the mean alone where one seed gives no standard error."""
+    return f"{mean:.3f}" + ("" if math.isnan(se) else f" +- {se:.3f}")
+
+
+def _toml_literal(value) -> str:
+    """``value`` (as ``parse_override`` read it) written back as the TOML literal it was:
+    JSON's, except NaN and the infinities (``nan``, ``inf``, ``-inf``), which the setting's
+    check then refuses as ``--set`` does."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return json.dumps(value)
 
 
 def _setting_config(experiment: str | Config, sets: list[str]) -> Config:
@@ -496,8 +510,9 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     ]
     for s in summary:
         row = (
-            f"| {_setting_label(s['grid'])} | {s['seeds']} | {s['final_mean']:.3f} +- "
-            f"{s['final_se']:.3f} | {s['in_loop_best_mean']:.3f} +- {s['in_loop_best_se']:.3f} |"
+            f"| {_setting_label(s['grid'])} | {s['seeds']} | "
+            f"{_mean_se(s['final_mean'], s['final_se'])} | "
+            f"{_mean_se(s['in_loop_best_mean'], s['in_loop_best_se'])} |"
         )
         for k in added:
             mean, lo, hi = s["added"][k]

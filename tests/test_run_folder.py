@@ -550,3 +550,90 @@ def test_a_checkpoint_edited_by_hand_is_named_on_resume(tmp_path, capsys):
 
     code, err = resumed("shape", reshape)
     assert code == 2 and f"state.distribution.{first}" in err[-1], err
+
+
+def test_a_resume_under_other_numeric_settings_or_modules_is_refused(tmp_path, capsys):
+    """A checkpoint records, per run, the model digest, numeric settings and imported modules
+    it was started with; a resume under others (another generator, an edited --import module,
+    an edited model) is refused naming the difference, as ``evaluate`` refuses a policy."""
+    import shutil
+
+    from flax import serialization
+
+    base = tmp_path / "base"
+    assert cli.main(["train", "--out", str(base), *TINY_TRAIN]) == 0
+    blob = serialization.msgpack_restore((base / "checkpoint.msgpack").read_bytes())
+    meta = json.loads(blob["meta"])
+    assert meta["fingerprints"][0]["numerics"]["prng"] == "threefry2x32"
+    meta["fingerprints"][0]["numerics"]["prng"] = "rbg"
+    blob.update(meta=json.dumps(meta), iteration=1)
+    folder = tmp_path / "other"
+    shutil.copytree(base, folder)
+    (folder / "checkpoint.msgpack").write_bytes(serialization.msgpack_serialize(blob))
+    capsys.readouterr()
+    assert cli.main(["train", "--resume", str(folder), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "checkpoint.msgpack" in err and "prng: trained 'rbg', now 'threefry2x32'" in err, err
+
+
+#: a 1-D seek simulator whose reward turns NaN once every agent has taken action 2 five times:
+#: random episodes almost never do (a chance of 1 in 9 a step), a search's controllers often
+RARE_NAN_SEEK = """
+import dataclasses
+import jax.numpy as jnp
+from flax import struct
+from cognet_jax.registry import register_env
+
+@struct.dataclass
+class SeekParams:
+    discount: float = 0.95
+
+@dataclasses.dataclass(frozen=True)
+class Seek:
+    horizon: int = 5
+    num_agents: int = 2
+    num_actions: int = 3
+    action_counts: tuple = (3, 3)
+    obs_shape: tuple = ()
+    num_obs: None = None
+    obs_range: tuple = (-10.0, 10.0)
+    reset_noise: int = 2
+    step_noise: int = 0
+
+    def reset(self, u, params):
+        return jnp.concatenate([5.0 * u, jnp.array([10.0, 0.0])])
+
+    def step(self, u, state, actions, params):
+        pos = jnp.clip(state[:2] + actions - 1.0, 0.0, 10.0)
+        reward = jnp.sum(jnp.where(jnp.abs(pos - state[2]) < 1.0, 1.0, -0.1))
+        count = state[3] + jnp.all(actions == 2).astype(jnp.float32)
+        reward = jnp.where(count >= 5.0, jnp.nan, reward)
+        return state.at[:2].set(pos).at[3].set(count), state[2] - pos, reward
+
+@dataclasses.dataclass
+class SeekSection:
+    name: str = "rare-nan-seek-test"
+
+register_env("rare-nan-seek-test", SeekSection, lambda s, cfg: (Seek(), SeekParams()))
+"""
+
+
+def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monkeypatch):
+    """A NaN reward that ``check_simulator``'s random episodes miss but the search's
+    candidates reach: refused when the search ends, naming the simulator and the first
+    iteration whose value is NaN; no results are written."""
+    monkeypatch.setattr(registry, "_FOREIGN_CODE", {})
+    module = tmp_path / "rare_nan_seek.py"
+    module.write_text(RARE_NAN_SEEK)
+    toml = tmp_path / "seek.toml"
+    toml.write_text(
+        '[experiment]\nalgorithm = "cogdice"\n[env]\nname = "rare-nan-seek-test"\n'
+        "[algorithm]\nnodes = 2\niterations = 20\nsamples = 20\nelites = 5\n"
+        "eval_rollouts = 10\nbest_rollouts = 10\n[evaluation]\nrollouts = 200\n"
+    )
+    out = tmp_path / "run"
+    args = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "simulator 'rare-nan-seek-test'" in err and "value is NaN at iteration" in err, err
+    assert not (out / "results.json").exists()

@@ -219,7 +219,18 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
     if not (isinstance(out, tuple) and len(out) == 3):
         raise SimulatorError(f"{owner}: step must return (state, obs, reward)")
     next_state, obs, reward = out
-    if jax.tree.structure(next_state) != jax.tree.structure(state) or any(
+    if jax.tree.structure(next_state) != jax.tree.structure(state):
+        raise SimulatorError(
+            f"{owner}: step changed the state's structure: reset gave "
+            f"{jax.tree.structure(state)}, step returned {jax.tree.structure(next_state)}"
+        )
+    for what, x in (("observation", obs), ("reward", reward)):
+        if not isinstance(x, jax.ShapeDtypeStruct):  # a list, tuple or dict of arrays
+            raise SimulatorError(
+                f"{owner}: step returned its {what} as a {type(x).__name__} "
+                f"({_shapes(x)}), expected one array"
+            )
+    if any(
         (a.shape, a.dtype) != (b.shape, b.dtype)
         for a, b in zip(jax.tree.leaves(next_state), jax.tree.leaves(state))
     ):
@@ -298,6 +309,8 @@ class GuardedSteps:
 
     def step(self, u, state, actions, params):
         state, obs, reward = self.env.step(u, state, actions, params)
+        # a Python or numpy number is a reward too (as the search's rollouts take it)
+        reward = jnp.asarray(reward)
         counts = jnp.asarray(self.env.action_counts)
         bad = jnp.any((actions < 0) | (actions >= counts)) | ~jnp.all(jnp.isfinite(obs))
         return state, obs, reward + jnp.where(bad, jnp.nan, 0.0).astype(reward.dtype)
@@ -353,6 +366,13 @@ def _check_sizes(env, owner: str) -> None:
         raise SimulatorError(f"{owner}: horizon must be an integer, got {horizon!r}")
     if not 1 <= horizon <= MAX_HORIZON:
         raise SimulatorError(f"{owner}: horizon must be in 1 .. {MAX_HORIZON}, got {horizon}")
+    for name in ("reset_noise", "step_noise"):  # uniforms per reset / step: a count
+        value = getattr(env, name)
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise SimulatorError(
+                f"{owner}: {name} (uniforms it draws per call) must be an integer >= 0, got "
+                f"{value!r}"
+            )
     counts = tuple(env.action_counts)
     if len(counts) != env.num_agents or any(int(c) < 1 for c in counts):
         raise SimulatorError(

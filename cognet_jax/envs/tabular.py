@@ -307,6 +307,14 @@ def build_from_section(section: DpomdpSection, config) -> tuple[TabularEnv, Tabu
             f"{problem.path}: rewards up to {top:.3g} over horizon {problem.horizon} overflow "
             f"float32 (|return| <= {FLOAT32_MAX:.3g})",
         )
+    if problem.discount is None and not model.discount > 0.0:
+        # the format allows 0 (only the first reward counts); every return here is a
+        # discounted sum, which the simulators' discount check refuses at 0
+        raise ConfigError(
+            "problem.path",
+            f"{problem.path}: its discount line gives {model.discount:g}; cognet-jax needs a "
+            "discount in (0, 1]: set problem.discount to override the file's",
+        )
     return make_tabular(model, problem.horizon, problem.discount)
 
 
