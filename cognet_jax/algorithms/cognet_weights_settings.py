@@ -105,8 +105,8 @@ class CognetWeightsSection:
     polish_share: float = 0.25
     polish_axes: bool = True
     polish_extend: float = 2.0
-    start_draw: bool = False
-    start_spread: float = 1.0
+    start_draw: bool = True
+    start_spread: float = 0.0
 
     def rollouts_per_iteration(self) -> int:
         """Rollouts one iteration simulates (the size checks of ``budget.check_budget``)."""

@@ -25,9 +25,9 @@ ELITE_FRACTION = 0.05
 #: range: the distribution needs about a hundred refits with smoothing 0.3 to settle, and
 #: beyond a few hundred, evaluations of less noise pay more than further refits
 #: (shared/FINDINGS.md)
-ITERATIONS_RANGE = (100, 400)
+ITERATIONS_RANGE = (100, 800)
 #: rollouts per candidate the iterations are sized with
-EVAL_ROLLOUTS_BASE = 250
+EVAL_ROLLOUTS_BASE = 187.5
 #: rollouts per candidate are kept in this range
 EVAL_ROLLOUTS_RANGE = (10, 1000)
 #: with the noise measured, a candidate's standard error is this fraction of how much the
