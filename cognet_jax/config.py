@@ -377,6 +377,8 @@ ADDED_FIELDS = {
             "polish_share": 0.0,
             "polish_axes": False,
             "polish_extend": 1.0,
+            "start_draw": False,
+            "start_spread": 1.0,
         }
     }
 }

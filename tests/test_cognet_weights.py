@@ -751,8 +751,8 @@ def test_a_drawn_start_runs_the_controller_from_that_nodes_role():
     from cognet_jax.algorithms.weight_polish import START, apply_move
     from cognet_jax.controllers.base import action_support
 
-    off, params = small_algorithm()
-    on, _ = small_algorithm(start_draw=True)
+    off, params = small_algorithm(start_draw=False)
+    on, _ = small_algorithm(start_draw=True, start_spread=1.0)
     d_off, d_on = off.init_distribution(), on.init_distribution()
     assert d_off.start_probs is None and d_on.start_probs.shape == (2, 3)
     a, b = off.draw(jax.random.key(4), d_off, 64), on.draw(jax.random.key(4), d_on, 64)

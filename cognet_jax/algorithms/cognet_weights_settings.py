@@ -65,7 +65,12 @@ class CognetWeightsSection:
     share up to that many times it (1: never); ``start_draw``: every candidate also draws,
     per agent, the node whose role it starts in (a categorical refit to the elites; tied
     agents share a controller and may start apart), from a first categorical that puts
-    ``start_spread`` of its mass evenly on every node and the rest on node 0 (1: uniform). The
+    ``start_spread`` of its mass evenly on every node and the rest on node 0 (1: uniform).
+    **[choice]** On, with ``start_spread`` 0: the exploring searches start every controller
+    at node 0 and the refine phase's centred categoricals move the start roles, which found
+    the paper setting's asymmetric start (two tied agents starting in different roles) in
+    the search instead of only in the polish's START move (experiments/NOTES.md, "Twice the
+    exploring searches, start roles in the refine phase"). The
     hidden width is ``network.hidden``."""
 
     nodes: int = 3

@@ -22,11 +22,15 @@ AUTO_BUDGET_ROLLOUTS = 3e7
 AUTO_CANDIDATES = 200
 ELITE_FRACTION = 0.05
 #: iterations are ``budget rollouts / (candidates x rollouts per candidate)`` within this
-#: range: the distribution needs about a hundred refits with smoothing 0.3 to settle, and
-#: beyond a few hundred, evaluations of less noise pay more than further refits
-#: (shared/FINDINGS.md)
+#: range: the distribution needs about a hundred refits with smoothing 0.3 to settle.
+#: **[choice]** Up to 800, where the earlier rule stopped at 400: the exploring searches
+#: restart when they converge (about a hundred iterations each on the suite's problems), and
+#: searches ending in optima of very different quality are draws of a lottery, so twice the
+#: iterations at half the rollouts each is twice the draws (experiments/NOTES.md, "Twice the
+#: exploring searches")
 ITERATIONS_RANGE = (100, 800)
-#: rollouts per candidate the iterations are sized with
+#: rollouts per candidate the iterations are sized with: the default budget then gives the
+#: most iterations (3e7 rollouts / (200 x 187.5) = 800)
 EVAL_ROLLOUTS_BASE = 187.5
 #: rollouts per candidate are kept in this range
 EVAL_ROLLOUTS_RANGE = (10, 1000)
