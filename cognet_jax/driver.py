@@ -209,8 +209,9 @@ def _search(runs, opts: GroupOptions, t_start: float):
     if signum is not None and in_flight:
         raise Interrupted(_stop_dir(opts), len(history), config.algorithm.iterations, signum, True)
     if opts.checkpoint is not None:
-        with deferred_stop():  # a signal now stops the group once this is written
+        with deferred_stop() as flag:  # a signal now stops the group once this is written
             save(len(history), state, history)
+        signum = signum if signum is not None else flag["signum"]
     if signum is not None:
         _stop(program, state, len(history), opts, signum)
     searched = _Searched(state, history, start, compile_s, t_start, t_loop, t_searched, probes)
@@ -279,8 +280,8 @@ def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> lis
 def _log_run(record: dict, run: Run, algorithm, log, drawn: bool) -> None:
     final = record["final_value"]
     line = algorithm.finish_line(record["finish"]) if record["finish"] is not None else None
-    if line:
-        log(line)
+    if line:  # the search's code: one line of its own, never one that looks like ours
+        log(" ".join(str(line).split()))
     exact = f" (exact {final['exact']:.6f})" if "exact" in final else ""
     log(
         f"{record['experiment']} seed {record['seed']}: honest value {final['mean']:.3f} "

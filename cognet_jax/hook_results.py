@@ -55,4 +55,9 @@ def checked_paths(search, hook: str, value) -> list[Path]:
             f"{type(search).__name__}.{hook}() (the search's code) returned "
             f"{type(value).__name__}: expected a list of the paths written"
         )
+    if not all(isinstance(p, str | Path) for p in value):
+        raise UsageError(
+            f"{type(search).__name__}.{hook}() (the search's code) returned "
+            f"{[type(p).__name__ for p in value][:4]}: expected a list of the paths written"
+        )
     return [Path(p) for p in value]

@@ -41,7 +41,7 @@ from cognet_jax.errors import (
     UsageError,
 )
 from cognet_jax.hook_results import RUN_RECORD_FIELDS, checked_record
-from cognet_jax.plugins import one_line
+from cognet_jax.plugins import one_line, user_code_error
 from cognet_jax.program import Program, Run
 from cognet_jax.registry import (
     env_entry,
@@ -300,8 +300,32 @@ def check_finite_values(history, program: Program) -> None:
     """``SimulatorError`` when an iteration's value (``history.value``, ``[iterations]`` or
     ``[iterations, runs]``) is NaN: the simulator returned a NaN reward or observation for
     policies the search drew (``check_simulator``'s random episodes never reached them), so
-    its elites were chosen among NaN means; nothing is written."""
-    value = np.asarray(history.value, np.float64)
+    its elites were chosen among NaN means; nothing is written. ``UsageError`` naming the
+    search's ``tell`` when its metrics lack ``value`` or ``in_loop_best``, give more than one
+    number per run and iteration, or a NaN ``in_loop_best``."""
+    search = type(program.algorithm).__name__
+    fields = {}
+    for name in ("value", "in_loop_best"):
+        try:
+            fields[name] = np.asarray(getattr(history, name), np.float64)
+        except (AttributeError, TypeError, ValueError):
+            raise UsageError(
+                f"{search}.tell (the search's code) returned metrics of type "
+                f"{type(history).__name__} without a numeric {name!r}: expected "
+                "SearchMetrics(value, in_loop_best, mean_value)"
+            ) from None
+        runs = len(program.runs) if program.batched else 1
+        shape = fields[name].shape
+        if shape[1:] not in ((), (runs,), (program.lanes,)):
+            raise UsageError(
+                f"{search}.tell (the search's code) returned metrics.{name} of shape "
+                f"{list(shape[1:])} per iteration: expected one number per run"
+            )
+    if np.isnan(fields["in_loop_best"]).any():
+        raise UsageError(f"{search}.tell (the search's code) returned a NaN in_loop_best")
+    value = fields["value"]
+    if value.size == 0:  # no iteration ran
+        return
     nan = np.isnan(value.reshape(value.shape[0], -1)).any(axis=1)
     if nan.any():
         env = program.algorithm.env
@@ -377,9 +401,12 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
         # older figure stays beside them. ValueError: matplotlib refuses what it cannot draw
         # (a policy whose responses are not finite, e.g. read through an encoder of huge
         # weights)
-        except (OSError, ValueError) as err:
+        # and any error of a search's own figures (``write_plots``, the search's code): the
+        # results were written complete before
+        except Exception as err:
+            why = user_code_error(err) or f"{type(err).__name__}: {one_line(err)}"
             warnings.warn(
-                f"{run.folder}: the figures could not be written ({one_line(err)}); the run's "
+                f"{run.folder}: the figures could not be written ({why}); the run's "
                 "results are saved",
                 OneLineWarning,
                 stacklevel=2,

@@ -162,3 +162,41 @@ def test_a_name_two_modules_of_one_command_register_is_named(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         registry.register_env("twice-test", Section, build_a)
+
+
+def test_sixth_round_search_and_controller_returns_are_named():
+    """A controller's float actions are refused where the honest evaluation traces them (a
+    simulator indexes with them); ``write_plots`` returning no paths is named; an
+    observation of no features is refused with the simulator's sizes."""
+    from cognet_jax.envs.base import GuardedSteps
+    from cognet_jax.errors import UsageError
+    from cognet_jax.hook_results import checked_paths
+
+    env = Line()
+    state = env.reset(jnp.array([0.1, 0.2]), Params())
+    with pytest.raises(UsageError, match="actions are float32, expected integers"):
+        GuardedSteps(env).step(jnp.zeros(0), state, jnp.array([0.4, 1.0]), Params())
+    with pytest.raises(UsageError, match="expected a list of the paths written"):
+        checked_paths(object(), "write_plots", ["a.png", 5])
+    with pytest.raises(SimulatorError, match=r"obs_shape \(0,\) must be sizes of at least 1"):
+        _check(Line(obs_shape=(0,)))
+
+
+def test_a_model_of_ten_agents_has_no_exact_value_but_its_run_stands(tmp_path, capsys):
+    """The exact value's joint tables grow as nodes ** agents: past ``EXACT_MAX_ENTRIES``
+    the record skips it with one line, and the run's honest value is written."""
+    model = tmp_path / "agents10.dpomdp"
+    model.write_text(
+        "agents: 10\ndiscount: 1\nvalues: reward\nstates: 2\nstart: uniform\nactions:\n"
+        + "2\n" * 10
+        + "observations:\n"
+        + "2\n" * 10
+        + "T: * :\nuniform\nO: * :\nuniform\nR: * : * : * : * : 1\n"
+    )
+    out = tmp_path / "run"
+    args = ["train", "gdice-dpomdp", "--set", f"problem.path={model}", "--set"]
+    args += ["problem.horizon=2", "--set", "algorithm.iterations=2", "--set", "algorithm.nodes=4"]
+    args += ["--set", "evaluation.rollouts=100", "--set", "run.plots=false"]
+    assert cli.main([*args, "--out", str(out), "--no-progress"]) == 0
+    assert "no exact value of the policy" in capsys.readouterr().err
+    assert json.loads((out / "results.json").read_text())["status"] == "complete"

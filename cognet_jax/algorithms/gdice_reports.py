@@ -4,12 +4,20 @@ and the controller graphs with the model's action and observation names."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from cognet_jax.controllers.figures import action_names, tabular_plots
 from cognet_jax.envs.tabular import TabularEnv, load_problem
+from cognet_jax.errors import OneLineWarning
 from cognet_jax.exact import exact_value
 from cognet_jax.registry import env_entry
+
+#: the exact value's joint tables (joint nodes x joint observations entries, ``exact``) above
+#: which the record skips it: 2**26 entries are 0.5 GB of int64, and the count grows as
+#: nodes ** agents (10 agents of 7 nodes: 2.8e8 joint nodes)
+EXACT_MAX_ENTRIES = 1 << 26
 
 
 def _model(config, env):
@@ -62,6 +70,16 @@ class TabularReports:
         if model is None:
             return None
         actions, transitions = np.asarray(policy.actions), np.asarray(policy.transitions)
+        entries = float(actions.shape[-1]) ** len(model.obs_counts) * np.prod(model.obs_counts)
+        if entries > EXACT_MAX_ENTRIES:
+            warnings.warn(
+                f"{config.problem.path}: no exact value of the policy ({actions.shape[-1]} "
+                f"nodes ** {len(model.obs_counts)} agents x joint observations = {entries:.2g} "
+                f"table entries, over {EXACT_MAX_ENTRIES:.2g}); its honest value stands",
+                OneLineWarning,
+                stacklevel=2,
+            )
+            return None
         horizon, gamma = config.problem.horizon, model.discount
         out = {"exact": float(exact_value(model, actions, transitions, horizon, gamma))}
         if gamma < 1:

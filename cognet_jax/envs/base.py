@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
-from cognet_jax.errors import SimulatorError, SimulatorWarning, callback_failure
+from cognet_jax.errors import SimulatorError, SimulatorWarning, UsageError, callback_failure
 
 EnvState = Any
 EnvParams = Any
@@ -308,6 +308,11 @@ class GuardedSteps:
         return self.env.reset(u, params)
 
     def step(self, u, state, actions, params):
+        if not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):  # seen while tracing
+            raise UsageError(
+                f"the controller's actions are {jnp.asarray(actions).dtype}, expected integers "
+                "(the act() of the search's controller: a simulator indexes with them)"
+            )
         state, obs, reward = self.env.step(u, state, actions, params)
         # a Python or numpy number is a reward too (as the search's rollouts take it)
         reward = jnp.asarray(reward)
@@ -366,6 +371,12 @@ def _check_sizes(env, owner: str) -> None:
         raise SimulatorError(f"{owner}: horizon must be an integer, got {horizon!r}")
     if not 1 <= horizon <= MAX_HORIZON:
         raise SimulatorError(f"{owner}: horizon must be in 1 .. {MAX_HORIZON}, got {horizon}")
+    shape = tuple(env.obs_shape) if env.num_obs is None else ()
+    if any(not isinstance(d, int | np.integer) or d < 1 for d in shape):
+        raise SimulatorError(
+            f"{owner}: obs_shape {shape} must be sizes of at least 1 (an observation of no "
+            "features tells a controller nothing); () is one number"
+        )
     for name in ("reset_noise", "step_noise"):  # uniforms per reset / step: a count
         value = getattr(env, name)
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
