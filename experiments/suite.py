@@ -879,6 +879,17 @@ START_ROWS = (
     "box-push",
     "bearing-chase",
 )
+#: a candidate measured on every row with the code of commit a36ff1e (68c99d8 with the two
+#: defaults changed, as d29fbb7 changes them on main; run with ``PYTHONPATH`` set to its
+#: checkout), then adopted: the defaults since
+S0I800_WHAT = (
+    "the defaults since (measured as a candidate, code of commit a36ff1e): start_draw with "
+    "start_spread 0 (start roles move in the refine phase) and ITERATIONS_RANGE up to 800 at "
+    "187.5 rollouts per candidate (twice the exploring searches)"
+)
+#: the pinned experiments (tagging, heatmap) under the defaults since: their TOMLs pin
+#: ``start_draw`` off, which the candidate's code did not yet
+NEWEST_STARTS = ["algorithm.start_draw=true", "algorithm.start_spread=0.0"]
 #: rows measured since the AXIS moves and the extension became defaults
 AFTER_AXES = {
     **{
@@ -976,6 +987,36 @@ AFTER_AXES = {
         )
         for spread in spreads
     },
+    **{
+        f"{name}-s0i800": (
+            experiment,
+            extra,
+            seeds,
+            f"{S0I800_WHAT}",
+            earlier,
+        )
+        for name, experiment, extra, seeds, earlier in (
+            *((row, ROWS[row][0], [], SEEDS, f"cognet-{row}") for row in ROWS),
+            *(
+                (e, e, [*NEWEST_AXES, *NEWEST_STARTS], SEEDS, f"{e}-defaults-axes")
+                for e in ("tagging-thesis-n3", "tagging-thesis-n6")
+            ),
+            (
+                "heatmap-2d-n4",
+                "heatmap-2d-n4",
+                [*NEWEST_AXES, *UNPAIRED, *NEWEST_STARTS],
+                SEEDS,
+                "heatmap-2d-n4-defaults-polish",
+            ),
+            (
+                "paper-budget-1of64",
+                "tagging-paper-auto",
+                ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+                3,
+                "paper-budget-1of64-axes",
+            ),
+        )
+    },
     "hearing-tiger-noisy-n9-axes": (
         "hearing-tiger-noisy-n7",
         ["algorithm.nodes=9"],
@@ -1053,7 +1094,10 @@ def run_extra(names: list[str]) -> None:
         _sweep(experiment, overrides, seeds, RESULTS / name, imports)
 
 
-def _search_cell(path: Path, hand: float | None) -> str:
+def _search_cell(path: Path, hand: float | None, history: Path | None = None) -> str:
+    """A cell of the suite table from the sweep ``path``; the earlier defaults' sweeps are
+    found beside ``history`` (by default ``path``: ``NAME-before-...``), and with ``history``
+    its own mean is the one before the start roles and twice the searches."""
     if not path.is_file():
         return "not run"
     data = json.loads(path.read_text())
@@ -1079,6 +1123,7 @@ def _search_cell(path: Path, hand: float | None) -> str:
     if hand is not None:
         ok = mean >= hand and min(values) >= hand - 0.03 * abs(hand)
         verdict = " (holds)" if ok else " (**below**)"
+    history = path if history is None else history
     before_cell = ""
     for suffix, what in (
         ("-before-rule", "the horizon rule"),
@@ -1087,9 +1132,13 @@ def _search_cell(path: Path, hand: float | None) -> str:
         ("-before-polish", "the polish"),
         ("-before-axes", "the AXIS and START moves"),
     ):
-        before = _values(path.parent.parent / f"{path.parent.name}{suffix}" / "runs.json")
+        before = _values(history.parent.parent / f"{history.parent.name}{suffix}" / "runs.json")
         if before:
             before_cell += f"; before {what} {sum(before) / len(before):.3f}"
+    before = _values(history) if history != path else None
+    if before:
+        mean_before = sum(before) / len(before)
+        before_cell += f"; before the start roles and twice the searches {mean_before:.3f}"
     return (
         f"{mean:.3f}{verdict}, min {min(values):.3f}; {data['wall_s'] / len(values):.0f} s per "
         f"seed ({len(values)} seeds in one sweep); {steps:.2g} agent-steps ({sizes}){before_cell}"
@@ -1203,7 +1252,12 @@ def table() -> list[str]:
             hand_cell = f"{grid} -> {best}: **{hand:.3f}** +- {h['honest'][1]:.3f}"
             if h["bound"]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
-        cognet = _search_cell(RESULTS / f"cognet-{row}" / "runs.json", hand)
+        earlier = RESULTS / f"cognet-{row}" / "runs.json"
+        now = RESULTS / f"{row}-s0i800" / "runs.json"  # the defaults since (S0I800_WHAT)
+        cognet = _search_cell(now, hand, earlier) if now.is_file() else "not run"
+        if cognet == "not run" and earlier.is_file():
+            change = "the start roles and twice the searches"
+            cognet = f"not yet re-run under {change}; before: " + _search_cell(earlier, hand)
         for suffix, change in (
             ("-before-axes", "the polish's AXIS and START moves and extension"),
             ("-before-polish", "the polish"),
@@ -1269,8 +1323,12 @@ value in the table. The polish of now also rewrites a node's weakest unit as a t
 feature (AXIS, inputs of at most 4 features), lets another node's role start a controller
 (START), and goes on past its share while every sweep applies a move (up to twice it:
 `polish_axes`, `polish_extend`); "before the AXIS and START moves" gives the sweep of the
-polish before them (rows "-before-axes"), again the same search seed for seed. A row that says
-"not yet re-run" was not swept under them."""
+polish before them (rows "-before-axes"), again the same search seed for seed. The defaults of
+now also draw the start roles in the refine phase (`start_draw`, `start_spread` 0) and size up
+to 800 iterations at 187.5 rollouts per candidate (twice the exploring searches): the column
+gives their sweeps (rows "-s0i800" of the next table), and "before the start roles and twice the
+searches" the sweep of the defaults before them (`cognet-ROW`). A row that says "not yet re-run"
+was not swept under them."""
 
 
 EXTRA_NOTES = """\
