@@ -89,9 +89,12 @@ def _run_fingerprints(program: Program) -> list[dict]:
     per group: a model edited while the search runs is a difference on resume."""
     cached = getattr(program, "_run_fingerprints", None)
     if cached is None:
-        cached = [
-            {k: v for k, v in fingerprint(r.config).items() if k != "config"} for r in program.runs
-        ]
+        by_config = {}  # a sweep's seeds of one setting share a config: one model digest
+        for r in program.runs:
+            if id(r.config) not in by_config:
+                made = fingerprint(r.config)
+                by_config[id(r.config)] = {k: v for k, v in made.items() if k != "config"}
+        cached = [by_config[id(r.config)] for r in program.runs]
         program._run_fingerprints = cached
     return cached
 
@@ -304,6 +307,7 @@ def check_finite_values(history, program: Program) -> None:
     search's ``tell`` when its metrics lack ``value`` or ``in_loop_best``, give more than one
     number per run and iteration, or a NaN ``in_loop_best``."""
     search = type(program.algorithm).__name__
+    runs = len(program.runs) if program.batched else 1
     fields = {}
     for name in ("value", "in_loop_best"):
         try:
@@ -314,7 +318,6 @@ def check_finite_values(history, program: Program) -> None:
                 f"{type(history).__name__} without a numeric {name!r}: expected "
                 "SearchMetrics(value, in_loop_best, mean_value)"
             ) from None
-        runs = len(program.runs) if program.batched else 1
         shape = fields[name].shape
         if shape[1:] not in ((), (runs,), (program.lanes,)):
             raise UsageError(

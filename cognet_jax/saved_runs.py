@@ -31,6 +31,7 @@ from cognet_jax.compiled import DRIVING_FIELDS
 from cognet_jax.config import (
     Config,
     ConfigError,
+    EvaluationSection,
     apply_overrides,
     parse_override,
     with_added_fields,
@@ -241,7 +242,8 @@ def _note_other_chunks(run, config: Config) -> None:
     in one batch of either: the rollouts are drawn in other chunks (each from its own key,
     ``rollout.many_returns``), so the value is another honest sample, not the run's number."""
     section = run.results["config"].get("evaluation")
-    ran = section.get("batch", 10_000) if isinstance(section, dict) else 10_000
+    ran = EvaluationSection.batch  # the default, for a run that did not write it
+    ran = section.get("batch", ran) if isinstance(section, dict) else ran
     now, n = config.evaluation.batch, config.evaluation.rollouts
     if ran != now and n > min(ran, now):
         warnings.warn(

@@ -308,9 +308,10 @@ class GuardedSteps:
         return self.env.reset(u, params)
 
     def step(self, u, state, actions, params):
-        if not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):  # seen while tracing
+        dtype = jnp.asarray(actions).dtype
+        if not jnp.issubdtype(dtype, jnp.integer):  # seen while tracing
             raise UsageError(
-                f"the controller's actions are {jnp.asarray(actions).dtype}, expected integers "
+                f"the controller's actions are {dtype}, expected integers "
                 "(the act() of the search's controller: a simulator indexes with them)"
             )
         state, obs, reward = self.env.step(u, state, actions, params)
