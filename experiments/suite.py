@@ -887,6 +887,13 @@ S0I800_WHAT = (
     "start_spread 0 (start roles move in the refine phase) and ITERATIONS_RANGE up to 800 at "
     "187.5 rollouts per candidate (twice the exploring searches)"
 )
+#: rows of the defaults since that ran later, with the code of main (da5cefd)
+S0I800_LATER = {
+    "paper-budget-1of8": "1/8 of the paper's 3e11 agent-steps under the defaults (code of da5cefd)",
+    "paper-budget-full": (
+        "the paper's whole 3e11 agent-steps under the defaults, seed 0 (code of da5cefd)"
+    ),
+}
 #: the pinned experiments (tagging, heatmap) under the defaults since: their TOMLs pin
 #: ``start_draw`` off, which the candidate's code did not yet
 NEWEST_STARTS = ["algorithm.start_draw=true", "algorithm.start_spread=0.0"]
@@ -992,7 +999,7 @@ AFTER_AXES = {
             experiment,
             extra,
             seeds,
-            f"{S0I800_WHAT}",
+            S0I800_LATER.get(name, S0I800_WHAT),
             earlier,
         )
         for name, experiment, extra, seeds, earlier in (
@@ -1014,6 +1021,20 @@ AFTER_AXES = {
                 ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
                 3,
                 "paper-budget-1of64-axes",
+            ),
+            (
+                "paper-budget-1of8",
+                "tagging-paper-auto",
+                ["algorithm.budget=3.75e10", "run.probe_seconds=10"],
+                3,
+                "paper-budget-1of8-axes",
+            ),
+            (  # seed 0 only: about an hour; the 3 seeds take three
+                "paper-budget-full",
+                "tagging-paper-auto",
+                ["algorithm.budget=3e11", "run.probe_seconds=10"],
+                1,
+                "paper-budget-1of8-s0i800",
             ),
         )
     },
