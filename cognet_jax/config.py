@@ -88,6 +88,18 @@ class ExperimentSection:
             f"{name!r} is no folder name (it names runs/NAME-seedS): use letters, digits, "
             "'-', '_', '+' or '.', not starting with '.'",
         )
+        size = len(name.encode("utf-8", "surrogatepass"))
+        require(
+            size <= MAX_NAME_BYTES,
+            "experiment.name",
+            f"is {size} bytes long, at most {MAX_NAME_BYTES} (it names the folder "
+            "runs/NAME-seedS, and a file name holds at most 255 bytes)",
+        )
+
+
+#: the longest ``experiment.name`` (bytes): ``NAME-seedS`` with a seed of 10 digits then fits
+#: the 255 bytes of a file name
+MAX_NAME_BYTES = 240
 
 
 @dataclasses.dataclass

@@ -63,8 +63,9 @@ def final_value_of(returns) -> dict:
     if np.isnan(returns).any():
         raise InputError(
             "the returns are NaN: the simulator's rewards or observations are NaN on some "
-            "states (or an infinite reward met its negative), or the policy chose an action "
-            "its agent lacks or a node its controller lacks"
+            "states (or an infinite reward met its negative), a discrete observation was "
+            "outside 0 .. num_obs - 1, or the policy chose an action its agent lacks or a "
+            "node its controller lacks"
         )
     if not np.isfinite(returns).all():
         raise InputError(

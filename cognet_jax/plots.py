@@ -319,10 +319,8 @@ def tabular_graph_edges(
         raise ValueError(f"{len(names)} obs_names for {t.shape[1]} observations")
     edges = []
     for src in range(t.shape[0]):
-        by_dst: dict[int, list[str]] = {}
-        for z in range(t.shape[1]):
-            by_dst.setdefault(int(t[src, z]), []).append(str(names[z]))
-        edges.extend((src, dst, by_dst[dst]) for dst in sorted(by_dst))
+        for dst in np.unique(t[src]):
+            edges.append((src, int(dst), [str(names[z]) for z in np.flatnonzero(t[src] == dst)]))
     return edges
 
 
@@ -338,7 +336,15 @@ def format_interval(lo: float, hi: float) -> str:
     return f"({_fmt_num(lo)}, {_fmt_num(hi)}{')' if math.isinf(hi) else ']'}"
 
 
+#: the most observation labels an edge shows (a model of thousands of observations would
+#: otherwise draw a label of thousands of names: minutes of text layout for an unreadable figure)
+MAX_EDGE_LABELS = 12
+
+
 def _edge_text(labels: Sequence) -> str:
+    if len(labels) > MAX_EDGE_LABELS:
+        shown = _edge_text(labels[: MAX_EDGE_LABELS - 1])
+        return f"{shown}\n... ({len(labels)} in all)"
     parts = [
         lab if isinstance(lab, str) else format_interval(float(lab[0]), float(lab[1]))
         for lab in labels

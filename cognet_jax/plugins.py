@@ -144,7 +144,7 @@ def import_plugin(name: str) -> None:
     """Import a module by name, or a ``.py`` file by path (``--import``); an error of the
     module itself is a ``UsageError`` naming its file and line, and so is a module that exits
     (``sys.exit``, ``os._exit``) or hangs at import (``_guarded_import``)."""
-    if not name or name.startswith("."):
+    if not name or (name.startswith(".") and not name.endswith(".py")):  # ``.mod``: relative
         raise UsageError(f"--import {name!r}: give a module name or a .py file")
     path = Path(name)
     origin = str(path) if name.endswith(".py") else None

@@ -364,9 +364,15 @@ def _check_rows(rows, count: int, path: Path) -> None:
 
 
 def _check_spec(spec: dict, path: Path) -> None:
-    """``CorruptFileError`` naming ``path`` unless its grid is a table of non-empty lists,
-    its seeds a non-empty list of seeds and its overrides a list of strings."""
+    """``CorruptFileError`` naming ``path`` unless its experiment is a name or path (or its
+    ``config`` a table), its grid a table of non-empty lists, its seeds a non-empty list of
+    seeds and its overrides a list of strings."""
     grid, seeds, overrides = spec["grid"], spec["seeds"], spec["overrides"]
+    if "config" in spec:
+        if not isinstance(spec["config"], dict):
+            raise CorruptFileError(path, "config is not a table of config sections")
+    elif not isinstance(spec["experiment"], str) or not spec["experiment"]:
+        raise CorruptFileError(path, "experiment is not an experiment name or TOML path")
     if not isinstance(grid, dict) or not all(
         isinstance(v, list) and v and isinstance(k, str) for k, v in grid.items()
     ):

@@ -319,7 +319,18 @@ class GuardedSteps:
         reward = jnp.asarray(reward)
         counts = jnp.asarray(self.env.action_counts)
         bad = jnp.any((actions < 0) | (actions >= counts)) | ~jnp.all(jnp.isfinite(obs))
+        bad = bad | jnp.any(outside_observations(self.env, obs))
         return state, obs, reward + jnp.where(bad, jnp.nan, 0.0).astype(reward.dtype)
+
+
+def outside_observations(env, obs) -> jax.Array:
+    """``[agents]`` bool: a discrete observation outside ``0 .. num_obs - 1`` (a controller's
+    table has no row for it: JAX would clamp the index silently); all False for continuous
+    observations."""
+    if env.num_obs is None:
+        return jnp.zeros(jnp.shape(obs)[:1], bool)
+    obs = jnp.asarray(obs)
+    return (obs < 0) | (obs >= env.num_obs)
 
 
 #: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
@@ -355,6 +366,17 @@ def _check_sizes(env, owner: str) -> None:
         raise SimulatorError(
             f"{owner}: missing {', '.join(missing)} (a simulator has the members of "
             "cognet_jax.envs.base.Environment)"
+        )
+    agents = env.num_agents
+    if isinstance(agents, bool) or not isinstance(agents, (int, np.integer)) or agents < 1:
+        raise SimulatorError(f"{owner}: num_agents must be an integer >= 1, got {agents!r}")
+    num_obs = env.num_obs
+    if num_obs is not None and (
+        isinstance(num_obs, bool) or not isinstance(num_obs, (int, np.integer)) or num_obs < 1
+    ):
+        raise SimulatorError(
+            f"{owner}: num_obs must be None (continuous observations) or the count of discrete "
+            f"observations, an integer >= 1, got {num_obs!r}"
         )
     obs_range = env.obs_range
     if obs_range is not None:
@@ -450,10 +472,12 @@ def _check_values(env, env_params, owner: str) -> None:
             u_step = jax.random.uniform(k_u, (env.step_noise,))
             acts = jnp.floor(jax.random.uniform(k_a, counts.shape) * counts).astype(jnp.int32)
             s, obs, reward = env.step(u_step, s, acts, env_params)
+            outside = jnp.any(outside_observations(env, obs))
             obs = jnp.asarray(obs, jnp.float32)
             status = jnp.where(
                 jnp.any(jnp.isnan(obs)), 1, jnp.where(jnp.all(jnp.isfinite(obs)), 0, 2)
             )
+            status = jnp.where(outside, 3, status)
             return s, (status.astype(jnp.int8), reward)
 
         s0 = env.reset(jax.random.uniform(k_reset, (env.reset_noise,)), env_params)
@@ -472,6 +496,14 @@ def _check_values(env, env_params, owner: str) -> None:
         )
         message = f"{owner}: step(u, state, actions, params) under jax.vmap {what}"
         raise SimulatorError(message) from err
+    status = np.asarray(status)
+    outside = np.asarray(outside_observations(env, first[0]))
+    if outside.any() or (status == 3).any():
+        seen = f" ({np.asarray(first[0])[outside][:4]} ...)" if outside.any() else ""
+        raise SimulatorError(
+            f"{owner}: step returned a discrete observation outside 0 .. {env.num_obs - 1} "
+            f"(num_obs {env.num_obs}){seen}: a controller has no row for it"
+        )
     for what, x in zip(("observation", "reward"), first):
         x = np.asarray(x)
         if jnp.issubdtype(x.dtype, jnp.floating) and not np.isfinite(x).all():
@@ -481,7 +513,7 @@ def _check_values(env, env_params, owner: str) -> None:
             )
     rewards = np.asarray(rewards, np.float32)  # [episodes, steps]
     for what, bad, nan in (
-        ("observation", np.asarray(status) != 0, np.asarray(status) == 1),
+        ("observation", status != 0, status == 1),
         ("reward", ~np.isfinite(rewards), np.isnan(rewards)),
     ):
         if bad.any():
