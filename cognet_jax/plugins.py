@@ -10,6 +10,7 @@ import importlib
 import importlib.util
 import math
 import os
+import select
 import signal
 import site
 import sys
@@ -81,6 +82,43 @@ def _import_timeout() -> float:
     return value
 
 
+class _StopWatcher:
+    """While an import runs in the main thread: a thread that sees stop signals as they
+    arrive (``signal.set_wakeup_fd``) and runs ``stop`` itself when ``stop`` is still their
+    handler. A Python handler runs only between the main thread's bytecodes, so a module
+    inside one long compiled call (a large matmul at import) would otherwise hold a stop
+    for as long as that call runs."""
+
+    def __init__(self, stop, real_exit):
+        self.stop, self.closed = stop, threading.Event()
+        self.read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        self.write_fd = write_fd
+        self.previous = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        self.thread = threading.Thread(target=self._watch, daemon=True)
+        self.thread.start()
+
+    def _watch(self) -> None:
+        while not self.closed.is_set():
+            ready, _, _ = select.select([self.read_fd], [], [], 0.1)
+            if not ready or self.closed.is_set():
+                continue
+            for signum in os.read(self.read_fd, 64):
+                if signum in STOP_NUMBERS and signal.getsignal(signum) is self.stop:
+                    self.stop(signum, None)  # ends the process
+
+    def close(self) -> None:
+        self.closed.set()
+        signal.set_wakeup_fd(self.previous)
+        self.thread.join(1.0)
+        os.close(self.write_fd)
+        os.close(self.read_fd)
+
+
+#: the stop signals' numbers (``_StopWatcher``)
+STOP_NUMBERS = (int(signal.SIGINT), int(signal.SIGTERM), int(signal.SIGHUP))
+
+
 @contextlib.contextmanager
 def _guarded_import(name: str):
     """While a module imports: ``os._exit(n)`` raises instead of ending the process, and an
@@ -114,6 +152,7 @@ def _guarded_import(name: str):
             if signal.getsignal(sig) not in (signal.SIG_IGN, None):
                 stops[sig] = signal.signal(sig, stop)
     os._exit = exit_instead
+    watcher = _StopWatcher(stop, real_exit) if stops else None
     # the last resort, which no module can turn off (it may ignore SIGALRM): a thread that
     # ends the process a little after the alarm's time
     watchdog = threading.Timer(
@@ -128,6 +167,8 @@ def _guarded_import(name: str):
         yield
     finally:
         watchdog.cancel()
+        if watcher is not None:
+            watcher.close()
         os._exit = real_exit
         if main:
             try:

@@ -135,3 +135,32 @@ def test_an_import_file_given_as_a_parent_relative_path_is_imported(tmp_path, mo
     with pytest.raises(UsageError, match="give a module name or a .py file"):
         import_plugin(".relative_module")
     shutil.rmtree(tmp_path / "mods")
+
+
+def test_a_stop_during_an_import_is_seen_by_a_thread_while_the_main_thread_is_busy():
+    """``plugins._StopWatcher``: a stop signal's byte reaches a thread of its own, which runs
+    the import's stop handler itself (the main thread may be inside one long compiled call of
+    the module, where no Python handler runs: a 20000 x 20000 matmul held SIGTERM for 24 s)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from cognet_jax.plugins import _StopWatcher
+
+    calls = []
+
+    def stop(signum, frame):
+        calls.append((signum, threading.current_thread() is threading.main_thread()))
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    watcher = _StopWatcher(stop, os._exit)
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + 5
+        while (signal.SIGTERM, False) not in calls and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        watcher.close()
+        signal.signal(signal.SIGTERM, previous)
+    assert (signal.SIGTERM, False) in calls  # the watcher's own call, off the main thread
