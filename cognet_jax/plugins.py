@@ -199,8 +199,17 @@ def import_plugin(name: str) -> None:
         before = set(sys.modules)
         if not LATE_IMPORTS:  # the modules a user module imports later are its helpers too
             LATE_IMPORTS.append(functools.partial(_note_helpers, frozenset(before)))
+        limit = sys.getrecursionlimit()
         with _guarded_import(name):
             _import(name, path, origin if name.endswith(".py") else None)
+        if sys.getrecursionlimit() < limit:  # JAX's tracing recurses deeper than a few dozen
+            lowered = sys.getrecursionlimit()
+            sys.setrecursionlimit(limit)
+            raise UsageError(
+                f"--import {name} lowered Python's recursion limit to {lowered} (it was "
+                f"{limit}): tracing a search needs the deeper stack; leave "
+                "sys.setrecursionlimit as it is"
+            )
         note_foreign_code(name, origin)
         for helper, file in _user_modules(set(sys.modules) - before, origin):
             note_foreign_code(helper, file)  # its helpers change its numbers too

@@ -164,3 +164,17 @@ def test_a_stop_during_an_import_is_seen_by_a_thread_while_the_main_thread_is_bu
         watcher.close()
         signal.signal(signal.SIGTERM, previous)
     assert (signal.SIGTERM, False) in calls  # the watcher's own call, off the main thread
+
+
+def test_a_module_that_lowers_the_recursion_limit_is_named(tmp_path):
+    import sys
+
+    from cognet_jax.errors import UsageError
+    from cognet_jax.plugins import import_plugin
+
+    module = tmp_path / "shallow.py"
+    module.write_text("import sys\nsys.setrecursionlimit(50)\n")
+    limit = sys.getrecursionlimit()
+    with pytest.raises(UsageError, match="lowered Python's recursion limit to 50"):
+        import_plugin(str(module))
+    assert sys.getrecursionlimit() == limit  # given back: the error is reported, not hit
