@@ -893,6 +893,9 @@ S0I800_LATER = {
     "paper-budget-full": (
         "the paper's whole 3e11 agent-steps under the defaults, seed 0 (code of da5cefd)"
     ),
+    "paper-budget-full-seeds12": (
+        "the paper's whole 3e11 agent-steps under the defaults, seeds 1 and 2 (code of 2c56d27)"
+    ),
 }
 #: the pinned experiments (tagging, heatmap) under the defaults since: their TOMLs pin
 #: ``start_draw`` off, which the candidate's code did not yet
@@ -1029,11 +1032,18 @@ AFTER_AXES = {
                 3,
                 "paper-budget-1of8-axes",
             ),
-            (  # seed 0 only: about an hour; the issue's 3 seeds take three
+            (  # seed 0 alone (35 min), then seeds 1 and 2 side by side (row -seeds12)
                 "paper-budget-full",
                 "tagging-paper-auto",
                 ["algorithm.budget=3e11", "run.probe_seconds=10"],
                 1,
+                "paper-budget-1of8-s0i800",
+            ),
+            (
+                "paper-budget-full-seeds12",
+                "tagging-paper-auto",
+                ["algorithm.budget=3e11", "run.probe_seconds=10"],
+                (1, 2),
                 "paper-budget-1of8-s0i800",
             ),
         )
@@ -1078,8 +1088,11 @@ EXTRA = {
 }
 
 
-def _sweep(experiment: str, overrides: list[str], seeds: int, out: Path, imports=()) -> None:
-    cmd = ["cognet-jax", *imports, "sweep", experiment, "--seeds", str(seeds), "--no-progress"]
+def _sweep(experiment: str, overrides: list[str], seeds, out: Path, imports=()) -> None:
+    """``cognet-jax sweep`` of ``seeds`` seeds from 0, or of ``(first, count)``."""
+    first, count = seeds if isinstance(seeds, tuple) else (0, seeds)
+    cmd = ["cognet-jax", *imports, "sweep", experiment, "--seeds", str(count), "--no-progress"]
+    cmd += ["--first-seed", str(first)] if first else []
     for o in ["run.plots=false", *overrides]:
         cmd += ["--set", o]
     cmd += ["--out", str(out), "--overwrite"]
