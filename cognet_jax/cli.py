@@ -243,6 +243,8 @@ def _evaluate(args) -> int:
 
     if args.rollouts is not None and not 2 <= args.rollouts < 2**31:
         raise UsageError(f"--rollouts must be in 2 .. 2147483647, got {args.rollouts}")
+    if args.seed is not None and not 0 <= args.seed < 2**31:  # before seconds of loading
+        raise UsageError(f"--seed must be in 0 .. 2147483647, got {args.seed}")
     if args.rollouts is not None and any(
         parse_override(o)[0] == ["evaluation", "rollouts"] for o in args.overrides
     ):

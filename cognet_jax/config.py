@@ -82,6 +82,7 @@ class ExperimentSection:
     def check(self, config: Config) -> None:
         name = self.name
         safe = name and not name.startswith(".") and not set(name) & set("/\\:\0")
+        safe = safe and name.isprintable()  # a newline or tab would split the lines it is in
         require(
             bool(safe),
             "experiment.name",

@@ -35,6 +35,7 @@ from cognet_jax.memory import peak_rss_bytes
 from cognet_jax.program import Program, Run
 from cognet_jax.records import (
     check_finite_values,
+    draw_figures,
     history_fields,
     restore_group,
     restored_history,
@@ -48,16 +49,30 @@ from cognet_jax.signals import Stopped, deferred_stop, in_background
 class Interrupted(Exception):
     """A group stopped by a signal after writing its checkpoint and every run's best policy, or
     (``busy``) with an iteration still computing, which any read of the state would wait for:
-    then nothing is written. ``signum`` is the signal (the CLI exits with ``128 + signum``)."""
+    then nothing is written (``kept``: an earlier checkpoint is there to resume). ``signum`` is
+    the signal (the CLI exits with ``128 + signum``)."""
 
-    def __init__(self, out_dir: Path, iteration: int, iterations: int, signum: int = 2, busy=False):
+    def __init__(
+        self,
+        out_dir: Path,
+        iteration: int,
+        iterations: int,
+        signum: int = 2,
+        busy=False,
+        kept: bool = True,
+    ):
         self.out_dir, self.iteration, self.signum = Path(out_dir), iteration, int(signum)
         name = signal.Signals(self.signum).name
         if busy:  # an iteration still computing: any read of the state would wait for it
+            earlier = (
+                f"an earlier checkpoint there continues with --resume {out_dir}"
+                if kept
+                else "no checkpoint had been written yet"
+            )
             message = (
                 f"interrupted during iteration {iteration + 1}/{iterations} ({name}), still "
                 f"computing {STOP_GRACE_S:g} s after the signal: nothing new written to "
-                f"{out_dir} (an earlier checkpoint there continues with --resume {out_dir})"
+                f"{out_dir} ({earlier})"
             )
         else:
             message = (
@@ -207,7 +222,10 @@ def _search(runs, opts: GroupOptions, t_start: float):
     )
     t_searched = time.perf_counter()
     if signum is not None and in_flight:
-        raise Interrupted(_stop_dir(opts), len(history), config.algorithm.iterations, signum, True)
+        kept = opts.checkpoint is not None and opts.checkpoint.is_file()
+        raise Interrupted(
+            _stop_dir(opts), len(history), config.algorithm.iterations, signum, True, kept
+        )
     if opts.checkpoint is not None:
         with deferred_stop() as flag:  # a signal now stops the group once this is written
             save(len(history), state, history)
@@ -239,7 +257,18 @@ def _run(runs, opts: GroupOptions, t_start: float):
         "resumed_from_iteration": done.start or None,
     }
     with deferred_stop() as flag:
-        records, drawn = _write_runs(program, done, stacked, opts, timing, finished)
+        records = _write_runs(program, done, stacked, opts, timing, finished)
+    drawn = [False] * len(records)
+    if flag["signum"] is None:
+        try:  # a stop here ends the figures at once: the results are written
+            drawn = [
+                opts.announce
+                and run.config.run.plots
+                and draw_figures(run, records[r], finished.best[r], program.algorithm)
+                for r, run in enumerate(program.runs)
+            ]
+        except Stopped as stop:
+            flag["signum"] = stop.signum
     if opts.announce:
         _log_run(records[0], runs[0], program.algorithm, opts.log, drawn[0])
     if flag["signum"] is not None:
@@ -248,10 +277,9 @@ def _run(runs, opts: GroupOptions, t_start: float):
 
 
 def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> list:
-    """Every run's record (results.json) written with its folder (plots: ``opts.announce``
-    and ``run.plots``), and whether each run's figures were drawn."""
+    """Every run's record (results.json), written with its folder."""
     iterations = program.config.algorithm.iterations
-    records, drawn = [], []
+    records = []
     for r, run in enumerate(program.runs):
         history = history_fields(
             stacked, r if program.batched else None, iterations, program.algorithm
@@ -271,10 +299,9 @@ def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> lis
         )
         if finished.probed[r] is not None:
             record["probes"] = finished.probed[r]
-        plots = opts.announce and run.config.run.plots
-        drawn.append(write_run(run, record, finished.best[r], program.algorithm, plots=plots))
+        write_run(run, record, finished.best[r], program.algorithm)
         records.append(record)
-    return records, drawn
+    return records
 
 
 def _log_run(record: dict, run: Run, algorithm, log, drawn: bool) -> None:

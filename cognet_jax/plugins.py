@@ -258,7 +258,8 @@ def _import(name: str, path: Path, origin: str | None) -> None:
     """Import the module ``name`` (a ``.py`` file when ``origin`` is its path)."""
     if origin is not None:
         if not path.is_file():
-            raise UsageError(f"--import {name}: no such file")
+            what = "not a regular file" if path.exists() else "no such file"
+            raise UsageError(f"--import {name}: {what}")
         module_name = _module_name(path)
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)

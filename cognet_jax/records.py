@@ -372,13 +372,13 @@ def numeric_settings() -> dict:
     }
 
 
-def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) -> bool:
+def write_run(run: Run, record: dict, policy, algorithm) -> None:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
-    ``results.json`` (with the policy file's ``policy_sha256``), the search's ``run_files``
-    (recorded under ``run_files``: each one's config field and sha256) and, with ``plots``,
-    the figures (``reporting.write_plots``). Returns whether the figures were drawn."""
+    ``results.json`` (with the policy file's ``policy_sha256``) and the search's ``run_files``
+    (recorded under ``run_files``: each one's config field and sha256); its figures are
+    ``draw_figures``'."""
     if run.folder is None:
-        return False
+        return
     run.folder.mkdir(parents=True, exist_ok=True)
     policy_file = policy_bytes(policy, fingerprint(run.config))
     atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
@@ -396,22 +396,27 @@ def write_run(run: Run, record: dict, policy, algorithm, plots: bool = False) ->
     if kept:  # checked as the policy's digest is
         record["run_files"] = kept
     atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
-    if plots and record.get("status") == "complete":
-        try:
-            write_plots(run.config, algorithm, policy, record, run.folder)
-            return True
-        # the run's results stand; figures of a run replaced go (``run_folder.claim``), so no
-        # older figure stays beside them. ValueError: matplotlib refuses what it cannot draw
-        # (a policy whose responses are not finite, e.g. read through an encoder of huge
-        # weights)
-        # and any error of a search's own figures (``write_plots``, the search's code): the
-        # results were written complete before
-        except Exception as err:
-            why = user_code_error(err) or f"{type(err).__name__}: {one_line(err)}"
-            warnings.warn(
-                f"{run.folder}: the figures could not be written ({why}); the run's "
-                "results are saved",
-                OneLineWarning,
-                stacklevel=2,
-            )
+
+
+def draw_figures(run: Run, record: dict, policy, algorithm) -> bool:
+    """The figures of a complete run written by ``write_run`` (``reporting.write_plots``);
+    whether they were drawn. A stop signal while they are drawn stops them (the results are
+    complete: nothing is lost), so it is not deferred as writing the results is."""
+    if run.folder is None or record.get("status") != "complete":
+        return False
+    try:
+        write_plots(run.config, algorithm, policy, record, run.folder)
+        return True
+    # the run's results stand; figures of a run replaced go (``run_folder.claim``), so no
+    # older figure stays beside them. ValueError: matplotlib refuses what it cannot draw (a
+    # policy whose responses are not finite, e.g. read through an encoder of huge weights),
+    # and any error of a search's own figures (``write_plots``, the search's code): the
+    # results were written complete before
+    except Exception as err:
+        why = user_code_error(err) or f"{type(err).__name__}: {one_line(err)}"
+        warnings.warn(
+            f"{run.folder}: the figures could not be written ({why}); the run's results are saved",
+            OneLineWarning,
+            stacklevel=2,
+        )
     return False

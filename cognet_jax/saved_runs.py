@@ -40,9 +40,7 @@ from cognet_jax.errors import CorruptFileError, MismatchError, OneLineWarning, r
 from cognet_jax.honest_value import final_value
 from cognet_jax.observations import legacy_run_files
 from cognet_jax.records import RESULTS_SCHEMA, RUN_OWN_FILES, current_meta, fingerprint
-from cognet_jax.registry import (
-    config_from_dict,
-)
+from cognet_jax.registry import config_from_dict, env_entry
 from cognet_jax.run_folder import REPLACING_NAME
 
 
@@ -136,11 +134,15 @@ def load_run(
     ran = with_added_fields(results["config"])  # results.json as written: the fingerprint's
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
-    if ("problem", "path") in named:
-        raise MismatchError(
-            f"--set problem.path: the policy in {run_dir} was trained on "
-            f"{results['config'].get('problem', {}).get('path')!r}; a policy is evaluated on "
-            "its own model (other fields, e.g. problem.horizon or env noise, may change)"
+    # the model file given anew (the run's path may be relative to another folder, or the
+    # file moved): the same bytes only, as the policy file's fingerprint records them
+    model_sets = [o for o in overrides if tuple(parse_override(o)[0]) == ("problem", "path")]
+    model = (ran.get("problem") or {}).get("path")
+    if not model_sets and isinstance(model, str) and model and not _exists(model, ran):
+        raise FileNotFoundError(
+            f"{run_dir} was trained on the model file {model!r}, which is not there from this "
+            "folder (a relative path is read from where the command runs): run from the "
+            "folder it was trained in, or give the same file with --set problem.path=FILE"
         )
     # the files the run kept (an encoder, ...), read from the folder unless a field is given
     recorded = "run_files" if "run_files" in results else "vae_sha256"  # before run_files
@@ -164,13 +166,23 @@ def load_run(
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
     # after the build and a trace: a user module may import its helpers only then
-    trained = fingerprint(config_from_dict(ran), results["config"])
+    trained = fingerprint(config_from_dict(apply_overrides(ran, model_sets)), results["config"])
     saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
     _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
     for name, file in kept.items():
         _check_digest(file.get("path", run_dir / name), file["sha256"], recorded)
     policy = jax.tree.map(jnp.asarray, saved)
     return LoadedRun(config, algorithm, params, policy, results)
+
+
+def _exists(path: str, written: dict) -> bool:
+    """Whether the model file ``path`` of the config ``written`` is a file from this folder
+    (or one its simulator does not read)."""
+    try:
+        reads = "problem" in env_entry(str((written.get("env") or {}).get("name"))).reads
+    except Exception:  # an unknown simulator: building the config names it
+        return True
+    return not reads or Path(path).expanduser().is_file()
 
 
 def _check_built(built: Built, config: Config, kept_fields: set, run_dir: Path) -> None:

@@ -77,8 +77,8 @@ STATE_DIR = "sweep-state"  # OUT/sweep-state/: the spec, each group's checkpoint
 # ---------------------------------------------------------------------------------------------
 def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
     """``["section.key=v1,v2", ...]`` -> ``{"section.key": [v1, v2]}`` (values read as TOML
-    literals, like ``--set``). An empty value, a field given twice, or a field ``overrides``
-    (``--set``) also sets is a ``ConfigError`` naming it."""
+    literals, like ``--set``). An empty value, a value or a field given twice, or a field
+    ``overrides`` (``--set``) also sets is a ``ConfigError`` naming it."""
     grid: dict[str, list] = {}
     fixed = {".".join(parse_override(o)[0]) for o in overrides}
     for text in texts:
@@ -97,7 +97,12 @@ def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
             raise ConfigError(
                 name, "cannot vary within a sweep (its runs share one program of one key type)"
             )
-        grid[name] = [parse_override(f"{name}={v}")[1] for v in parts]
+        values = [parse_override(f"{name}={v}")[1] for v in parts]
+        seen = [json.dumps(v, sort_keys=True) for v in values]  # 0.1 and 1e-1 are one value
+        twice = next((v for k, v in enumerate(values) if seen[k] in seen[:k]), None)
+        if twice is not None:
+            raise ConfigError(name, f"the grid gives the value {twice!r} twice")
+        grid[name] = values
     return grid
 
 

@@ -167,14 +167,122 @@ def test_a_stop_during_an_import_is_seen_by_a_thread_while_the_main_thread_is_bu
 
 
 def test_a_module_that_lowers_the_recursion_limit_is_named(tmp_path):
+    import inspect
     import sys
 
     from cognet_jax.errors import UsageError
     from cognet_jax.plugins import import_plugin
 
+    low = len(inspect.stack()) + 40  # above the depth the import runs at (xdist: deeper)
     module = tmp_path / "shallow.py"
-    module.write_text("import sys\nsys.setrecursionlimit(50)\n")
+    module.write_text(f"import sys\nsys.setrecursionlimit({low})\n")
     limit = sys.getrecursionlimit()
-    with pytest.raises(UsageError, match="lowered Python's recursion limit to 50"):
+    with pytest.raises(UsageError, match=f"lowered Python's recursion limit to {low}"):
         import_plugin(str(module))
     assert sys.getrecursionlimit() == limit  # given back: the error is reported, not hit
+
+
+def test_a_stop_while_the_figures_are_drawn_ends_them_with_the_results_written(
+    tmp_path, monkeypatch, capsys
+):
+    """The figures come after the results, outside the deferred stop that guards writing
+    them: a SIGTERM while a figure is drawn (a huge one took minutes) ends the command at
+    once, status 143, one line, the run's results.json and policy complete."""
+    import os
+    import signal
+    import time
+
+    from shared_files import TINY_TRAIN
+
+    from cognet_jax import records
+    from cognet_jax.signals import install_stop_handlers
+
+    def slow_figures(*args):
+        os.kill(os.getpid(), signal.SIGTERM)  # the stop handler raises here
+        time.sleep(30)
+
+    monkeypatch.setattr(records, "write_plots", slow_figures)
+    out = tmp_path / "run"
+    previous = signal.getsignal(signal.SIGTERM)
+    install_stop_handlers()
+    t0 = time.monotonic()
+    try:
+        code = cli.main(["train", *TINY_TRAIN, "--set", "run.plots=true", "--out", str(out)])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert time.monotonic() - t0 < 25
+    assert code == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "error: stopped by SIGTERM after the results were written", err
+    results = json.loads((out / "results.json").read_text())
+    assert results["status"] == "complete" and (out / "policy.msgpack").is_file()
+
+
+def test_a_run_on_a_relative_model_path_is_evaluated_from_elsewhere_with_the_same_file(
+    tmp_path, monkeypatch, capsys
+):
+    """A run trained on ``problem.path=dp/x.dpomdp`` (relative to where train ran): from
+    another folder ``evaluate`` names the cause in one line, takes the same bytes under
+    another path (``--set problem.path``, checked by the policy's model digest) and refuses
+    another model."""
+    from shared_files import dpomdp_file
+
+    source = dpomdp_file("dectiger")
+    (tmp_path / "dp").mkdir()
+    shutil.copy(source, tmp_path / "dp" / "x.dpomdp")
+    monkeypatch.chdir(tmp_path)
+    tiny = ["--set", "algorithm.iterations=2", "--set", "evaluation.rollouts=50", "--no-progress"]
+    argv = ["train", "gdice-dpomdp", "--set", "problem.path=dp/x.dpomdp", "--set"]
+    assert cli.main([*argv, "run.plots=false", *tiny, "--out", "run"]) == 0
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    capsys.readouterr()
+    run = str(tmp_path / "run")
+    assert cli.main(["evaluate", run, "--rollouts", "50"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "which is not there from this folder" in err and len(err.splitlines()) == 1
+    same = ["--set", f"problem.path={tmp_path / 'dp' / 'x.dpomdp'}"]
+    assert cli.main(["evaluate", run, "--rollouts", "50", *same]) == 0
+    other = tmp_path / "other.dpomdp"
+    other.write_text(source.read_text().replace("discount: 1", "discount: 0.9"))
+    assert other.read_text() != source.read_text()
+    capsys.readouterr()
+    assert cli.main(["evaluate", run, "--rollouts", "50", "--set", f"problem.path={other}"]) == 2
+    assert "model file digest differs" in capsys.readouterr().err
+
+
+def test_a_64_bit_dtype_jax_truncates_is_one_warning_line():
+    import warnings
+
+    @dataclasses.dataclass(frozen=True)
+    class Wide(Coins):
+        def step(self, u, state, actions, params):
+            state, obs, reward = super().step(u, state, actions, params)
+            return state, obs, reward.astype(jnp.float64)  # float32 without x64
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        _check(Wide())
+    texts = [str(w.message) for w in seen]
+    assert len(texts) == 1, texts
+    assert "asks for float64, which JAX truncates to 32 bits" in texts[0]
+
+
+def test_small_refusals_of_round_seven(tmp_path, capsys):
+    import os
+
+    from cognet_jax.errors import UsageError
+    from cognet_jax.plugins import import_plugin
+    from cognet_jax.sweep import parse_grid
+
+    with pytest.raises(ConfigError, match="gives the value 0.1 twice"):
+        parse_grid(["algorithm.alpha=0.1,1e-1"])
+    with pytest.raises(ConfigError, match="is no folder name"):
+        load_config("tagging-thesis-n3", ['experiment.name="two\\nlines"'])
+    fifo = tmp_path / "pipe.py"
+    os.mkfifo(fifo)
+    with pytest.raises(UsageError, match="not a regular file"):
+        import_plugin(str(fifo))
+    assert cli.main(["evaluate", str(tmp_path / "nowhere"), "--seed", "-1"]) == 2
+    assert "--seed must be in 0 .. 2147483647" in capsys.readouterr().err

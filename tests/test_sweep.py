@@ -452,9 +452,12 @@ def test_a_damaged_sweep_state_is_named_not_published(tmp_path):
     from cognet_jax.errors import CorruptFileError
     from cognet_jax.sweep import _check_rows, _check_spec
 
-    spec = {"grid": {"algorithm.alpha": [0.1]}, "seeds": [0, 1], "overrides": []}
+    spec = {"experiment": "x", "grid": {"algorithm.alpha": [0.1]}, "seeds": [0, 1]}
+    spec["overrides"] = []
     _check_spec(spec, tmp_path / "sweep.json")
     for field, value in (
+        ("experiment", 5),
+        ("experiment", ""),
         ("grid", {"algorithm.alpha": []}),
         ("grid", 5),
         ("grid", {"algorithm.alpha": 0.3}),

@@ -203,14 +203,32 @@ def check_simulator(env, env_params, name: str, values: bool = True) -> None:
 
     def traced(what, fn, *args):
         """``(program, output shapes)`` of ``fn`` traced once on abstract values; a value
-        JAX casts unsafely (a float written into an integer state) is the simulator's error."""
+        JAX casts unsafely (a float written into an integer state) is the simulator's error,
+        a 64-bit dtype JAX truncates (x64 off) one warning line of the simulator's."""
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(record=True) as seen:
+                warnings.simplefilter("always")
                 warnings.filterwarnings("error", message=".*cannot safely cast")
-                return jax.make_jaxpr(fn, return_shape=True)(*args)
+                out = jax.make_jaxpr(fn, return_shape=True)(*args)
         except Exception as err:  # the simulator's own error
             text = " ".join(str(err).split())[:300]
             raise SimulatorError(f"{owner}: {what} raised {type(err).__name__}: {text}") from err
+        truncated = [w for w in seen if TRUNCATED_DTYPE in str(w.message)]
+        for w in seen:  # the others as they came
+            if w not in truncated:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        if truncated:
+            dtype = str(truncated[0].message).split(TRUNCATED_DTYPE, 1)[1].split()[0]
+            warnings.warn(
+                SimulatorWarning(
+                    f"{owner}: {what} asks for {dtype}, which JAX truncates to 32 bits "
+                    "(jax_enable_x64 is off): the simulator runs in 32 bits"
+                ),
+                stacklevel=3,
+            )
+            # said once: the same truncation, met again as the search traces the step
+            warnings.filterwarnings("ignore", message=f"{TRUNCATED_DTYPE}.*")
+        return out
 
     _, state = traced("reset(u, params)", env.reset, u_reset, env_params)
     step_program, out = traced(
@@ -333,6 +351,8 @@ def outside_observations(env, obs) -> jax.Array:
     return (obs < 0) | (obs >= env.num_obs)
 
 
+#: how JAX's warning about a 64-bit dtype it truncates (x64 off) begins
+TRUNCATED_DTYPE = "Explicitly requested dtype "
 #: simulators ``check_simulator`` passed: ``(id(env), id(params), values) -> (env, params)``
 _CHECKED: dict = {}
 #: the longest horizon a simulator may declare: beyond it one rollout is already millions of
