@@ -286,3 +286,21 @@ def test_small_refusals_of_round_seven(tmp_path, capsys):
         import_plugin(str(fifo))
     assert cli.main(["evaluate", str(tmp_path / "nowhere"), "--seed", "-1"]) == 2
     assert "--seed must be in 0 .. 2147483647" in capsys.readouterr().err
+
+
+def test_a_unicode_line_separator_in_a_dpomdp_comment_stays_in_the_comment(tmp_path):
+    """``str.splitlines`` breaks at U+2028: the rest of a comment became a line (a reward of
+    1000 switched on), and every later line number was off by one."""
+    from shared_files import dpomdp_file
+
+    from cognet_jax.io.dpomdp import DpomdpParseError, parse_dpomdp
+
+    text = dpomdp_file("dectiger").read_text()
+    plain = parse_dpomdp(text)
+    hidden = text + "\n# old reward, disabled:\u2028R: * : * : * : * : 1000\n"
+    assert np.array_equal(parse_dpomdp(hidden).reward, plain.reward)
+    broken = "# a comment\u2028with a separator\n" + text + "\nT: * : bogus\n"
+    with pytest.raises(DpomdpParseError) as err:
+        parse_dpomdp(broken)
+    line = broken.split("\n").index("T: * : bogus") + 1  # counted at \n only
+    assert f":{line}:" in str(err.value), str(err.value)

@@ -298,10 +298,16 @@ def _decode(data: bytes, label: str) -> str:
     return data.decode("utf-8", errors="replace")
 
 
+#: the line breaks of a .dpomdp file
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+
+
 def _tokenise(text: str) -> list[tuple[int, list[str]]]:
-    """Non-empty logical lines as ``(line number, tokens)``; ``:`` is always its own token."""
+    """Non-empty logical lines as ``(line number, tokens)``; ``:`` is always its own token.
+    Lines end at ``\n``, ``\r\n`` or ``\r`` only (``str.splitlines`` also breaks at
+    Unicode separators such as U+2028, which would turn the rest of a comment into a line)."""
     out = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    for lineno, raw in enumerate(_LINE_BREAK.split(text), start=1):
         cut = raw.find("#")
         if cut >= 0:
             raw = raw[:cut]
