@@ -63,6 +63,7 @@ from cognet_jax.registry import begin_command, load_config
 from cognet_jax.run_folder import check_out, claim, held_run, reading, worth_keeping
 from cognet_jax.signals import (
     Stopped,
+    arm_stop_deadline,
     exit_on_stop,
     in_background,
     install_stop_handlers,
@@ -436,6 +437,7 @@ def run() -> None:
     shutdown would otherwise wait for that thread or handler, or tear down under a computation
     still running in XLA (a segmentation fault)."""
     set_up_process()
+    arm_stop_deadline()  # a stop swallowed where Python ignores exceptions still ends it
     code = main()
     exit_on_stop()  # the work is done: a late stop signal ends the process without a traceback
     lingering = [

@@ -47,6 +47,7 @@ from cognet_jax.compiled import (
     program_identity,
 )
 from cognet_jax.config import Config
+from cognet_jax.errors import UsageError
 from cognet_jax.honest_value import final_value
 from cognet_jax.memory import budget_bytes, trace_checked
 from cognet_jax.registry import (
@@ -280,7 +281,53 @@ class Program:
             compiled = self.compiled(what, self._step_one, args, before_compile)
             step = lambda s: compiled(keys, s, hyper, env)  # noqa: E731
         step.metrics_shapes = compiled.out_shapes[1]
+        self._check_carried(state, compiled.out_shapes[0])
+        if not type(self.algorithm).__module__.startswith("cognet_jax."):
+            self._check_policy(state)
         return step, time.perf_counter() - t0
+
+    def _check_carried(self, state, after) -> None:
+        """``UsageError`` naming the search's ``step`` when an iteration returns a state of
+        another structure, shape or dtype than it was given (the next iteration's program
+        was compiled for the first: JAX would refuse the call with its own error)."""
+        before = jax.eval_shape(lambda x: x, state)
+        same = jax.tree.structure(before) == jax.tree.structure(after) and all(
+            (a.shape, a.dtype) == (b.shape, b.dtype)
+            for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after))
+        )
+        if not same:
+            search = type(self.algorithm).__name__
+            changed = next(
+                (
+                    f"{a.dtype}{list(a.shape)} became {b.dtype}{list(b.shape)}"
+                    for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after))
+                    if (a.shape, a.dtype) != (b.shape, b.dtype)
+                ),
+                "its structure changed",
+            )
+            raise UsageError(
+                f"{search}.step / tell (the search's code) returned a state unlike the one it "
+                f"was given ({changed}): an iteration must keep every array's shape and dtype"
+            )
+
+    def _check_policy(self, state) -> None:
+        """``UsageError`` naming a plug-in search's ``best_policy`` when the honest evaluation
+        cannot run the policy it gives (traced on shapes, before the search: found after it,
+        the search's time would be lost to an internal error)."""
+        alg, params = self.algorithm, self.run_params[0]
+        one = jax.tree.map(lambda x: x[0], state) if self.batched else state
+        search = type(alg).__name__
+        try:
+            jax.eval_shape(
+                lambda k, s: alg.returns(k, alg.best_policy(s), 2, params, 2), self.k_init, one
+            )
+        except Exception as err:
+            text = " ".join(str(err).split())[:300]
+            raise UsageError(
+                f"{search}.best_policy (the search's code) gives a policy its controller "
+                f"cannot evaluate: {type(err).__name__}: {text} (a policy of one run, as "
+                "the controller's act and next_node read it)"
+            ) from None
 
     def finish(self, state, report=lambda work: None):
         """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run

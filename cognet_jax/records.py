@@ -330,6 +330,19 @@ def check_finite_values(history, program: Program) -> None:
     if value.size == 0:  # no iteration ran
         return
     nan = np.isnan(value.reshape(value.shape[0], -1)).any(axis=1)
+    if nan.any() and not type(program.algorithm).__module__.startswith("cognet_jax."):
+        env = program.algorithm.env
+        also = (
+            ""
+            if type(env).__module__.startswith("cognet_jax.")
+            else f", or the simulator {program.config.env.name!r} returned a NaN reward or "
+            "observation for policies it drew"
+        )
+        raise UsageError(
+            f"{search}.tell (the search's code) returned a NaN value at iteration "
+            f"{int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): a NaN of "
+            f"its own computation{also}; nothing is written"
+        )
     if nan.any():
         env = program.algorithm.env
         owner = f"{type(env).__module__}.{type(env).__name__}"

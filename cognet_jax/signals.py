@@ -84,7 +84,42 @@ def heed_while_starting() -> None:
 
 def _raise_stopped(signum, frame):
     if _fresh(signum):
+        _start_deadline(signum)
         raise Stopped(signum)
+
+
+#: seconds after a stop signal by which the executable has ended (``arm_stop_deadline``): a
+#: ``Stopped`` raised where Python swallows exceptions (inside a garbage-collection callback,
+#: which prints it as "Exception ignored" and runs on) would otherwise lose the stop
+STOP_DEADLINE_S = 9.0
+_DEADLINE: dict = {"armed": False, "timer": None}
+
+
+def arm_stop_deadline() -> None:
+    """From now on a stop signal that raises ``Stopped`` also starts a timer that ends the
+    process ``STOP_DEADLINE_S`` later, with one line and status ``128 + signal``, if it is
+    still running then. The executable's (``cli.run``); a program that uses the library
+    handles its stops itself."""
+    _DEADLINE["armed"] = True
+
+
+def _start_deadline(signum: int) -> None:
+    if not _DEADLINE["armed"] or _DEADLINE["timer"] is not None:
+        return
+
+    def end():
+        import os
+        import sys
+
+        with contextlib.suppress(OSError, ValueError):
+            name = signal.Signals(signum).name
+            print(f"error: stopped by {name}", file=sys.stderr, flush=True)
+        os._exit(128 + int(signum))
+
+    timer = threading.Timer(STOP_DEADLINE_S, end)
+    timer.daemon = True
+    timer.start()
+    _DEADLINE["timer"] = timer
 
 
 #: the stop signals heeded when the handlers were installed (before any ``--import``)

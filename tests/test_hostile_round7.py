@@ -304,3 +304,31 @@ def test_a_unicode_line_separator_in_a_dpomdp_comment_stays_in_the_comment(tmp_p
         parse_dpomdp(broken)
     line = broken.split("\n").index("T: * : bogus") + 1  # counted at \n only
     assert f":{line}:" in str(err.value), str(err.value)
+
+
+def test_a_stop_swallowed_where_python_ignores_exceptions_still_ends_the_executable():
+    """A ``Stopped`` raised inside a garbage-collection callback is printed as "Exception
+    ignored" and the process runs on; the executable's deadline (``arm_stop_deadline``) ends
+    it anyway, with one line and status 128 + signal."""
+    import subprocess
+    import sys
+    import time
+
+    code = (
+        "import os, signal, time\n"
+        "import cognet_jax.signals as s\n"
+        "s.STOP_DEADLINE_S = 0.5\n"
+        "s.arm_stop_deadline()\n"
+        "s.install_stop_handlers()\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    time.sleep(5)\n"
+        "except s.Stopped:\n"
+        "    pass  # swallowed, as a gc callback's caller does\n"
+        "time.sleep(20)\n"
+    )
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert time.monotonic() - t0 < 15
+    assert done.returncode == 143
+    assert done.stderr.strip() == "error: stopped by SIGTERM"

@@ -324,3 +324,43 @@ def test_a_record_hook_that_returns_the_drivers_fields_or_no_record_is_named(
     assert [line for line in err if line.startswith("error:")] == err[-1:], err
     assert says in err[-1] and "internal error" not in err[-1], err
     assert not (out / "results.json").exists()
+
+
+@pytest.mark.parametrize(
+    "old,new,expected",
+    [
+        (  # init keeps the draw's batch axis: the honest evaluation cannot run the policy
+            "ThresholdState(jax.tree.map(lambda x: x[0], self._draw(key, 1)), Progress.create())",
+            "ThresholdState(self._draw(key, 1), Progress.create())",
+            "ThresholdSearch.best_policy (the search's code) gives a policy its controller "
+            "cannot evaluate",
+        ),
+        (  # tell hands back a state of another dtype
+            "        return ThresholdState(best, progress), metrics",
+            "        best = best.replace(thresholds=best.thresholds.astype(jnp.float16))\n"
+            "        return ThresholdState(best, progress), metrics",
+            "returned a state unlike the one it was given (float32[2] became float16[2])",
+        ),
+        (  # a NaN of the search's own, on a built-in simulator
+            "            value=values[i],",
+            "            value=values[i] * jnp.nan,",
+            "ThresholdSearch.tell (the search's code) returned a NaN value at iteration 1",
+        ),
+    ],
+)
+def test_a_plugin_search_whose_state_policy_or_value_is_wrong_is_named(
+    tmp_path, capsys, old, new, expected
+):
+    """Found before the search (the state and policy, on shapes) or right after it (a NaN
+    value), named as the search's code: exit 2, one line, nothing written."""
+    assert THRESHOLD_SEARCH.count(old) == 1
+    module = tmp_path / "wrong_search.py"
+    module.write_text(THRESHOLD_SEARCH.replace(old, new))
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds"\n')
+    out = tmp_path / "r"
+    code = main(["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert expected in err[-1] and "internal error" not in err[-1], err
+    assert not (out / "results.json").exists()

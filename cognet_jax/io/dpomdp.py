@@ -76,7 +76,6 @@ hundreds of states and several hundred KB parse in well under a second or two.
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import os
 import re
 import zlib
@@ -291,11 +290,38 @@ def _check_size_and_head(path: Path, label: str) -> None:
 def _decode(data: bytes, label: str) -> str:
     if data[:2] == b"\x1f\x8b":
         try:
-            data = gzip.decompress(data)
+            data = _gunzip(data, label)
         except (OSError, EOFError, zlib.error) as exc:
             raise DpomdpParseError(label, None, f"cannot decompress gzip data: {exc}") from exc
     # Undecodable bytes become U+FFFD: harmless in comments, an invalid token elsewhere.
     return data.decode("utf-8", errors="replace")
+
+
+def _gunzip(data: bytes, label: str) -> bytes:
+    """The gzip ``data`` decompressed (every member), refused once the text passes
+    ``MAX_FILE_BYTES``: a few megabytes of gzip can hold gigabytes of text, which would be
+    read whole before any check."""
+    parts, total = [], 0
+    while data:
+        member = zlib.decompressobj(wbits=31)
+        chunk = data
+        while chunk and not member.eof:
+            piece = member.decompress(chunk, 2**24)
+            total += len(piece)
+            if total > MAX_FILE_BYTES:
+                raise DpomdpParseError(
+                    label,
+                    None,
+                    f"its gzip data holds over {MAX_FILE_BYTES / 2**30:.0f} GiB of text, more "
+                    "than a model file may have (its tokens take about 20 bytes of memory per "
+                    "byte of text)",
+                )
+            parts.append(piece)
+            chunk = member.unconsumed_tail
+        if not member.eof:
+            raise EOFError("the gzip data ends before its end-of-stream marker")
+        data = member.unused_data.lstrip(b"\x00")  # the next member (gzip pads with NULs)
+    return b"".join(parts)
 
 
 #: the line breaks of a .dpomdp file
