@@ -256,6 +256,15 @@ def _run_one_group(
                 "seeds): one of the two was edited, or copied from another sweep"
             )
         _check_rows(stored["rows"], len(group.runs), done)
+        values = {setting.index: setting.values for setting in group.settings}
+        for row in stored["rows"]:  # each row's grid values: the setting the spec gives it
+            if row.get("grid") != values.get(row.get("setting")):
+                raise MismatchError(
+                    f"{done} holds a run of setting {row.get('setting')} with "
+                    f"{row.get('grid')}, but {state / SWEEP_SPEC} gives that setting "
+                    f"{values.get(row.get('setting'))}: one of the two was edited, or copied "
+                    "from another sweep"
+                )
         return stored["rows"], stored["timing"]
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}

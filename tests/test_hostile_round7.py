@@ -332,3 +332,24 @@ def test_a_stop_swallowed_where_python_ignores_exceptions_still_ends_the_executa
     assert time.monotonic() - t0 < 15
     assert done.returncode == 143
     assert done.stderr.strip() == "error: stopped by SIGTERM"
+
+
+def test_a_sweep_state_whose_grid_was_reordered_is_refused_not_mislabelled(tmp_path, capsys):
+    """A finished group's rows carry their grid values; a sweep.json edited to give the
+    settings other values would publish them under the wrong labels."""
+    out = tmp_path / "sw"
+    argv = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--grid", "algorithm.nodes=2,3"]
+    argv += ["--set", "algorithm.iterations=2", "--set", "algorithm.candidates=8"]
+    argv += ["--set", "algorithm.elites=2"]
+    argv += ["--set", "algorithm.eval_rollouts=4", "--set", "algorithm.best_rollouts=10"]
+    argv += ["--set", "evaluation.rollouts=50", "--set", "run.plots=false", "--no-progress"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 0  # as it was: fine
+    spec = out / "sweep-state" / "sweep.json"
+    data = json.loads(spec.read_text())
+    data["grid"]["algorithm.nodes"] = [3, 2]
+    spec.write_text(json.dumps(data))
+    capsys.readouterr()
+    assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds a run of setting 0 with {'algorithm.nodes': 2}" in err, err
