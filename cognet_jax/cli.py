@@ -270,15 +270,16 @@ def _evaluate(args) -> int:
     return 0
 
 
-#: ``vae train``'s largest ``--epochs`` (an epoch is one pass over 1,872 patches: milliseconds)
-VAE_MAX_EPOCHS = 100_000
-#: ... ``--kl-weight``: beyond it the KL term alone drives the code (and past float32, NaN)
+#: ``vae train``'s largest ``--kl-weight``: beyond it the KL term alone drives the code (and
+#: past float32, NaN); its largest ``--epochs`` is ``vae.VAE_MAX_EPOCHS``
 VAE_MAX_KL_WEIGHT = 1e6
 #: ... and ``--latent``: a code no wider than the 4 x 4 patch it encodes
 VAE_MAX_LATENT = 16
 
 
 def _vae(args) -> int:
+    from cognet_jax.vae import VAE_MAX_EPOCHS
+
     if not 1 <= args.epochs <= VAE_MAX_EPOCHS:
         raise UsageError(f"--epochs must be in 1 .. {VAE_MAX_EPOCHS}, got {args.epochs}")
     if not 0 <= args.seed < 2**31:

@@ -38,7 +38,14 @@ from cognet_jax.config import ConfigError, require, require_positive
 from cognet_jax.controllers.neural import NeuralController
 from cognet_jax.memory import check_made_fits, trace_checked
 from cognet_jax.rollout import rollouts
-from cognet_jax.vae import PATCH_FEATURES, TrainedVAE, load_vae, train_vae, vae_bytes
+from cognet_jax.vae import (
+    PATCH_FEATURES,
+    VAE_MAX_EPOCHS,
+    TrainedVAE,
+    load_vae,
+    train_vae,
+    vae_bytes,
+)
 
 KINDS = ("raw", "encoded")
 #: File name of the VAE a run used, inside its output folder.
@@ -191,6 +198,16 @@ def check_network(config, training: bool) -> None:
         require(net.learning_rate > 0, "network.learning_rate", "must be > 0")
         require(0 <= net.momentum < 1, "network.momentum", "must be in [0, 1)")
     require_positive(net, "network", "vae_epochs", "augment_samples", "vae_latent")
+    require(  # as ``cognet-jax vae train`` bounds them: a VAE file holds no more
+        net.vae_latent <= PATCH_FEATURES,
+        "network.vae_latent",
+        f"at most {PATCH_FEATURES} (a code no wider than the 4 x 4 patch), got {net.vae_latent}",
+    )
+    require(
+        net.vae_epochs <= VAE_MAX_EPOCHS,
+        "network.vae_epochs",
+        f"at most {VAE_MAX_EPOCHS} (an epoch is one pass over the patches), got {net.vae_epochs}",
+    )
     require(net.vae_kl_weight > 0, "network.vae_kl_weight", f"must be > 0, got {net.vae_kl_weight}")
     require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
     needs_vae = net.observation == "encoded" or net.augment

@@ -48,6 +48,9 @@ from cognet_jax.envs.heatmap import HIGH, LOW, PATCH, all_patches, scene
 
 #: numbers in one observed patch (the VAE's input)
 PATCH_FEATURES = PATCH * PATCH
+#: the most epochs a VAE trains (``cognet-jax vae train --epochs``, ``network.vae_epochs``): an
+#: epoch is one pass over 1,872 patches, milliseconds
+VAE_MAX_EPOCHS = 100_000
 
 NOISE_MEANS = (-0.001, 0.001)
 NOISE_STDS = (0.001, 0.01)

@@ -353,3 +353,12 @@ def test_a_sweep_state_whose_grid_was_reordered_is_refused_not_mislabelled(tmp_p
     assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "holds a run of setting 0 with {'algorithm.nodes': 2}" in err, err
+
+
+def test_the_on_demand_vae_is_sized_as_vae_train_sizes_it():
+    """``network.vae_latent`` 17 trained a VAE that ``evaluate`` then refused to read, 100000
+    took 24 GB; ``network.vae_epochs`` 2e9 trained for weeks: both bounded as ``vae train``."""
+    with pytest.raises(ConfigError, match="network.vae_latent.*at most 16"):
+        load_config("heatmap-encoded-n4", ["network.vae_latent=17"])
+    with pytest.raises(ConfigError, match="network.vae_epochs.*at most 100000"):
+        load_config("heatmap-encoded-n4", ["network.vae_epochs=2000000000"])
