@@ -5,6 +5,8 @@ the way) leaves the previous file in place and names the path. No JAX import, so
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 from pathlib import Path
 
@@ -40,3 +42,30 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
+
+
+def plain(value):
+    """``value`` as strict JSON can write it: NumPy / JAX scalars and arrays as Python numbers
+    and lists (a plug-in simulator's ``numpy.int64`` horizon lands in results.json), tuples as
+    lists, and NaN / infinities as ``null`` (``NaN`` is no JSON: jq and browsers refuse the
+    file). Other objects are left for ``json.dumps`` to refuse."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if callable(getattr(value, "tolist", None)):  # numpy / jax scalars and arrays
+        return plain(value.tolist())
+    return value
+
+
+def json_text(value, indent: int | None = None) -> str:
+    """Strict JSON of ``plain(value)``: what every results file of a run is written with."""
+    return json.dumps(plain(value), indent=indent, allow_nan=False)
+
+
+def atomic_write_json(path: str | Path, value, indent: int | None = 1) -> None:
+    atomic_write_text(path, json_text(value, indent))

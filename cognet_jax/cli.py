@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import gc
-import json
 import logging
 import math
 import os
@@ -46,6 +45,7 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from cognet_jax import status
+from cognet_jax.atomic_files import atomic_write_json, json_text
 from cognet_jax.cli_parser import DEFAULT_EXPERIMENT, merge_common, parser
 from cognet_jax.compile_cache import use_compile_cache
 from cognet_jax.config import ConfigError, builtin_experiments, parse_override, read_experiment
@@ -262,7 +262,7 @@ def _evaluate(args) -> int:
         log = Path(args.run_dir) / "evaluations.jsonl"
         try:
             with log.open("a") as f:
-                f.write(json.dumps(value) + "\n")
+                f.write(json_text(value) + "\n")
         except OSError as err:  # the value stands; only its log could not be kept
             print(f"warning: not appended to {log}: {err.strerror}", file=sys.stderr)
             return 0
@@ -343,7 +343,7 @@ def _train_vae(args, out: Path) -> int:
         wall_s=time.perf_counter() - t0,
     )
     save_vae(out / "vae.msgpack", vae)
-    (out / "vae.json").write_text(json.dumps(info, indent=1))
+    atomic_write_json(out / "vae.json", info)
     plot_vae_mu(vae, out / "vae_mu.png")
     print(
         f"vae: final loss {losses[-1]:.3f}; Spearman(mu, distance) "
@@ -494,7 +494,8 @@ def _one_line_warnings() -> None:
 
 def _after_imports(names: list[str]) -> None:
     """What ``--import`` modules may have changed in the process, put back or refused: the
-    stop signals' handlers (restored, with a warning), a closed standard output (refused).
+    stop signals' handlers (restored, with a warning), a closed standard output or error (refused:
+    the results or the errors would not be shown).
     Their ``atexit`` handlers are not run (``run`` ends the process with ``os._exit``)."""
     modules = ", ".join(names)
     changed = restore_stop_handlers()
@@ -506,7 +507,24 @@ def _after_imports(names: list[str]) -> None:
         )
     if sys.stdout is None or sys.stdout.closed:
         raise UsageError(f"--import {modules} closed the standard output")
+    for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+        try:  # closed beneath Python's file object (``os.close(1)``): results never shown
+            ours = stream is not None and stream.fileno() == fd
+        except (OSError, ValueError):  # replaced by an object of no descriptor (a test's capture)
+            ours = False
+        if ours and not _fd_open(fd):
+            if fd == 2:
+                raise SystemExit(2)  # nowhere left to say it
+            raise UsageError(f"--import {modules} closed the standard output (file descriptor 1)")
     _IMPORTED.extend(names)
+
+
+def _fd_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
 
 
 #: the ``--import`` modules of this command (``run`` then ends without their exit handlers)

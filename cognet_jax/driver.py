@@ -37,6 +37,7 @@ from cognet_jax.records import (
     check_finite_values,
     draw_figures,
     history_fields,
+    own_run_files,
     restore_group,
     restored_history,
     run_record,
@@ -256,8 +257,15 @@ def _run(runs, opts: GroupOptions, t_start: float):
         "runs": len(runs),
         "resumed_from_iteration": done.start or None,
     }
+    try:  # the search's own hooks (history_record, settings_record, run_files) run here,
+        # where a stop still stops them, not in the deferred section that writes the folders
+        records = _records(program, done, stacked, opts, timing, finished)
+        files = own_run_files(program.algorithm)
+    except Stopped as stop:
+        _stop(program, done.state, iterations, opts, stop.signum)
     with deferred_stop() as flag:
-        records = _write_runs(program, done, stacked, opts, timing, finished)
+        for r, run in enumerate(program.runs):
+            write_run(run, records[r], finished.best[r], program.algorithm, files)
     drawn = [False] * len(records)
     if flag["signum"] is None:
         try:  # a stop here ends the figures at once: the results are written
@@ -276,8 +284,8 @@ def _run(runs, opts: GroupOptions, t_start: float):
     return records, timing
 
 
-def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> list:
-    """Every run's record (results.json), written with its folder."""
+def _records(program, done, stacked, opts, timing, finished: Finished) -> list:
+    """Every run's record (results.json)."""
     iterations = program.config.algorithm.iterations
     records = []
     for r, run in enumerate(program.runs):
@@ -299,7 +307,6 @@ def _write_runs(program, done, stacked, opts, timing, finished: Finished) -> lis
         )
         if finished.probed[r] is not None:
             record["probes"] = finished.probed[r]
-        write_run(run, record, finished.best[r], program.algorithm)
         records.append(record)
     return records
 

@@ -6,9 +6,9 @@ driver writes (the honest value, the seed)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from cognet_jax.atomic_files import json_text
 from cognet_jax.errors import UsageError
 
 #: the fields every run's results.json holds, written by the driver: no hook may set them
@@ -40,7 +40,7 @@ def checked_record(search, hook: str, value, reserved=frozenset()) -> dict:
             f"{where} returned {', '.join(taken)}: fields results.json's own writer sets"
         )
     try:
-        json.dumps(value, allow_nan=True)
+        json_text(value)  # NaN is written as null, NumPy scalars as numbers
     except (TypeError, ValueError) as err:
         raise UsageError(f"{where} returned a value JSON cannot write ({err})") from None
     return value

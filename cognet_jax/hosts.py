@@ -105,11 +105,19 @@ def set_cpu_devices(requested: int | None, runs: int) -> None:
         pass
 
 
+#: the environment variables of JAX's transfer guards
+TRANSFER_GUARDS = tuple(
+    "JAX_TRANSFER_GUARD" + side
+    for side in ("", "_HOST_TO_DEVICE", "_DEVICE_TO_HOST", "_DEVICE_TO_DEVICE")
+)
+
+
 def check_jax_settings() -> None:
     """``UsageError`` for a JAX setting the package's programs cannot run under, read from
     JAX's configuration (the environment's ``JAX_*`` variables) without starting a backend:
     programs are compiled ahead of time (no ``JAX_DISABLE_JIT``) and broadcast ranks
-    implicitly (``JAX_NUMPY_RANK_PROMOTION`` "allow" or "warn")."""
+    implicitly (``JAX_NUMPY_RANK_PROMOTION`` "allow" or "warn") and moves values between host
+    and device (no transfer guard "disallow")."""
     import jax
 
     if jax.config.jax_disable_jit:
@@ -121,6 +129,12 @@ def check_jax_settings() -> None:
             f"JAX_NUMPY_RANK_PROMOTION={jax.config.jax_numpy_rank_promotion}: cognet-jax "
             "broadcasts arrays of different ranks; unset it (or set 'allow')"
         )
+    for name in TRANSFER_GUARDS:  # JAX reads these from the environment only
+        if os.environ.get(name, "").strip().lower().startswith("disallow"):
+            raise UsageError(
+                f"{name}={os.environ[name]}: cognet-jax moves results between host and "
+                "device (values, checkpoints, progress); unset it (or set 'log')"
+            )
 
 
 #: ``XLA_FLAGS`` values a probe of this process found XLA to accept

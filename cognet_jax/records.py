@@ -20,7 +20,7 @@ import numpy as np
 from cognet_jax.api import (
     split_seed_key,
 )
-from cognet_jax.atomic_files import atomic_write_bytes, atomic_write_text
+from cognet_jax.atomic_files import atomic_write_bytes, atomic_write_json
 from cognet_jax.checkpoint import (
     fingerprint_difference,
     policy_bytes,
@@ -385,11 +385,17 @@ def numeric_settings() -> dict:
     }
 
 
-def write_run(run: Run, record: dict, policy, algorithm) -> None:
+def own_run_files(algorithm) -> dict:
+    """``{name: (config field, bytes)}``: the files the search keeps in each run folder (its
+    ``run_files`` hook; none without it)."""
+    return getattr(algorithm, "run_files", dict)()
+
+
+def write_run(run: Run, record: dict, policy, algorithm, files: dict | None = None) -> None:
     """A run's training folder: ``policy.msgpack`` (with its ``fingerprint``),
     ``results.json`` (with the policy file's ``policy_sha256``) and the search's ``run_files``
-    (recorded under ``run_files``: each one's config field and sha256); its figures are
-    ``draw_figures``'."""
+    (``files``, else ``own_run_files(algorithm)``; recorded under ``run_files``: each one's
+    config field and sha256); its figures are ``draw_figures``'."""
     if run.folder is None:
         return
     run.folder.mkdir(parents=True, exist_ok=True)
@@ -398,7 +404,8 @@ def write_run(run: Run, record: dict, policy, algorithm) -> None:
     # the file's digest: ``evaluate`` refuses a policy file replaced since (another run's)
     record = {**record, "policy_sha256": hashlib.sha256(policy_file).hexdigest()}
     kept = {}
-    for name, (field, data) in getattr(algorithm, "run_files", dict)().items():
+    files = own_run_files(algorithm) if files is None else files
+    for name, (field, data) in files.items():
         if name != Path(name).name or name in RUN_OWN_FILES:
             raise UsageError(
                 f"run_files of {type(algorithm).__name__}: {name!r} is not a file name of its "
@@ -408,7 +415,7 @@ def write_run(run: Run, record: dict, policy, algorithm) -> None:
         kept[name] = {"field": field, "sha256": hashlib.sha256(data).hexdigest()}
     if kept:  # checked as the policy's digest is
         record["run_files"] = kept
-    atomic_write_text(run.folder / "results.json", json.dumps(record, indent=1))
+    atomic_write_json(run.folder / "results.json", record)
 
 
 def draw_figures(run: Run, record: dict, policy, algorithm) -> bool:

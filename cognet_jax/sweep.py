@@ -51,7 +51,7 @@ from jax.experimental import multihost_utils
 from tqdm.auto import tqdm
 
 from cognet_jax.api import Built
-from cognet_jax.atomic_files import atomic_write_text
+from cognet_jax.atomic_files import atomic_write_json, atomic_write_text
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions, run_group
 from cognet_jax.errors import (
@@ -272,7 +272,7 @@ def _run_one_group(
     opts = GroupOptions(checkpoint, resume, progress, log, desc, resume_dir=out, built=built)
     rows, timing = run_group(_group_runs(group, out), opts)
     if done is not None:
-        atomic_write_text(done, json.dumps({"runs": group.runs, "rows": rows, "timing": timing}))
+        atomic_write_json(done, {"runs": group.runs, "rows": rows, "timing": timing}, None)
     return rows, timing
 
 
@@ -500,7 +500,7 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
             + [repr(fv.get(k)) for k in added_keys]
         )
     atomic_write_text(out / "runs.csv", table.getvalue())
-    atomic_write_text(out / "runs.json", json.dumps(result, indent=1))
+    atomic_write_json(out / "runs.json", result)
     summary = summarize(result)
     counts = sorted({r["final_value"]["rollouts"] for r in result["rows"]})
     rollouts = (

@@ -308,6 +308,8 @@ def test_jax_settings_the_programs_cannot_run_under_are_named(capsys, monkeypatc
             one_line_error(capsys, ["check", "tagging-thesis-n3"], expected)
         finally:
             jax.config.update(name, before)
+    monkeypatch.setenv("JAX_TRANSFER_GUARD_DEVICE_TO_HOST", "disallow")  # was an internal error
+    one_line_error(capsys, ["check", "tagging-thesis-n3"], "JAX_TRANSFER_GUARD_DEVICE_TO_HOST")
 
 
 def test_a_bad_import_timeout_names_the_variable(capsys, monkeypatch, tmp_path):

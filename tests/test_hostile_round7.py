@@ -362,3 +362,22 @@ def test_the_on_demand_vae_is_sized_as_vae_train_sizes_it():
         load_config("heatmap-encoded-n4", ["network.vae_latent=17"])
     with pytest.raises(ConfigError, match="network.vae_epochs.*at most 100000"):
         load_config("heatmap-encoded-n4", ["network.vae_epochs=2000000000"])
+
+
+@pytest.mark.parametrize("fd", [1, 2])
+def test_a_module_that_closes_the_output_descriptors_is_named(tmp_path, fd):
+    """``os.close(1)`` in an --import module left Python's stdout object open over nothing:
+    ``list`` said "Bad file descriptor" and ``train`` ended 0 showing no result. Now the
+    command refuses in one line (fd 1) or ends 2 (fd 2: nowhere left to say it)."""
+    import subprocess
+    import sys
+
+    module = tmp_path / "closer.py"
+    module.write_text(f"import os\nos.close({fd})\n")
+    argv = [sys.executable, "-m", "cognet_jax", "--import", str(module), "list"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    if fd == 1:
+        assert done.stderr.strip().splitlines() == [
+            f"error: --import {module} closed the standard output (file descriptor 1)"
+        ]

@@ -364,3 +364,70 @@ def test_a_plugin_search_whose_state_policy_or_value_is_wrong_is_named(
     assert code == 2, err
     assert expected in err[-1] and "internal error" not in err[-1], err
     assert not (out / "results.json").exists()
+
+
+def test_numpy_numbers_and_nan_from_user_code_are_written_as_strict_json(tmp_path):
+    """A plug-in's numbers reach results.json as NumPy scalars (a simulator's
+    ``numpy.int64`` horizon was the agent-steps count: the search ran, then results.json
+    failed and the run was lost) and as NaN (no JSON: jq refuses the file). Both are written:
+    the integer as a number, NaN as null."""
+    source = THRESHOLD_SEARCH.replace(
+        '        return {"mean_value_per_iteration": [float(v) for v in history.mean_value]}',
+        "        import numpy\n"
+        '        return {"steps": numpy.int64(3), "gap": float("nan"), '
+        '"per_agent": numpy.arange(2)}',
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-numpy"')
+    module = tmp_path / "numpy_record.py"
+    module.write_text(source)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-numpy"\n[evaluation]\nrollouts = 200\n')
+    out = tmp_path / "r"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    text = (out / "results.json").read_text()
+    record = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in results.json"))
+    assert (record["steps"], record["gap"], record["per_agent"]) == (3, None, [0, 1])
+
+
+def test_a_stop_while_a_record_hook_blocks_stops_it(tmp_path):
+    """A plug-in's history_record ran inside the section that writes the run folders, where a
+    stop only sets a flag: a hook that blocked held SIGTERM for as long as it blocked (119 s
+    measured). The hooks now run before that section: the stop ends the command at once and
+    keeps the search's best policy as any stop after the search does."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    marker = tmp_path / "in_hook"
+    source = THRESHOLD_SEARCH.replace(
+        "    def history_record(self, history):  # its own per-iteration figure in results.json\n",
+        "    def history_record(self, history):  # its own per-iteration figure in results.json\n"
+        "        import time\n"
+        f"        open({str(marker)!r}, 'w').close()\n"
+        "        time.sleep(120)\n",
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-slow"')
+    module = tmp_path / "slow_record.py"
+    module.write_text(source)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-slow"\n[evaluation]\nrollouts = 200\n')
+    out = tmp_path / "r"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cognet_jax", *argv], stderr=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 240
+        while not marker.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert marker.exists(), proc.stderr.read() if proc.poll() is not None else "no hook"
+        proc.send_signal(signal.SIGTERM)
+        t0 = time.monotonic()
+        code = proc.wait(timeout=60)
+        assert time.monotonic() - t0 < 20
+    finally:
+        proc.kill()
+    err = proc.stderr.read()
+    assert code == 128 + signal.SIGTERM, err
+    assert "interrupted at iteration 4/4 (SIGTERM)" in err, err
+    assert json.loads((out / "results.json").read_text())["status"] == "interrupted"

@@ -637,3 +637,15 @@ def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monke
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "simulator 'rare-nan-seek-test'" in err and "value is NaN at iteration" in err, err
     assert not (out / "results.json").exists()
+
+
+def test_results_are_written_as_strict_json_whatever_numbers_they_hold(tmp_path):
+    import numpy as np
+    from cognet_jax.atomic_files import atomic_write_json, plain
+
+    value = {"a": np.int64(4), "b": (np.float32(0.5), float("inf")), "c": np.zeros((1, 2))}
+    assert plain(value) == {"a": 4, "b": [0.5, None], "c": [[0.0, 0.0]]}
+    atomic_write_json(tmp_path / "r.json", {"nan": np.float64("nan")})
+    assert json.loads((tmp_path / "r.json").read_text()) == {"nan": None}
+    with pytest.raises(TypeError):
+        atomic_write_json(tmp_path / "s.json", {"set": {1}})
