@@ -203,7 +203,17 @@ class RunSection:
             "run.checkpoint_seconds",
             f"must be >= 0, got {self.checkpoint_seconds}",
         )
-        require(self.memory_gb >= 0, "run.memory_gb", f"must be >= 0, got {self.memory_gb}")
+        require(
+            self.memory_gb == 0 or self.memory_gb >= MIN_MEMORY_GB,
+            "run.memory_gb",
+            f"0 (half of this machine's memory) or at least {MIN_MEMORY_GB} GB, got "
+            f"{self.memory_gb}",
+        )
+
+
+#: the smallest ``run.memory_gb`` (1 MB): below it no program fits, and the budget's bytes
+#: round to nothing in the messages that name it
+MIN_MEMORY_GB = 0.001
 
 
 @dataclasses.dataclass
@@ -436,7 +446,7 @@ def read_experiment(name_or_path: str) -> dict:
                 "", f"{name_or_path}: not a regular file (an experiment is a TOML file)"
             )
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Notepad) is no TOML
         except UnicodeDecodeError as err:
             raise ConfigError("", f"{name_or_path}: not a UTF-8 TOML file ({err.reason})") from None
         if not text.strip():

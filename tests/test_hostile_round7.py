@@ -381,3 +381,20 @@ def test_a_module_that_closes_the_output_descriptors_is_named(tmp_path, fd):
         assert done.stderr.strip().splitlines() == [
             f"error: --import {module} closed the standard output (file descriptor 1)"
         ]
+
+
+def test_a_byte_order_mark_is_read_past_in_experiment_and_model_files(tmp_path):
+    """Windows editors start UTF-8 files with U+FEFF: an experiment file was "invalid TOML
+    at line 1, column 1" and a model file's first token unknown."""
+    from shared_files import dpomdp_file
+
+    from cognet_jax.config import read_experiment
+    from cognet_jax.io.dpomdp import load_dpomdp
+
+    toml = tmp_path / "bom.toml"
+    toml.write_bytes(b'\xef\xbb\xbf[experiment]\nname = "bom"\n')
+    assert read_experiment(str(toml))["experiment"]["name"] == "bom"
+    source = dpomdp_file("dectiger")
+    model = tmp_path / "bom.dpomdp"
+    model.write_bytes(b"\xef\xbb\xbf" + source.read_bytes())
+    assert np.array_equal(load_dpomdp(model).reward, load_dpomdp(source).reward)

@@ -179,8 +179,10 @@ def test_a_horizon_of_a_million_is_refused_in_seconds(capsys, tmp_path):
     assert not out.exists()
 
 
-def test_memory_gb_must_not_be_negative(capsys):
+def test_memory_gb_must_not_be_negative_or_round_to_nothing(capsys):
     one_line_error(capsys, ["train", *sets("run.memory_gb=-1")], "run.memory_gb")
+    # 1e-300 GB is no byte: refused, not "over the memory budget of 0 GB"
+    one_line_error(capsys, ["train", *sets("run.memory_gb=1e-300")], "at least 0.001 GB")
 
 
 @pytest.mark.parametrize("command", ["check", "train"])

@@ -641,6 +641,7 @@ def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monke
 
 def test_results_are_written_as_strict_json_whatever_numbers_they_hold(tmp_path):
     import numpy as np
+
     from cognet_jax.atomic_files import atomic_write_json, plain
 
     value = {"a": np.int64(4), "b": (np.float32(0.5), float("inf")), "c": np.zeros((1, 2))}

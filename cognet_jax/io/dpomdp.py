@@ -293,8 +293,9 @@ def _decode(data: bytes, label: str) -> str:
             data = _gunzip(data, label)
         except (OSError, EOFError, zlib.error) as exc:
             raise DpomdpParseError(label, None, f"cannot decompress gzip data: {exc}") from exc
-    # Undecodable bytes become U+FFFD: harmless in comments, an invalid token elsewhere.
-    return data.decode("utf-8", errors="replace")
+    # A byte-order mark (Notepad) is no token; undecodable bytes become U+FFFD: harmless in
+    # comments, an invalid token elsewhere.
+    return data.decode("utf-8-sig", errors="replace")
 
 
 def _gunzip(data: bytes, label: str) -> bytes:
