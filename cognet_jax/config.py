@@ -399,6 +399,7 @@ ADDED_FIELDS = {
             "kept_sharpness": 1.0,
             "polish_share": 0.0,
             "polish_axes": False,
+            "polish_counter": False,
             "polish_extend": 1.0,
             "start_draw": False,
             "start_spread": 1.0,

@@ -1058,6 +1058,32 @@ AFTER_AXES = {
     ),
 }
 
+#: a candidate: the polish's COUNTER moves (``polish_counter``), swept on every row whose
+#: inputs have at most 4 features (the plume's 9 and the heatmap's 16 get none: their sweeps
+#: would repeat the "-s0i800" rows seed for seed)
+COUNTER_WHAT = (
+    "candidate: the polish's COUNTER moves (polish_counter: every controller rewritten as a "
+    "counter of the evidence on one feature), with the code of main"
+)
+AFTER_AXES.update(
+    {
+        f"{name}-counter": (experiment, extra, seeds, COUNTER_WHAT, f"{name}-s0i800")
+        for name, experiment, extra, seeds in (
+            *((row, ROWS[row][0], [], SEEDS) for row in ROWS if row != "plume"),
+            *(
+                (e, e, [*NEWEST_AXES, *NEWEST_STARTS], SEEDS)
+                for e in ("tagging-thesis-n3", "tagging-thesis-n6")
+            ),
+            (
+                "paper-budget-1of64",
+                "tagging-paper-auto",
+                ["algorithm.budget=4.6875e9", "run.probe_seconds=10"],
+                3,
+            ),
+        )
+    }
+)
+
 
 def before_axes(name: str, overrides: list[str]) -> list[str]:
     """``overrides`` of row ``name`` with ``BEFORE_AXES``, for the rows measured with the

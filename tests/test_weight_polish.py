@@ -13,6 +13,8 @@ from cognet_jax.algorithms.weight_polish import (
     AXIS_LEVELS,
     AXIS_MAX_FEATURES,
     AXIS_SHARPNESS,
+    COUNTER,
+    COUNTER_LEVELS,
     DEFAULT,
     SHIFT,
     SHIFTS,
@@ -21,6 +23,7 @@ from cognet_jax.algorithms.weight_polish import (
     PolishWork,
     apply_move,
     axis_moves,
+    counter_moves,
     move_table,
     sweep,
 )
@@ -69,10 +72,41 @@ def test_axis_moves_are_listed_for_inputs_of_few_features_only_start_moves_for_a
     per_node = 2 * 2 * len(AXIS_LEVELS) * Q  # features x sides x levels x targets
     assert axis_moves(2, Q) == per_node
     starts = (A + 1) * (Q - 1)  # per agent, and every agent at once
-    assert len(with_axes) == len(plain) + A * Q * per_node + starts
-    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS, START}
+    counters = 2 * len(COUNTER_LEVELS) * 1 * NA * NA  # features x margins x depths x ends
+    assert counter_moves(2, Q, H, NA) == counters
+    assert len(with_axes) == len(plain) + A * Q * per_node + starts + counters
+    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS, START, COUNTER}
     wide = move_table(A, Q, H, NA, features=AXIS_MAX_FEATURES + 1)
-    assert len(wide) == len(plain) + starts and AXIS not in wide[:, 0]
+    assert len(wide) == len(plain) + starts and not {AXIS, COUNTER} & set(wide[:, 0])
+    assert counter_moves(1, Q, 1, NA) == 0  # a counter node needs two units
+
+
+def test_a_counter_move_makes_every_controller_a_tally_of_one_feature():
+    """Depth 2 on five nodes: node 0 holds tally 0, node 1 tally +1, node 2 tally -1, nodes 3
+    and 4 the ends; steps past +-margin spreads of the feature move the tally, the ends act
+    and start again at node 0."""
+    q = 5
+    policy = tied_policy()
+    p = policy.net_params["params"]
+    grow = lambda x, axis: jnp.concatenate([x] + [jnp.take(x, jnp.array([0, 1]), axis)], axis)  # noqa: E731
+    w1, b1 = grow(p["Dense_0"]["kernel"], 1), grow(p["Dense_0"]["bias"], 1)
+    w2 = jnp.zeros((A, q, H, q)).at[:, :, :, :Q].set(grow(p["Dense_1"]["kernel"], 1))
+    b2 = jnp.zeros((A, q, q)).at[:, :, :Q].set(grow(p["Dense_1"]["bias"], 1))
+    actions = jnp.broadcast_to(jax.nn.one_hot(jnp.array([2, 0, 1, 2, 0]), NA), (A, q, NA))
+    params = {"Dense_0": {"kernel": w1, "bias": b1}, "Dense_1": {"kernel": w2, "bias": b2}}
+    policy = NeuralPolicy(action_probs=actions, net_params={"params": params})
+    center = jnp.full((A, F), 1.0)
+    level, depth, hi, lo = COUNTER_LEVELS.index(0.5), 2, 3, 1
+    arg = ((0 * len(COUNTER_LEVELS) + level) * 2 + depth - 1) * NA * NA + hi * NA + lo
+    moved = apply_move(policy, jnp.array([COUNTER, 0, 0, 0, arg]), SCALE, SUPPORT, center)
+    up, down, still = 1.0 + 0.5 * 0.5 + 0.01, 1.0 - 0.5 * 0.5 - 0.01, 1.0 + 0.2
+    for agent in range(A):
+        assert [node_choice(moved, agent, n, up) for n in range(q)] == [1, 3, 0, 0, 0]
+        assert [node_choice(moved, agent, n, down) for n in range(q)] == [2, 0, 4, 0, 0]
+        assert [node_choice(moved, agent, n, still) for n in range(q)] == [0, 1, 2, 0, 0]
+        played = np.argmax(np.asarray(moved.action_probs[agent]), -1).tolist()
+        # node 0's action while counting; agent 1 lacks action 3: its end keeps gathering
+        assert played == [2, 2, 2, 3 if agent == 0 else 2, 1]
 
 
 def node_choice(policy, agent: int, node: int, x: float) -> int:
@@ -274,9 +308,10 @@ def test_a_run_records_its_polish_and_evaluate_gives_the_polished_policys_value(
     results = json.loads((out / "results.json").read_text())
     polish = results["finish"]
     # 624 one-entry moves, 2 agents x 3 nodes x 42 AXIS moves (one feature), 3 x 2 START
-    # moves; 20 x 64 x 100 rollouts over (882 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps,
-    # 5 while each moves
-    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) + 3 * 2 == 882
+    # moves, 7 margins x 3 x 3 end actions of COUNTER moves of depth 1; 20 x 64 x 100
+    # rollouts over (945 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps, 5 while each moves
+    assert counter_moves(1, 3, 2, 3) == 63
+    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) + 3 * 2 + 63 == 945
     assert polish["sweeps"] == min(5, max(2, polish["moves_applied"] + 1))
     assert "polish:" in capsys.readouterr().out
     assert cli_main(["evaluate", str(out), "--rollouts", "2000"]) == 0

@@ -61,8 +61,10 @@ class CognetWeightsSection:
     (``algorithms.weight_polish``; 0: none); ``polish_axes``: its moves include rewriting a
     node's weakest unit as a threshold on one feature (AXIS, on inputs of at most
     ``AXIS_MAX_FEATURES`` features) and starting a controller at another node's role
-    (START); ``polish_extend``: while each sweep applies a move, the polish goes on past its
-    share up to that many times it (1: never); ``start_draw``: every candidate also draws,
+    (START); ``polish_counter``: and rewriting every controller as a counter of the evidence
+    on one feature (COUNTER, inputs of at most ``AXIS_MAX_FEATURES`` features, with
+    ``polish_axes``); ``polish_extend``: while each sweep applies a move, the polish goes on
+    past its share up to that many times it (1: never); ``start_draw``: every candidate also draws,
     per agent, the node whose role it starts in (a categorical refit to the elites; tied
     agents share a controller and may start apart), from a first categorical that puts
     ``start_spread`` of its mass evenly on every node and the rest on node 0 (1: uniform).
@@ -109,6 +111,7 @@ class CognetWeightsSection:
     starts: int = 1
     polish_share: float = 0.25
     polish_axes: bool = True
+    polish_counter: bool = True
     polish_extend: float = 2.0
     start_draw: bool = True
     start_spread: float = 0.0

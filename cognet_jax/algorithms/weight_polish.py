@@ -38,6 +38,20 @@ Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q
   time (beacon: the kept policies started by stepping, the hand-written rule by staying;
   +0.1).
 
+* ``COUNTER`` (``polish_axes`` and ``polish_counter``, inputs of at most
+  ``AXIS_MAX_FEATURES`` features): every agent's controller becomes a counter of the
+  evidence on one feature (``_counter``): its nodes hold a tally that steps up past
+  ``+margin`` standard deviations of the feature and down past ``-margin``, the agent's
+  node-0 action played while ``|tally| < depth``, one end action at ``+depth`` and another
+  at ``-depth``, then the tally starts again; ``arg`` picks the feature, the margin
+  (``COUNTER_LEVELS``), the depth (up to ``(Q - 1) // 2``) and the two end actions. Why:
+  where acting pays only after several concordant observations (a door opened after hearing
+  the tiger on one side a few times more than on the other), the controllers that keep
+  gathering are a plateau -- their transitions change no return until an action is placed at
+  the end of a chain -- and no move of one entry leaves it: on noisy Dec-Tiger the kept
+  policies listened for ever (-19.6) where a counter of depth 3 gives about -17.9
+  (experiments/NOTES.md). The SHIFT and ACTION moves of later sweeps tune it.
+
 SHIFT, TARGET and AXIS change every copy of the unit at once: a tied controller (``node_tie``,
 ``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
 changing one copy alone would untie it.
@@ -69,7 +83,7 @@ from cognet_jax.controllers.base import action_support
 from cognet_jax.controllers.neural import NeuralPolicy
 from cognet_jax.rollout import evaluate_candidates, many_returns
 
-SHIFT, TARGET, ACTION, DEFAULT, AXIS, START = 0, 1, 2, 3, 4, 5
+SHIFT, TARGET, ACTION, DEFAULT, AXIS, START, COUNTER = 0, 1, 2, 3, 4, 5, 6
 #: threshold shifts, in standard deviations of the input features along a unit's weights
 SHIFTS = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
 #: thresholds of AXIS moves, in standard deviations of the feature from its mean
@@ -79,6 +93,14 @@ AXIS_SHARPNESS = 0.05
 #: AXIS moves only on inputs of at most this many features: on an image patch a threshold on
 #: one pixel is not what a hand-written rule reads, and the moves would grow with the pixels
 AXIS_MAX_FEATURES = 4
+#: margins of COUNTER moves, in standard deviations of the feature past its mean
+COUNTER_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
+#: logit of a COUNTER node's default (stay, or back to node 0 after an end): the controller
+#: samples its next node from the softmax of its logits, so 30 leaves the others e^-30
+COUNTER_STAY = 30.0
+#: slope of a COUNTER unit, per standard deviation of its feature, and its vote: twice the
+#: stay logit 1 / (2 COUNTER_SLOPE) standard deviations past its margin
+COUNTER_SLOPE = 40.0
 #: moves of a sweep tried again on the confirming rollouts (its best by the picking ones)
 CONFIRM_TOP = 4
 #: the confirming rollouts, as a multiple of the picking ones (``best_rollouts``): the picking
@@ -101,10 +123,26 @@ def axis_moves(features: int, nodes: int) -> int:
     return features * 2 * len(AXIS_LEVELS) * nodes
 
 
-def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int = 0) -> np.ndarray:
+def counter_depths(nodes: int, hidden: int) -> int:
+    """Depths of COUNTER moves a controller holds: a counter of depth ``c`` takes ``2 c + 1``
+    nodes and two hidden units per node."""
+    return (nodes - 1) // 2 if hidden >= 2 else 0
+
+
+def counter_moves(features: int, nodes: int, hidden: int, actions: int) -> int:
+    """COUNTER moves: features x margins x depths x the two end actions (0 above
+    ``AXIS_MAX_FEATURES``)."""
+    if features > AXIS_MAX_FEATURES:
+        return 0
+    return features * len(COUNTER_LEVELS) * counter_depths(nodes, hidden) * actions * actions
+
+
+def move_table(
+    agents: int, nodes: int, hidden: int, actions: int, features: int = 0, counters: bool = True
+) -> np.ndarray:
     """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``; ``features``
-    > 0 adds the AXIS moves of that many input features (``axis_moves``) and the START
-    moves."""
+    > 0 adds the AXIS moves of that many input features (``axis_moves``), the START moves and
+    (``counters``) the COUNTER moves (``counter_moves``)."""
     rows = []
     for a in range(agents):
         for n in range(nodes):
@@ -118,6 +156,8 @@ def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int
             rows += [(START, a, 0, 0, i) for i in range(nodes - 1)]
     if features:
         rows += [(START, 0, 1, 0, i) for i in range(nodes - 1)]
+        count = counter_moves(features, nodes, hidden, actions) if counters else 0
+        rows += [(COUNTER, 0, 0, 0, i) for i in range(count)]
     return np.asarray(rows, np.int32).reshape(-1, 5)
 
 
@@ -164,6 +204,65 @@ def _axis_unit(w1, b1, w2, b2, a, n, arg, scale, center):
     column = jax.nn.one_hot(feature, f_count, dtype=w1.dtype) * side * slope / s_f
     bias = -side * slope * threshold / s_f
     return h, column, bias, vote * jax.nn.one_hot(target, q, dtype=w2.dtype)
+
+
+def _counter(leaves, arg, scale, center, support):
+    """The COUNTER move ``arg`` (module docstring): ``leaves`` ``(w1, b1, w2, b2, actions)``
+    rewritten, in every agent's controller, as a counter of the evidence on one feature.
+    Node 0 holds the tally 0, node ``2t - 1`` the tally ``t > 0``, node ``2t`` the tally
+    ``-t``; while ``|t| < c`` the node plays the agent's node-0 action, its unit 0 votes up a
+    tally past ``+margin`` standard deviations of the feature, its unit 1 down one past
+    ``-margin``, its default stays. At ``+c`` node ``2c - 1`` plays one action, at ``-c`` node
+    ``2c`` the other, and the next node is 0: the tally starts again. Nodes past ``2c`` are
+    left unreached."""
+    w1, b1, w2, b2, actions = leaves
+    agents, q, f_count, hidden = w1.shape
+    na = actions.shape[-1]
+    lo, rest = arg % na, arg // na
+    hi, rest = rest % na, rest // na
+    depths = max(counter_depths(q, hidden), 1)
+    depth, rest = 1 + rest % depths, rest // depths
+    level, feature = rest % len(COUNTER_LEVELS), rest // len(COUNTER_LEVELS)
+    margin = jnp.asarray(COUNTER_LEVELS, jnp.float32)[level]
+    nodes = jnp.arange(q)
+    tally = jnp.where(nodes % 2 == 1, (nodes + 1) // 2, -(nodes // 2))
+
+    def node_of(t):  # the node of tally t; the ends at +-depth
+        inner = jnp.where(t > 0, 2 * t - 1, -2 * t)
+        return jnp.where(t >= depth, 2 * depth - 1, jnp.where(t <= -depth, 2 * depth, inner))
+
+    counting = nodes < 2 * depth - 1  # [Q]
+    s_f = scale[:, feature]  # [A]
+    c_f = center[:, feature]
+    slope = COUNTER_SLOPE / s_f  # [A]
+    column = jax.nn.one_hot(feature, f_count, dtype=w1.dtype)  # [F]
+    signs = jnp.asarray([1.0, -1.0], w1.dtype)  # unit 0 up, unit 1 down
+    units = jnp.arange(hidden) < 2
+    unit_sign = jnp.where(units, jnp.pad(signs, (0, hidden - 2)), 0.0)  # [H]
+    new_w1 = column[None, None, :, None] * (slope[:, None, None, None] * unit_sign)
+    new_w1 = jnp.where(counting[None, :, None, None], new_w1, 0.0)  # [A, Q, F, H]
+    new_b1 = (  # relu(slope (s (x_f - c_f) - margin s_f)): unit 0 s = +1, unit 1 s = -1
+        -slope[:, None, None] * (unit_sign * c_f[:, None, None] + margin * s_f[:, None, None])
+    )
+    new_b1 = jnp.where(counting[None, :, None] & units, new_b1, 0.0)  # [A, Q, H]
+    up = jax.nn.one_hot(node_of(tally + 1), q, dtype=w2.dtype)  # [Q, Q]
+    down = jax.nn.one_hot(node_of(tally - 1), q, dtype=w2.dtype)
+    rows = jnp.zeros((q, hidden, q), w2.dtype).at[:, 0].set(up).at[:, 1].set(down)
+    rows = 2.0 * COUNTER_STAY * rows
+    new_w2 = jnp.broadcast_to(jnp.where(counting[:, None, None], rows, 0.0), w2.shape)
+    stay = jnp.where(counting[:, None], jnp.eye(q, dtype=b2.dtype), jax.nn.one_hot(0, q))
+    new_b2 = jnp.broadcast_to(COUNTER_STAY * stay, b2.shape)
+    middle = jnp.argmax(actions[:, 0], axis=-1)  # [A]
+    agents_ax = jnp.arange(agents)
+    end_hi = jnp.where(support[agents_ax, hi], hi, middle)
+    end_lo = jnp.where(support[agents_ax, lo], lo, middle)
+    played = jnp.where(
+        nodes == 2 * depth - 1,
+        end_hi[:, None],
+        jnp.where(nodes == 2 * depth, end_lo[:, None], middle[:, None]),
+    )  # [A, Q]
+    new_actions = jax.nn.one_hot(played, na, dtype=actions.dtype)
+    return new_w1, new_b1, new_w2, new_b2, new_actions
 
 
 def apply_move(
@@ -221,6 +320,12 @@ def apply_move(
             pick(START, new, old)
             for new, old in zip(started, (w1, b1_new, w2_new, b2_new, actions_new))
         )
+        if counter_depths(q, w1.shape[-1]):
+            counted = _counter((w1, b1, w2, b2, actions), arg, scale, center, support)
+            w1, b1_new, w2_new, b2_new, actions_new = (
+                pick(COUNTER, new, old)
+                for new, old in zip(counted, (w1, b1_new, w2_new, b2_new, actions_new))
+            )
     return _with(policy, w1, b1_new, w2_new, b2_new, actions_new)
 
 
@@ -322,7 +427,8 @@ class PolishFinish:
         records of a sweep's runs read its length)."""
         s, c = self.settings, self.controller
         features = c.in_features if s.polish_axes else 0
-        return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions, features)
+        actions = self.env.num_actions
+        return move_table(c.num_agents, s.nodes, s.hidden, actions, features, s.polish_counter)
 
     @property
     def polish_sweeps(self) -> int:
