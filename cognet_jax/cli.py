@@ -255,9 +255,18 @@ def _evaluate(args) -> int:
         value = in_background(
             lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, status.say)
         )
+        quiet = value.get("no_effect", [])
+        if quiet:
+            print(
+                f"warning: --set {' '.join(quiet)} changes nothing an evaluation reads (a "
+                "field of the search or of the run, not of the simulator, the controller or "
+                "the evaluation): the value is the run's own setting's",
+                file=sys.stderr,
+            )
+        shown = [o for o in args.overrides if o not in quiet]
         print(
             f"value {value['mean']:.3f} +- {value['stderr']:.3f} ({value['rollouts']} rollouts, "
-            f"seed {value['seed']}{', ' + ' '.join(args.overrides) if args.overrides else ''})"
+            f"seed {value['seed']}{', ' + ' '.join(shown) if shown else ''})"
         )
         log = Path(args.run_dir) / "evaluations.jsonl"
         try:

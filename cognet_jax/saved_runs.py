@@ -14,6 +14,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.api import (
@@ -101,6 +102,8 @@ class LoadedRun:
     params: SearchParams
     policy: Any
     results: dict
+    #: the overrides that change nothing the evaluation reads (``_no_effect``)
+    no_effect: tuple = ()
 
 
 def load_run(
@@ -148,12 +151,17 @@ def load_run(
     recorded = "run_files" if "run_files" in results else "vae_sha256"  # before run_files
     kept = _run_files(results, run_dir, results_path)
     kept = {n: f for n, f in kept.items() if tuple(f["field"].split(".")) not in named}
-    for name, file in kept.items():
-        overrides.insert(0, f"{file['field']}={json.dumps(str(run_dir / name))}")
-    config = config_from_dict(apply_overrides(ran, overrides))
-    if rollouts is not None:
-        evaluation = dataclasses.replace(config.evaluation, rollouts=rollouts)
-        config = dataclasses.replace(config, evaluation=evaluation)
+    kept_sets = [f"{f['field']}={json.dumps(str(run_dir / name))}" for name, f in kept.items()]
+    overrides = kept_sets + overrides
+
+    def make(sets: list[str]) -> Config:
+        made = config_from_dict(apply_overrides(ran, sets))
+        if rollouts is None:
+            return made
+        evaluation = dataclasses.replace(made.evaluation, rollouts=rollouts)
+        return dataclasses.replace(made, evaluation=evaluation)
+
+    config = make(overrides)
     if built is None:
         built = build(config)
     else:
@@ -172,7 +180,57 @@ def load_run(
     for name, file in kept.items():
         _check_digest(file.get("path", run_dir / name), file["sha256"], recorded)
     policy = jax.tree.map(jnp.asarray, saved)
-    return LoadedRun(config, algorithm, params, policy, results)
+    given = [o for o in overrides if o not in model_sets and o not in kept_sets]
+    no_effect = _no_effect(make, model_sets + kept_sets, given, built) if given else ()
+    return LoadedRun(config, algorithm, params, policy, results, no_effect)
+
+
+def _evaluated(built: Built) -> tuple:
+    """What an evaluation of a stored policy reads of a built run: the simulator, its
+    params, the controller, the evaluation's settings and the key's generator."""
+    c = built.config
+    return (built.env, built.env_params, built.algorithm.controller, c.evaluation, c.run.prng_impl)
+
+
+def _same(a, b) -> bool:
+    try:
+        leaves_a, tree_a = jax.tree.flatten(a)
+        leaves_b, tree_b = jax.tree.flatten(b)
+        if tree_a != tree_b:
+            return False
+        return all(
+            np.array_equal(np.asarray(x), np.asarray(y))
+            if hasattr(x, "shape") or hasattr(y, "shape")
+            else bool(x == y)
+            for x, y in zip(leaves_a, leaves_b)
+        )
+    except Exception:  # objects that cannot be compared: taken as different
+        return False
+
+
+def _no_effect(make, fixed: list[str], given: list[str], built: Built) -> tuple:
+    """The overrides of ``given`` that change nothing an evaluation reads (``_evaluated``):
+    a search's or a run's field (``algorithm.iterations``, ``run.memory_gb``) set on
+    ``evaluate`` gives the run's own value, which the value line would otherwise show beside
+    them as if they were applied. ``make(overrides) -> Config``: the run's config with them;
+    ``fixed``: the overrides every build keeps (the model file, the run's own files)."""
+    try:
+        base = _evaluated(build(make(fixed)))
+    except Exception:  # the run's own setting does not build here: no verdict
+        return ()
+    if _same(base, _evaluated(built)):
+        return tuple(given)
+    if len(given) == 1:
+        return ()
+    quiet = []
+    for o in given:
+        try:
+            alone = build(make([*fixed, o]))
+        except Exception:
+            continue
+        if _same(base, _evaluated(alone)):
+            quiet.append(o)
+    return tuple(quiet)
 
 
 def _exists(path: str, written: dict) -> bool:
@@ -296,4 +354,6 @@ def evaluate_run(
     evaluate = final_value(run.algorithm, config, run.params)
     value = evaluate(seed_key(config, seed), run.policy)
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
+    if run.no_effect:
+        value["no_effect"] = list(run.no_effect)
     return value

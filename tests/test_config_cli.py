@@ -120,6 +120,16 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     line = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
     assert line["rollouts"] == 300 and line["overrides"] == ["env.obs_noise=0.5"]
     assert "value" in capsys.readouterr().out
+    assert "no_effect" not in line  # the noise is the simulator's: it is applied
+    # a search's field changes nothing evaluate reads: said, not shown as applied
+    sets = ["--set", "algorithm.iterations=9", "--set", "env.obs_noise=0.5"]
+    assert main(["evaluate", str(out), "--rollouts", "300", *sets]) == 0
+    said = capsys.readouterr()
+    assert "warning: --set algorithm.iterations=9 changes nothing" in said.err
+    assert said.out.startswith("value ") and "iterations" not in said.out.splitlines()[0]
+    assert f"{line['mean']:.3f}" in said.out  # the same value as with the noise alone
+    logged = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
+    assert logged["no_effect"] == ["algorithm.iterations=9"]
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
 
 
