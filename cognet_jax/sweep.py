@@ -52,6 +52,7 @@ from tqdm.auto import tqdm
 
 from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_json, atomic_write_text
+from cognet_jax.compiled import DRIVING_FIELDS
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions, run_group
 from cognet_jax.errors import (
@@ -93,6 +94,13 @@ def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
             raise ConfigError(name, "appears twice in the grid")
         if name in fixed:
             raise ConfigError(name, "is set by both --grid and --set; give it in one of them")
+        section, _, key = name.partition(".")
+        if (section == "run" and key in DRIVING_FIELDS) or name in NAMING_FIELDS:
+            raise ConfigError(
+                name,
+                "gives every group the same search and values (it drives or names the runs); "
+                "give it with --set",
+            )
         if name == "run.prng_impl" and len(set(parts)) > 1:
             raise ConfigError(
                 name, "cannot vary within a sweep (its runs share one program of one key type)"
@@ -104,6 +112,10 @@ def parse_grid(texts: list[str], overrides: list[str] = ()) -> dict[str, list]:
             raise ConfigError(name, f"the grid gives the value {twice!r} twice")
         grid[name] = values
     return grid
+
+
+#: fields that name a run, not its search: a grid over them runs one search again and again
+NAMING_FIELDS = ("experiment.name", "experiment.description")
 
 
 @dataclass

@@ -278,6 +278,9 @@ def test_small_refusals_of_round_seven(tmp_path, capsys):
 
     with pytest.raises(ConfigError, match="gives the value 0.1 twice"):
         parse_grid(["algorithm.alpha=0.1,1e-1"])
+    for field in ("run.plots=true,false", "run.checkpoint_every=1,2", "experiment.name=a,b"):
+        with pytest.raises(ConfigError, match="gives every group the same search"):
+            parse_grid([field])  # duplicate groups of one search (round eight)
     with pytest.raises(ConfigError, match="is no folder name"):
         load_config("tagging-thesis-n3", ['experiment.name="two\\nlines"'])
     fifo = tmp_path / "pipe.py"
