@@ -387,8 +387,15 @@ def numeric_settings() -> dict:
 
 def own_run_files(algorithm) -> dict:
     """``{name: (config field, bytes)}``: the files the search keeps in each run folder (its
-    ``run_files`` hook; none without it)."""
-    return getattr(algorithm, "run_files", dict)()
+    ``run_files`` hook; none without it), their names checked before any file is written."""
+    files = getattr(algorithm, "run_files", dict)()
+    for name in files:
+        if name != Path(name).name or name in RUN_OWN_FILES:
+            raise UsageError(
+                f"run_files of {type(algorithm).__name__}: {name!r} is not a file name of its "
+                "own in the run folder"
+            )
+    return files
 
 
 def write_run(run: Run, record: dict, policy, algorithm, files: dict | None = None) -> None:
@@ -406,11 +413,6 @@ def write_run(run: Run, record: dict, policy, algorithm, files: dict | None = No
     kept = {}
     files = own_run_files(algorithm) if files is None else files
     for name, (field, data) in files.items():
-        if name != Path(name).name or name in RUN_OWN_FILES:
-            raise UsageError(
-                f"run_files of {type(algorithm).__name__}: {name!r} is not a file name of its "
-                "own in the run folder"
-            )
         atomic_write_bytes(run.folder / name, data)
         kept[name] = {"field": field, "sha256": hashlib.sha256(data).hexdigest()}
     if kept:  # checked as the policy's digest is

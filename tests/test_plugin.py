@@ -431,3 +431,23 @@ def test_a_stop_while_a_record_hook_blocks_stops_it(tmp_path):
     assert code == 128 + signal.SIGTERM, err
     assert "interrupted at iteration 4/4 (SIGTERM)" in err, err
     assert json.loads((out / "results.json").read_text())["status"] == "interrupted"
+
+
+def test_run_files_named_outside_the_run_folder_are_refused_before_anything_is_written(tmp_path):
+    """A plug-in's run_files named ``../x`` was refused after policy.msgpack was written (a
+    folder with a policy and no results); now before any file of the run is written."""
+    source = THRESHOLD_SEARCH.replace(
+        "    def write_plots(self, config, policy, record, out_dir):",
+        "    def run_files(self):\n"
+        '        return {"../escape.bin": ("algorithm.samples", b"x")}\n\n'
+        "    def write_plots(self, config, policy, record, out_dir):",
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-files"')
+    module = tmp_path / "bad_files.py"
+    module.write_text(source)
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-files"\n[evaluation]\nrollouts = 200\n')
+    out = tmp_path / "r"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main(argv) == 2
+    assert not (out / "policy.msgpack").exists() and not (out / "results.json").exists()
+    assert not (tmp_path / "escape.bin").exists()
