@@ -468,7 +468,18 @@ def load_config(name_or_path: str, overrides: list[str] | None = None) -> Config
     a setting the user gave to no effect (the algorithm section's ``given_warnings``) is a
     ``ConfigWarning``."""
     data = apply_overrides(read_experiment(name_or_path), overrides or [])
-    config = config_from_dict(data)
+    try:
+        config = config_from_dict(data)
+    except ConfigError as err:
+        name = (data.get("experiment") or {}).get("name")
+        if err.field == "experiment.name" and name == Path(name_or_path).stem != name_or_path:
+            said = str(err).split(": ", 1)[-1]
+            raise ConfigError(  # the file set none: its name did
+                err.field,
+                f"{said}; {Path(name_or_path).name} sets no experiment.name, so its file name "
+                "gives it: set experiment.name in the file or with --set",
+            ) from None
+        raise
     given = data.get("algorithm", {})
     for text in getattr(config.algorithm, "given_warnings", lambda _: [])(given):
         warnings.warn(ConfigWarning(text), stacklevel=2)

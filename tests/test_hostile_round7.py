@@ -91,6 +91,14 @@ def test_an_experiment_name_too_long_for_a_folder_is_a_config_error():
     load_config("tagging-thesis-n3", ["experiment.name=" + "x" * 240])
 
 
+def test_a_file_name_too_long_to_name_the_experiment_says_the_file_named_it(tmp_path):
+    toml = tmp_path / ("y" * 245 + ".toml")
+    toml.write_text('[env]\nname = "tagging"\n')
+    with pytest.raises(ConfigError, match="sets no experiment.name, so its file name gives it"):
+        load_config(str(toml))
+    assert load_config(str(toml), ["experiment.name=short"]).experiment.name == "short"
+
+
 def test_a_sweep_state_without_an_experiment_name_is_named(tmp_path, capsys):
     from shared_files import TINY_TRAIN
 
