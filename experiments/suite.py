@@ -1164,6 +1164,41 @@ def run_extra(names: list[str]) -> None:
         _sweep(experiment, overrides, seeds, RESULTS / name, imports)
 
 
+#: nodes a hand-written controller of these rows takes, by its grid point
+HAND_NODES = {
+    "hearing-tiger": lambda theta: 2 * theta["count"] + 1,
+    "hearing-tiger-noisy": lambda theta: 2 * theta["count"] + 1,
+}
+
+
+def _hand_within_nodes(row: str, hand: dict) -> str:
+    """Where the tuned hand-written controller takes more nodes than the row's search has:
+    the best grid point within them, valued as the tuned one (``HONEST_SEED``)."""
+    if row not in HAND_NODES:
+        return ""
+    import jax
+    import numpy as np
+
+    from cognet_jax.api import build_env
+    from cognet_jax.baselines import HONEST_SEED, hand_returns, simulator_module
+
+    config = _config(row)
+    nodes = config.algorithm.nodes
+    if HAND_NODES[row](hand["best"]) <= nodes:
+        return ""
+    fits = [(theta, v) for theta, v in hand["values"] if HAND_NODES[row](theta) <= nodes]
+    theta = max(fits, key=lambda tv: tv[1])[0]
+    env, params = build_env(config)
+    controller, policy = simulator_module(config.env.name).hand_controller(env, **theta)
+    key = jax.random.key(HONEST_SEED)
+    r = np.asarray(hand_returns(env, params, controller, policy, key, hand["rollouts"]))
+    point = ", ".join(f"{k} = {v}" for k, v in theta.items())
+    return (
+        f" ({HAND_NODES[row](hand['best'])} nodes; within the search's {nodes}: {point}, "
+        f"{r.mean():.3f} +- {r.std() / np.sqrt(len(r)):.3f})"
+    )
+
+
 def _search_cell(
     path: Path, hand: float | None, history: Path | None = None, previous: Path | None = None
 ) -> str:
@@ -1327,6 +1362,7 @@ def table() -> list[str]:
             grid = "; ".join(f"{k} in {list(v)}" for k, v in h["grid"].items())
             best = ", ".join(f"{k} = {v}" for k, v in h["best"].items())
             hand_cell = f"{grid} -> {best}: **{hand:.3f}** +- {h['honest'][1]:.3f}"
+            hand_cell += _hand_within_nodes(row, h)
             if h["bound"]:
                 bound_cell = f"{h['bound'][0]:.3f} ({h['bound'][1]})"
         earlier = RESULTS / f"cognet-{row}" / "runs.json"
@@ -1413,7 +1449,11 @@ now also draw the start roles in the refine phase (`start_draw`, `start_spread` 
 to 800 iterations at 187.5 rollouts per candidate (twice the exploring searches): the column
 gives their sweeps (rows "-s0i800" of the next table), and "before the start roles and twice the
 searches" the sweep of the defaults before them (`cognet-ROW`). A row that says "not yet re-run"
-was not swept under them."""
+was not swept under them. The polish of now also rewrites every controller as a counter of the
+evidence on one feature (COUNTER, `polish_counter`, cognet_jax/algorithms/weight_polish.py):
+the column gives its sweeps (rows "-counter" of the next table) and "before the COUNTER moves"
+the sweep before it (rows "-s0i800"), the same search seed for seed; the plume (9 features)
+has no COUNTER moves, its cell is the sweep before."""
 
 
 EXTRA_NOTES = """\
