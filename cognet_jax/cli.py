@@ -149,6 +149,11 @@ def _sweep(args) -> int:
         flags.update({"--first-seed": args.first_seed, "--grid": args.grid})
         flags["--set"] = [o for o in args.overrides if not o.strip().startswith("run.")]
         _refuse_with_resume(args, flags)
+        if any(parse_override(o)[0] == ["run", "prng_impl"] for o in args.overrides):
+            raise UsageError(  # its groups not yet run would draw with another generator
+                "--set run.prng_impl cannot be given with --resume: the sweep's runs keep the "
+                "generator it started with"
+            )
         spec = read_spec(args.resume)
         experiment, seeds, grid = spec["experiment"], spec["seeds"], spec["grid"]
         overrides, out = spec["overrides"], Path(args.resume)
@@ -209,6 +214,16 @@ def _sweep(args) -> int:
         _STOPPED["signum"] = err.signum
         print(f"error: {err}", file=sys.stderr)
         return 128 + err.signum
+    except Stopped as err:
+        if not err.after:
+            raise
+        _STOPPED["signum"] = err.signum  # a group's runs written, the sweep's tables not
+        print(
+            f"error: stopped by {signal.Signals(err.signum).name} after a group's runs were "
+            f"written, before the sweep's tables; continue with --resume {out}",
+            file=sys.stderr,
+        )
+        return 128 + err.signum
 
 
 #: a sweep of more runs than this is refused before it is prepared: each run is prepared in
@@ -256,11 +271,18 @@ def _evaluate(args) -> int:
             lambda: evaluate_run(args.run_dir, args.rollouts, args.seed, args.overrides, status.say)
         )
         quiet = value.get("no_effect", [])
-        if quiet:
+        own = [o for o in quiet if o in value.get("own_values", [])]
+        if own:
             print(
-                f"warning: --set {' '.join(quiet)} changes nothing an evaluation reads (a "
-                "field of the search or of the run, not of the simulator, the controller or "
-                "the evaluation): the value is the run's own setting's",
+                f"warning: --set {' '.join(own)} gives the run's own value: nothing changed",
+                file=sys.stderr,
+            )
+        if len(own) < len(quiet):
+            print(
+                f"warning: --set {' '.join(o for o in quiet if o not in own)} changes nothing "
+                "an evaluation reads (a field of the search or of the run, not of the "
+                "simulator, the controller or the evaluation): the value is the run's own "
+                "setting's",
                 file=sys.stderr,
             )
         shown = [o for o in args.overrides if o not in quiet]

@@ -86,8 +86,8 @@ class ExperimentSection:
         require(
             bool(safe),
             "experiment.name",
-            f"{name!r} is no folder name (it names runs/NAME-seedS): use letters, digits, "
-            "'-', '_', '+' or '.', not starting with '.'",
+            f"{name!r} is no folder name (it names runs/NAME-seedS): a name must not be empty, "
+            "start with '.' or hold '/', '\\', ':', NUL or characters that do not print",
         )
         size = len(name.encode("utf-8", "surrogatepass"))
         require(

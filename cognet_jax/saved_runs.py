@@ -37,7 +37,7 @@ from cognet_jax.config import (
     parse_override,
     with_added_fields,
 )
-from cognet_jax.errors import CorruptFileError, MismatchError, OneLineWarning, read_json
+from cognet_jax.errors import CorruptFileError, MismatchError, OneLineWarning, UsageError, read_json
 from cognet_jax.honest_value import final_value
 from cognet_jax.observations import legacy_run_files
 from cognet_jax.records import RESULTS_SCHEMA, RUN_OWN_FILES, current_meta, fingerprint
@@ -137,6 +137,14 @@ def load_run(
     ran = with_added_fields(results["config"])  # results.json as written: the fingerprint's
     overrides = list(overrides or [])
     named = {tuple(parse_override(o)[0]) for o in overrides}
+    for o in overrides:
+        path, value = parse_override(o)
+        trained_by = (ran.get("experiment") or {}).get("algorithm")
+        if path == ["experiment", "algorithm"] and value != trained_by:
+            raise UsageError(
+                f"--set {o.strip()}: {run_dir} holds a policy of {trained_by!r}; another "
+                "algorithm cannot evaluate it"
+            )
     # the model file given anew (the run's path may be relative to another folder, or the
     # file moved): the same bytes only, as the policy file's fingerprint records them
     model_sets = [o for o in overrides if tuple(parse_override(o)[0]) == ("problem", "path")]
@@ -323,6 +331,16 @@ def _note_other_chunks(run, config: Config) -> None:
             OneLineWarning,
             stacklevel=3,
         )
+    section = run.results["config"].get("run")
+    ran = section.get("prng_impl") if isinstance(section, dict) else None
+    if ran is not None and ran != config.run.prng_impl:
+        warnings.warn(
+            f"run.prng_impl {config.run.prng_impl} where the run had {ran}: the seed's key "
+            "draws other rollouts, so the value is another honest sample of the policy "
+            "(within its standard error), not the run's number",
+            OneLineWarning,
+            stacklevel=3,
+        )
 
 
 def evaluate_run(
@@ -356,4 +374,13 @@ def evaluate_run(
     value.update(seed=seed, overrides=list(overrides), wall_s=time.perf_counter() - t0)
     if run.no_effect:
         value["no_effect"] = list(run.no_effect)
+        ran = run.results["config"]
+        own = []
+        for o in run.no_effect:  # a field the evaluation reads, given the run's own value
+            (section, key), given = parse_override(o)
+            fields = ran.get(section) if isinstance(ran.get(section), dict) else {}
+            if key in fields and fields[key] == given:
+                own.append(o)
+        if own:
+            value["own_values"] = own
     return value

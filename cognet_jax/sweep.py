@@ -277,6 +277,15 @@ def _run_one_group(
                     f"{values.get(row.get('setting'))}: one of the two was edited, or copied "
                     "from another sweep"
                 )
+        configs = {setting.index: setting.config.to_dict() for setting in group.settings}
+        for row in stored["rows"]:  # and the config the spec gives it (its overrides)
+            changed = _config_change(row.get("config"), configs.get(row.get("setting")))
+            if changed:
+                raise MismatchError(
+                    f"{done} holds a run of setting {row.get('setting')} with {changed}: "
+                    f"{state / SWEEP_SPEC} was edited since it ran (or the rows were copied "
+                    "from another sweep); its tables would describe settings no run used"
+                )
         return stored["rows"], stored["timing"]
     if not group.runs:
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}
@@ -286,6 +295,23 @@ def _run_one_group(
     if done is not None:
         atomic_write_json(done, {"runs": group.runs, "rows": rows, "timing": timing}, None)
     return rows, timing
+
+
+def _config_change(ran: dict | None, now: dict | None) -> str:
+    """``"section.key X (now Y)"`` for the first field of a finished run's config ``ran`` that
+    the sweep's spec now sets otherwise (the run sections' fields that drive a run aside, and
+    fields the run did not write: added to the library since); "" when none."""
+    if not isinstance(ran, dict) or not isinstance(now, dict):
+        return "" if ran == now else "a config of another form"
+    for section, fields in ran.items():
+        if not isinstance(fields, dict) or not isinstance(now.get(section), dict):
+            continue
+        for key, value in fields.items():
+            if section == "run" and key != "prng_impl":  # memory, progress, checkpoints
+                continue
+            if key in now[section] and now[section][key] != value:
+                return f"{section}.{key} = {value!r} (now {now[section][key]!r})"
+    return ""
 
 
 def run_sweep(

@@ -130,6 +130,17 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     assert f"{line['mean']:.3f}" in said.out  # the same value as with the noise alone
     logged = json.loads((out / "evaluations.jsonl").read_text().splitlines()[-1])
     assert logged["no_effect"] == ["algorithm.iterations=9"]
+    # the simulator's field at the run's own value: said as such, not as a search's field
+    assert main(["evaluate", str(out), "--rollouts", "300", "--set", "env.obs_noise=0.0"]) == 0
+    said = capsys.readouterr().err
+    assert "--set env.obs_noise=0.0 gives the run's own value" in said, said
+    assert "changes nothing an evaluation reads" not in said
+    # another generator: another sample of the policy, said so
+    assert main(["evaluate", str(out), "--rollouts", "300", "--set", "run.prng_impl=rbg"]) == 0
+    assert "run.prng_impl rbg where the run had threefry2x32" in capsys.readouterr().err
+    sets = ["--set", "experiment.algorithm=cogdice"]  # was "unknown key algorithm.<field>"
+    assert main(["evaluate", str(out), *sets]) == 2
+    assert "another algorithm cannot evaluate it" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
 
 

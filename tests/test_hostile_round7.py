@@ -364,6 +364,40 @@ def test_a_sweep_state_whose_grid_was_reordered_is_refused_not_mislabelled(tmp_p
     assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "holds a run of setting 0 with {'algorithm.nodes': 2}" in err, err
+    # round nine: the spec's overrides edited (tables that describe settings no run used)
+    data["grid"]["algorithm.nodes"] = [2, 3]
+    data["overrides"] = [
+        "algorithm.iterations=7" if o == "algorithm.iterations=2" else o for o in data["overrides"]
+    ]
+    spec.write_text(json.dumps(data))
+    assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "with algorithm.iterations = 2 (now 7)" in err and "was edited" in err, err
+    # and a generator given anew: groups not yet run would draw with another one
+    argv = ["sweep", "--resume", str(out), "--set", "run.prng_impl=rbg", "--no-progress"]
+    assert cli.main(argv) == 2
+    assert "run.prng_impl cannot be given with --resume" in capsys.readouterr().err
+
+
+def test_a_sweep_stopped_between_groups_names_its_resume(tmp_path, capsys, monkeypatch):
+    """A stop heeded after a group's runs were written said "after the results were
+    written", though the sweep's tables were not, and gave no --resume."""
+    import signal
+
+    from cognet_jax import sweep
+    from cognet_jax.signals import Stopped
+
+    def stopped(*args, **kwargs):
+        raise Stopped(signal.SIGTERM, after="the results were written")
+
+    monkeypatch.setattr(sweep, "run_sweep", stopped)
+    out = tmp_path / "sw"
+    assert cli.main(["sweep", "tagging-thesis-n3", "--seeds", "1", "--out", str(out)]) == 143
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        "error: stopped by SIGTERM after a group's runs were written, before the sweep's "
+        f"tables; continue with --resume {out}"
+    )
 
 
 def test_the_on_demand_vae_is_sized_as_vae_train_sizes_it():
