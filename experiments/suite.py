@@ -1062,8 +1062,14 @@ AFTER_AXES = {
 #: inputs have at most 4 features (the plume's 9 and the heatmap's 16 get none: their sweeps
 #: would repeat the "-s0i800" rows seed for seed)
 COUNTER_WHAT = (
-    "candidate: the polish's COUNTER moves (polish_counter: every controller rewritten as a "
-    "counter of the evidence on one feature), with the code of main"
+    "the polish's COUNTER moves (polish_counter: every controller rewritten as a counter of the "
+    "evidence on one feature), valued in a sweep of their own before the polish's sweeps"
+)
+#: their first version (code of commit 1e795fc), then replaced: the COUNTER moves listed in
+#: every sweep of the polish, so fewer sweeps fitted in its share
+COUNTER_EVERY_WHAT = (
+    "first version of the COUNTER moves (code of commit 1e795fc): listed in every sweep of the "
+    "polish, so fewer sweeps fit in its share"
 )
 #: rows whose inputs have more than 4 features: the polish has no COUNTER moves there
 NO_COUNTER_ROWS = ("plume",)
@@ -1083,6 +1089,13 @@ AFTER_AXES.update(
                 3,
             ),
         )
+    }
+)
+AFTER_AXES.update(
+    {
+        f"{name}-every": (experiment, overrides, seeds, COUNTER_EVERY_WHAT, earlier)
+        for name, (experiment, overrides, seeds, _, earlier) in dict(AFTER_AXES).items()
+        if name.endswith("-counter") and (RESULTS / f"{name}-every" / "runs.json").is_file()
     }
 )
 AFTER_AXES["hearing-tiger-noisy-n9-counter"] = (

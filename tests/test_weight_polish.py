@@ -24,6 +24,7 @@ from cognet_jax.algorithms.weight_polish import (
     apply_move,
     axis_moves,
     counter_moves,
+    counter_table,
     move_table,
     sweep,
 )
@@ -72,13 +73,16 @@ def test_axis_moves_are_listed_for_inputs_of_few_features_only_start_moves_for_a
     per_node = 2 * 2 * len(AXIS_LEVELS) * Q  # features x sides x levels x targets
     assert axis_moves(2, Q) == per_node
     starts = (A + 1) * (Q - 1)  # per agent, and every agent at once
-    counters = 2 * len(COUNTER_LEVELS) * 1 * NA * NA  # features x margins x depths x ends
-    assert counter_moves(2, Q, H, NA) == counters
-    assert len(with_axes) == len(plain) + A * Q * per_node + starts + counters
-    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS, START, COUNTER}
+    assert len(with_axes) == len(plain) + A * Q * per_node + starts
+    assert set(with_axes[:, 0]) == {SHIFT, TARGET, ACTION, DEFAULT, AXIS, START}
     wide = move_table(A, Q, H, NA, features=AXIS_MAX_FEATURES + 1)
-    assert len(wide) == len(plain) + starts and not {AXIS, COUNTER} & set(wide[:, 0])
+    assert len(wide) == len(plain) + starts and AXIS not in wide[:, 0]
+    # the COUNTER moves: a table of their own (a sweep of them before the others)
+    counters = counter_table(2, Q, H, NA)
+    assert len(counters) == counter_moves(2, Q, H, NA) == 2 * len(COUNTER_LEVELS) * 1 * NA * NA
+    assert set(counters[:, 0]) == {COUNTER}
     assert counter_moves(1, Q, 1, NA) == 0  # a counter node needs two units
+    assert counter_moves(AXIS_MAX_FEATURES + 1, Q, H, NA) == 0
 
 
 def test_a_counter_move_makes_every_controller_a_tally_of_one_feature():
@@ -308,10 +312,13 @@ def test_a_run_records_its_polish_and_evaluate_gives_the_polished_policys_value(
     results = json.loads((out / "results.json").read_text())
     polish = results["finish"]
     # 624 one-entry moves, 2 agents x 3 nodes x 42 AXIS moves (one feature), 3 x 2 START
-    # moves, 7 margins x 3 x 3 end actions of COUNTER moves of depth 1; 20 x 64 x 100
-    # rollouts over (945 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps, 5 while each moves
-    assert counter_moves(1, 3, 2, 3) == 63
-    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) + 3 * 2 + 63 == 945
+    # moves; 20 x 64 x 100 rollouts over (882 moves + 1 + 10 x 5) x 50 per sweep: 2 sweeps,
+    # 5 while each moves; before them a sweep of the 7 margins x 3 x 3 end actions of COUNTER
+    # moves of depth 1
+    assert polish["moves_per_sweep"] == 624 + 2 * 3 * axis_moves(1, 3) + 3 * 2 == 882
+    assert polish["counter_moves"] == counter_moves(1, 3, 2, 3) == 63
+    sweeps_cost = polish["sweeps"] * (882 + 1 + 50) * 50
+    assert polish["rollouts"] == sweeps_cost + (63 + 1 + 50) * 50
     assert polish["sweeps"] == min(5, max(2, polish["moves_applied"] + 1))
     assert "polish:" in capsys.readouterr().out
     assert cli_main(["evaluate", str(out), "--rollouts", "2000"]) == 0

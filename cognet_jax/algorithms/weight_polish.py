@@ -50,7 +50,11 @@ Moves (static rows ``(kind, agent, node, unit, arg)`` of :func:`move_table`; ``Q
   gathering are a plateau -- their transitions change no return until an action is placed at
   the end of a chain -- and no move of one entry leaves it: on noisy Dec-Tiger the kept
   policies listened for ever (-19.6) where a counter of depth 3 gives about -17.9
-  (experiments/NOTES.md). The SHIFT and ACTION moves of later sweeps tune it.
+  (experiments/NOTES.md). **[choice]** The COUNTER moves are valued in one sweep of their
+  own, before the polish's sweeps and on a key of its own, beyond ``polish_share``: listed
+  in every sweep they made each sweep dearer, so fewer fit in the share (beacon without
+  noise: one sweep where two fitted, a START move lost), and the sweeps after draw what they
+  drew without them. The SHIFT and ACTION moves of those sweeps tune the counter.
 
 SHIFT, TARGET and AXIS change every copy of the unit at once: a tied controller (``node_tie``,
 ``agent_tie``: the same network in every node or agent) runs copies with equal weights, and
@@ -111,6 +115,8 @@ CONFIRM_FACTOR = 10
 CONFIRM_Z = 2.5
 #: the stream of the polish's key: the search's init key folded with it
 POLISH_STREAM = 0x706F6C69
+#: the stream of the COUNTER moves' sweep: the polish's key folded with it
+COUNTER_STREAM = 0x636F756E
 #: most sweeps of a polish (each applies at most one move)
 POLISH_MAX_SWEEPS = 20
 
@@ -137,12 +143,17 @@ def counter_moves(features: int, nodes: int, hidden: int, actions: int) -> int:
     return features * len(COUNTER_LEVELS) * counter_depths(nodes, hidden) * actions * actions
 
 
-def move_table(
-    agents: int, nodes: int, hidden: int, actions: int, features: int = 0, counters: bool = True
-) -> np.ndarray:
-    """Every move, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``; ``features``
-    > 0 adds the AXIS moves of that many input features (``axis_moves``), the START moves and
-    (``counters``) the COUNTER moves (``counter_moves``)."""
+def counter_table(features: int, nodes: int, hidden: int, actions: int) -> np.ndarray:
+    """The COUNTER moves, ``[moves, 5]`` int32 rows (``counter_moves`` of them): valued in a
+    sweep of their own before the polish's (``PolishFinish.finish_start``)."""
+    count = counter_moves(features, nodes, hidden, actions)
+    return np.asarray([(COUNTER, 0, 0, 0, i) for i in range(count)], np.int32).reshape(-1, 5)
+
+
+def move_table(agents: int, nodes: int, hidden: int, actions: int, features: int = 0) -> np.ndarray:
+    """Every move of a sweep, ``[moves, 5]`` int32 rows ``(kind, agent, node, unit, arg)``;
+    ``features`` > 0 adds the AXIS moves of that many input features (``axis_moves``) and the
+    START moves (the COUNTER moves are ``counter_table``'s)."""
     rows = []
     for a in range(agents):
         for n in range(nodes):
@@ -156,8 +167,6 @@ def move_table(
             rows += [(START, a, 0, 0, i) for i in range(nodes - 1)]
     if features:
         rows += [(START, 0, 1, 0, i) for i in range(nodes - 1)]
-        count = counter_moves(features, nodes, hidden, actions) if counters else 0
-        rows += [(COUNTER, 0, 0, 0, i) for i in range(count)]
     return np.asarray(rows, np.int32).reshape(-1, 5)
 
 
@@ -375,11 +384,13 @@ class PolishWork:
     applied: jax.Array
     gain: jax.Array
     moved: jax.Array
+    #: ``[]`` bool: a COUNTER move was applied (by the sweep of them before the others)
+    counted: jax.Array | None = None
 
     @classmethod
     def start(cls, policy: NeuralPolicy, key: jax.Array) -> PolishWork:
         zero = jnp.int32(0)
-        return cls(policy, key, zero, zero, jnp.float32(0.0), jnp.bool_(False))
+        return cls(policy, key, zero, zero, jnp.float32(0.0), jnp.bool_(False), jnp.bool_(False))
 
 
 def sweep(
@@ -409,6 +420,7 @@ def sweep(
         applied=work.applied + confirmed,
         gain=work.gain + jnp.where(confirmed, gain[best], 0.0),
         moved=confirmed,
+        counted=work.counted,
     )
 
 
@@ -427,8 +439,24 @@ class PolishFinish:
         records of a sweep's runs read its length)."""
         s, c = self.settings, self.controller
         features = c.in_features if s.polish_axes else 0
-        actions = self.env.num_actions
-        return move_table(c.num_agents, s.nodes, s.hidden, actions, features, s.polish_counter)
+        return move_table(c.num_agents, s.nodes, s.hidden, self.env.num_actions, features)
+
+    @functools.cached_property
+    def polish_counters(self) -> np.ndarray:
+        """``[moves, 5]``: the COUNTER moves (``counter_table``; none without ``polish_axes``
+        and ``polish_counter``)."""
+        s, c = self.settings, self.controller
+        features = c.in_features if s.polish_axes and s.polish_counter else 0
+        return counter_table(features, s.nodes, s.hidden, self.env.num_actions)
+
+    @property
+    def counter_sweep_rollouts(self) -> int:
+        """Rollouts of the sweep of COUNTER moves (0 without them): on top of the share,
+        once, as a sweep of those moves alone."""
+        moves = len(self.polish_counters)
+        if not moves:
+            return 0
+        return (moves + 1 + CONFIRM_FACTOR * (CONFIRM_TOP + 1)) * self.settings.best_rollouts
 
     @property
     def polish_sweeps(self) -> int:
@@ -488,10 +516,22 @@ class PolishFinish:
         return values, paired, jnp.asarray(scale, jnp.float32), support, center
 
     def finish_start(self, state, params):
-        """The polish of the kept policy (``None`` without sweeps)."""
+        """The polish of the kept policy (``None`` without sweeps), after the sweep of its
+        COUNTER moves: a sweep of their own, on a key of its own (the polish's sweeps draw
+        what they drew without them), that counts in none of the polish's sweeps."""
         if self.polish_sweeps == 0 or state.polish_seed is None:
             return None
-        return PolishWork.start(state.best_policy, polish_key(state.polish_seed))
+        work = PolishWork.start(state.best_policy, polish_key(state.polish_seed))
+        if not len(self.polish_counters):
+            return work
+        values, paired, scale, support, center = self._polish_parts(params)
+        own = work.replace(key=jax.random.fold_in(work.key, COUNTER_STREAM))
+        swept = sweep(
+            own, jnp.asarray(self.polish_counters), values, paired, scale, support, center
+        )
+        return swept.replace(
+            key=work.key, sweeps=work.sweeps, moved=work.moved, counted=swept.moved
+        )
 
     def finish_advance(self, work: PolishWork, params) -> PolishWork:
         values, paired, scale, support, center = self._polish_parts(params)
@@ -514,15 +554,19 @@ class PolishFinish:
         confirming rollouts (a paired estimate, not the honest value), moves per sweep."""
         if info is None:
             return None
-        return {
+        record = {
             "sweeps": int(info.sweeps),
             "moves_applied": int(info.applied),
             "confirmed_gain": float(info.gain),
             "moves_per_sweep": len(self.polish_moves),
             "rollouts_per_move": self.settings.best_rollouts,
-            "rollouts": int(info.sweeps) * self.polish_sweep_rollouts,
+            "rollouts": int(info.sweeps) * self.polish_sweep_rollouts + self.counter_sweep_rollouts,
             "seconds": seconds,
         }
+        if len(self.polish_counters):
+            record["counter_moves"] = len(self.polish_counters)
+            record["counter_applied"] = bool(info.counted)
+        return record
 
     def finish_status(self, work) -> dict:
         """The polish's progress: sweeps run and moves applied (the largest over runs)."""
@@ -530,8 +574,12 @@ class PolishFinish:
         return {"sweeps": int(sweeps), "moves": int(applied)}
 
     def finish_line(self, record: dict) -> str | None:
+        counter = ""
+        if "counter_moves" in record:
+            counter = f" after {record['counter_moves']} COUNTER moves"
+            counter += " (one applied)" if record["counter_applied"] else " (none applied)"
         return (
             f"polish: {record['moves_applied']} moves in {record['sweeps']} sweeps of "
-            f"{record['moves_per_sweep']} (paired gain {record['confirmed_gain']:+.4g}, "
-            f"{record['seconds']:.1f} s)"
+            f"{record['moves_per_sweep']}{counter} (paired gain "
+            f"{record['confirmed_gain']:+.4g}, {record['seconds']:.1f} s)"
         )
