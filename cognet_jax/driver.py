@@ -23,6 +23,7 @@ from typing import Any
 
 from cognet_jax.after_search import Finished, Probes, finish_and_evaluate
 from cognet_jax.api import Built
+from cognet_jax.atomic_files import plain
 from cognet_jax.budget import FASTEST_RATE, LONG_SECONDS
 from cognet_jax.checkpoint import (
     CHECKPOINT_NAME,
@@ -307,7 +308,7 @@ def _records(program, done, stacked, opts, timing, finished: Finished) -> list:
         )
         if finished.probed[r] is not None:
             record["probes"] = finished.probed[r]
-        records.append(record)
+        records.append(plain(record))  # as results.json holds it: one record, file or not
     return records
 
 
