@@ -366,6 +366,18 @@ def test_a_plugin_search_whose_state_policy_or_value_is_wrong_is_named(
     assert not (out / "results.json").exists()
 
 
+def _train_variant(tmp_path, source: str, name: str, out) -> int:
+    """``train`` of the threshold search's module ``source`` registered as ``name``."""
+    module = tmp_path / f"{name.replace('-', '_')}.py"
+    module.write_text(
+        source.replace('register_algorithm("thresholds"', f'register_algorithm("{name}"')
+    )
+    toml = tmp_path / "thresholds.toml"
+    toml.write_text(f'[experiment]\nalgorithm = "{name}"\n[evaluation]\nrollouts = 200\n')
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    return main(argv)
+
+
 def test_numpy_numbers_and_nan_from_user_code_are_written_as_strict_json(tmp_path):
     """A plug-in's numbers reach results.json as NumPy scalars (a simulator's
     ``numpy.int64`` horizon was the agent-steps count: the search ran, then results.json
@@ -376,14 +388,9 @@ def test_numpy_numbers_and_nan_from_user_code_are_written_as_strict_json(tmp_pat
         "        import numpy\n"
         '        return {"steps": numpy.int64(3), "gap": float("nan"), '
         '"per_agent": numpy.arange(2)}',
-    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-numpy"')
-    module = tmp_path / "numpy_record.py"
-    module.write_text(source)
-    toml = tmp_path / "thresholds.toml"
-    toml.write_text('[experiment]\nalgorithm = "thresholds-numpy"\n[evaluation]\nrollouts = 200\n')
+    )
     out = tmp_path / "r"
-    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
-    assert main(argv) == 0
+    assert _train_variant(tmp_path, source, "thresholds-numpy", out) == 0
     text = (out / "results.json").read_text()
     record = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in results.json"))
     assert (record["steps"], record["gap"], record["per_agent"]) == (3, None, [0, 1])
@@ -441,13 +448,8 @@ def test_run_files_named_outside_the_run_folder_are_refused_before_anything_is_w
         "    def run_files(self):\n"
         '        return {"../escape.bin": ("algorithm.samples", b"x")}\n\n'
         "    def write_plots(self, config, policy, record, out_dir):",
-    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-files"')
-    module = tmp_path / "bad_files.py"
-    module.write_text(source)
-    toml = tmp_path / "thresholds.toml"
-    toml.write_text('[experiment]\nalgorithm = "thresholds-files"\n[evaluation]\nrollouts = 200\n')
+    )
     out = tmp_path / "r"
-    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
-    assert main(argv) == 2
+    assert _train_variant(tmp_path, source, "thresholds-files", out) == 2
     assert not (out / "policy.msgpack").exists() and not (out / "results.json").exists()
     assert not (tmp_path / "escape.bin").exists()
