@@ -113,13 +113,21 @@ def _refuse_with_resume(args, flags: dict) -> None:
 
 def _train(args) -> int:
     from cognet_jax.driver import Interrupted, train
-    from cognet_jax.saved_runs import resume_target
+    from cognet_jax.saved_runs import finished_value, resume_target
 
     try:
         if args.resume:
             flags = {"EXPERIMENT": args.experiment, "--seed": args.seed, "--out": args.out}
             _refuse_with_resume(args, flags)
             config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
+            done = finished_value(args.resume, config)
+            if done is not None:
+                print(
+                    f"{args.resume}: the run is complete ({config.algorithm.iterations} "
+                    f"iterations, honest value {done['mean']:.3f}); nothing to resume, nothing "
+                    f"written (`cognet-jax evaluate {args.resume}` values its policy again)"
+                )
+                return 0
             with claim(Path(args.resume), resume=True):
                 train(config, seed, Path(args.resume), resume=True)
             return 0

@@ -352,6 +352,10 @@ def check_known_sections(data: dict) -> None:
 FLOAT32_MAX = 3.4028234663852886e38
 #: the largest integer a size may take (array indices are int32)
 INT32_MAX = 2**31 - 1
+#: the largest magnitude of a simulator's number (``[env]``): its square must fit float32, as
+#: the variances and standard errors of returns square what the simulator makes of it (an
+#: observation noise of 3e38 made every observation inf, then every value NaN)
+ENV_FLOAT_MAX = 1.8e19
 
 
 def check_finite(config: Config) -> None:
@@ -366,6 +370,12 @@ def check_finite(config: Config) -> None:
                 raise ConfigError(field, f"must be a finite number, got {v}")
             if isinstance(v, float) and abs(v) > FLOAT32_MAX:
                 raise ConfigError(field, f"{v} does not fit float32 (|x| <= {FLOAT32_MAX:.3g})")
+            if name == "env" and isinstance(v, (int, float)) and abs(v) > ENV_FLOAT_MAX:
+                raise ConfigError(
+                    field,
+                    f"{v:g} overflows the simulator's float32 arithmetic (its square is inf); "
+                    f"|x| <= {ENV_FLOAT_MAX:.2g}",
+                )
             if isinstance(v, int) and not isinstance(v, bool) and abs(v) > INT32_MAX:
                 raise ConfigError(field, f"{v} does not fit a 32-bit integer (<= {INT32_MAX})")
 

@@ -63,6 +63,24 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
     return config, seed
 
 
+def finished_value(run_dir, config: Config) -> dict | None:
+    """The ``final_value`` of the run in ``run_dir`` when its results.json is complete with
+    every iteration of ``config`` (the checkpoint's, ``resume_target``), the checkpoint is of
+    its last iteration and no ``--overwrite`` replaces it: resuming it would search nothing
+    and only rewrite its timings. ``None`` otherwise (a stopped run, or a finished search not
+    yet evaluated)."""
+    run_dir = Path(run_dir)
+    path = run_dir / "results.json"
+    if not path.is_file() or (run_dir / REPLACING_NAME).exists():
+        return None
+    results = read_json(path, ("status", "iteration", "final_value"))
+    iterations = getattr(config.algorithm, "iterations", None)
+    checkpoint = read_checkpoint(run_dir / CHECKPOINT_NAME)["iteration"]
+    done = results["status"] == "complete" and results["iteration"] == iterations == checkpoint
+    value = results["final_value"]
+    return value if done and isinstance(value, dict) and "mean" in value else None
+
+
 def _refuse_another_runs_checkpoint(run_dir: Path, stored: dict, seed: int) -> None:
     """Refuse to resume a checkpoint of another run than the finished one whose results.json
     is beside it (e.g. copied there): resuming would replace those results. A run started with

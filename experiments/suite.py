@@ -1098,6 +1098,14 @@ AFTER_AXES.update(
         if name.endswith("-counter") and (RESULTS / f"{name}-every" / "runs.json").is_file()
     }
 )
+AFTER_AXES["plume-i1600-counter"] = (
+    "plume-n5",
+    ["algorithm.iterations=1600", "algorithm.eval_rollouts=94"],
+    SEEDS,
+    "candidate: 1600 iterations x 94 rollouts per candidate, the same budget (twice the "
+    "exploring searches of the defaults, each of about 95 iterations)",
+    "plume-s0i800",
+)
 AFTER_AXES["hearing-tiger-noisy-n9-counter"] = (
     "hearing-tiger-noisy-n7",
     ["algorithm.nodes=9"],

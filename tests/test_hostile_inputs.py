@@ -200,3 +200,14 @@ def test_a_model_of_ten_agents_has_no_exact_value_but_its_run_stands(tmp_path, c
     assert cli.main([*args, "--out", str(out), "--no-progress"]) == 0
     assert "no exact value of the policy" in capsys.readouterr().err
     assert json.loads((out / "results.json").read_text())["status"] == "complete"
+
+
+def test_a_simulator_number_whose_square_overflows_float32_is_refused(capsys):
+    # noise 3e38 made every observation inf and every value NaN, found only after the search
+    args = ["check", "beacon-n5", "--set", "env.obs_noise=3e38"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert "'env.obs_noise': 3e+38 overflows the simulator's float32 arithmetic" in err
+    with pytest.raises(ConfigError, match="env.obs_noise"):
+        registry.load_config("beacon-n5", ["env.obs_noise=-2e19"])
+    assert registry.load_config("beacon-n5", ["env.obs_noise=1e3"]).env.obs_noise == 1e3

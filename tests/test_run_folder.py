@@ -477,6 +477,19 @@ def test_another_runs_checkpoint_beside_finished_results_is_not_resumed(tmp_path
     assert not (a / "evaluations.jsonl").exists()  # it described the replaced run
 
 
+def test_resuming_a_complete_run_writes_nothing(tmp_path, capsys):
+    """``train --resume`` of a run whose search and evaluation are done says so and leaves
+    every file as it was (it re-evaluated and rewrote results.json with new timings)."""
+    a = tmp_path / "a"
+    assert cli.main(["train", "--out", str(a), *TINY_TRAIN]) == 0
+    before = {p.name: p.read_bytes() for p in a.iterdir()}
+    capsys.readouterr()
+    assert cli.main(["train", "--resume", str(a)]) == 0
+    out = capsys.readouterr().out
+    assert "the run is complete (2 iterations" in out and "nothing written" in out, out
+    assert {p.name: p.read_bytes() for p in a.iterdir()} == before
+
+
 @pytest.mark.parametrize("discount", [float("nan"), float("inf"), 1.5, 0.0, -0.5])
 def test_a_simulator_whose_discount_is_not_in_zero_one_is_named(discount):
     """A NaN discount made every return NaN, blamed on the rewards after the whole search; one
