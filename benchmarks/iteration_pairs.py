@@ -55,20 +55,23 @@ ROLLOUT_SIZE = 10_000
 
 def jax_iteration_call(experiment: str, sets: list[str]):
     """``(call, compile_s, agent-steps per call)``: one compiled iteration of the experiment
-    per ``call()``, the state carried over (outputs ready on return)."""
+    per ``call()``, the state carried over (outputs ready on return). As a run calls it
+    (``Program.compile_step``): the same run key every call, the step folding in the
+    iteration it reads from the state (``api.iteration_step``); a key folded outside the
+    compiled program is one more dispatch per call, which no run makes (50-100 us, 5-10% of
+    the thesis iteration; benchmarks/NOTES.md)."""
     from cognet_jax.api import make_step
     from cognet_jax.registry import load_config
 
     algorithm, params, step = make_step(load_config(experiment, sets))
-    holder = {"state": algorithm.init(jax.random.key(0), params), "i": 0}
+    holder = {"state": algorithm.init(jax.random.key(0), params)}
     key = jax.random.key(1)
     t0 = time.perf_counter()
     compiled = jax.jit(lambda k, s: step(k, s, params)).lower(key, holder["state"]).compile()
     compile_s = time.perf_counter() - t0
 
     def call():
-        holder["i"] += 1
-        holder["state"], metrics = compiled(jax.random.fold_in(key, holder["i"]), holder["state"])
+        holder["state"], metrics = compiled(key, holder["state"])
         return jax.block_until_ready(metrics)
 
     env = algorithm.env

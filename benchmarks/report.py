@@ -543,7 +543,11 @@ def write_readme(out: dict, path: Path, notes: str = "") -> None:
             "`vectorized.py`; the default: `weights.py`), eager and `torch.compile`d, in paired "
             "rounds as above; the ratio takes the faster torch reference of each round. The "
             "default runs the library's defaults (tied structures, restarts, a pool of 4 best "
-            "policies raced on fresh rollouts).",
+            "policies raced on fresh rollouts). The ceiling bounds the ratio from the rollouts "
+            "alone: the row's faster torch time over the time its agent-steps take at the rate "
+            "of JAX's rollout kernel in this run (the rollouts row of the same nodes); where it "
+            "is below the target, no cheaper rest of the iteration reaches the target without "
+            "a faster rollout kernel.",
             "",
         ]
     if out.get("end_to_end"):
