@@ -118,15 +118,16 @@ def _train(args) -> int:
             flags = {"EXPERIMENT": args.experiment, "--seed": args.seed, "--out": args.out}
             _refuse_with_resume(args, flags)
             config, seed = resume_target(args.resume, args.overrides + _run_overrides(args))
-            done = finished_value(args.resume, config)
-            if done is not None:
-                print(
-                    f"{args.resume}: the run is complete ({config.algorithm.iterations} "
-                    f"iterations, honest value {done['mean']:.3f}); nothing to resume, nothing "
-                    f"written (`cognet-jax evaluate {args.resume}` values its policy again)"
-                )
-                return 0
-            with claim(Path(args.resume), resume=True):
+            with claim(Path(args.resume), resume=True):  # no other writer replaces it now
+                done = finished_value(args.resume, config)
+                if done is not None:
+                    print(
+                        f"{args.resume}: the run is complete ({config.algorithm.iterations} "
+                        f"iterations, honest value {done['mean']:.3f}); nothing to resume, "
+                        f"nothing written (`cognet-jax evaluate {args.resume}` values its "
+                        "policy again)"
+                    )
+                    return 0
                 train(config, seed, Path(args.resume), resume=True)
             return 0
         check_out(args.out)

@@ -479,7 +479,11 @@ def read_experiment(name_or_path: str) -> dict:
         raise ConfigError("", f"{origin}: invalid TOML: {err}") from None
     except RecursionError:  # arrays or tables nested thousands deep
         raise ConfigError("", f"{origin}: invalid TOML: a value is nested too deeply") from None
-    data.setdefault("experiment", {}).setdefault(
-        "name", path.stem if path.exists() else name_or_path
-    )
+    section = data.setdefault("experiment", {})
+    if not isinstance(section, dict):  # `experiment = 5`, or an array of [[experiment]] tables
+        raise ConfigError(
+            "experiment",
+            f"{origin}: expected a table of settings ([experiment]), got {section!r:.60}",
+        )
+    section.setdefault("name", path.stem if path.exists() else name_or_path)
     return data

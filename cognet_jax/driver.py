@@ -45,6 +45,7 @@ from cognet_jax.records import (
     save_group,
     write_run,
 )
+from cognet_jax.run_folder import replacing
 from cognet_jax.signals import Stopped, deferred_stop, in_background
 
 
@@ -62,6 +63,7 @@ class Interrupted(Exception):
         signum: int = 2,
         busy=False,
         kept: bool = True,
+        kept_old: bool = False,
     ):
         self.out_dir, self.iteration, self.signum = Path(out_dir), iteration, int(signum)
         name = signal.Signals(self.signum).name
@@ -75,6 +77,12 @@ class Interrupted(Exception):
                 f"interrupted during iteration {iteration + 1}/{iterations} ({name}), still "
                 f"computing {STOP_GRACE_S:g} s after the signal: nothing new written to "
                 f"{out_dir} ({earlier})"
+            )
+        elif kept_old:  # --overwrite stopped: the replaced run stays readable
+            message = (
+                f"interrupted at iteration {iteration}/{iterations} ({name}): checkpoint "
+                f"written to {out_dir}, beside the results of the run it replaces, which stay "
+                f"until it finishes; continue with --resume {out_dir}"
             )
         else:
             message = (
@@ -106,12 +114,18 @@ class GroupOptions:
 def _stop(program: Program, state, iteration: int, opts: GroupOptions, signum):
     """Keep what a stopped group has (checkpoint, every run's best policy) and raise
     ``Interrupted``."""
+    kept_old = False
     with deferred_stop():  # what was found is written even if the signal comes again
         best = program.best_policies(state)
         for r, run in enumerate(program.runs):
+            if run.folder is not None and replacing(run.folder):
+                kept_old = True  # --overwrite: the replaced run's results stay until the end
+                continue
             record = run_record(run, program, status="interrupted", iteration=iteration)
             write_run(run, dict(record, final_value=None), best[r], program.algorithm)
-    raise Interrupted(_stop_dir(opts), iteration, program.config.algorithm.iterations, signum)
+    raise Interrupted(
+        _stop_dir(opts), iteration, program.config.algorithm.iterations, signum, kept_old=kept_old
+    )
 
 
 def _stop_dir(opts: GroupOptions) -> Path:

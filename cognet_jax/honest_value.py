@@ -43,15 +43,17 @@ def final_value(algorithm, config: Config, params: SearchParams, lanes: int = 1)
 
 
 def _refuse_nan_policy(policy) -> None:
-    """An ``InputError`` for a policy with a NaN parameter: no search makes one, and its
-    rollouts still give finite returns (a NaN distribution samples some action), so its
-    value would be a number that means nothing."""
+    """An ``InputError`` for a policy with a NaN parameter: a search that diverged (node
+    networks trained with a learning rate far too large) or a damaged file; its rollouts
+    still give finite returns (a NaN distribution samples some action), so its value would
+    be a number that means nothing."""
     for leaf in jax.tree.leaves(policy):
         x = np.asarray(leaf) if not isinstance(leaf, jax.Array) else leaf
         if jnp.issubdtype(x.dtype, jnp.floating) and bool(jnp.isnan(x).any()):
             raise InputError(
-                "the policy holds NaN parameters (its checkpoint or policy file was damaged or "
-                "edited): it has no honest value"
+                "the policy holds NaN parameters: it has no honest value (the search "
+                "diverged -- node networks trained with too large a network.learning_rate -- "
+                "or its checkpoint or policy file was damaged or edited)"
             )
 
 

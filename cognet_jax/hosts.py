@@ -11,6 +11,7 @@ import time
 
 from cognet_jax.config import ConfigError
 from cognet_jax.errors import UsageError
+from cognet_jax.signals import in_background
 
 
 def init_distributed(args) -> None:
@@ -28,15 +29,20 @@ def init_distributed(args) -> None:
         for name, v in zip(("--coordinator", "--num-processes", "--process-id"), explicit):
             if v is None:
                 raise UsageError(f"{name} is needed for a multi-process sweep")
+        if args.num_processes < 1:
+            raise UsageError(f"--num-processes must be >= 1, got {args.num_processes}")
         if not 0 <= args.process_id < args.num_processes:
             raise UsageError(f"--process-id must be in 0 .. {args.num_processes - 1}")
         check_coordinator(args.coordinator, args.process_id)
-        try:
-            jax.distributed.initialize(
-                args.coordinator,
-                args.num_processes,
-                args.process_id,
-                initialization_timeout=COORDINATOR_TIMEOUT_S,
+        try:  # in a worker thread: a stop signal ends the wait at once (it held the signal
+            # until JAX's own timeout aborted the process)
+            in_background(
+                lambda: jax.distributed.initialize(
+                    args.coordinator,
+                    args.num_processes,
+                    args.process_id,
+                    initialization_timeout=COORDINATOR_TIMEOUT_S,
+                )
             )
         except (RuntimeError, ValueError) as err:
             raise UsageError(f"--coordinator {args.coordinator}: cannot start: {err}") from None

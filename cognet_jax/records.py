@@ -329,17 +329,19 @@ def check_finite_values(history, program: Program) -> None:
     value = fields["value"]
     if value.size == 0:  # no iteration ran
         return
-    nan = np.isnan(value.reshape(value.shape[0], -1)).any(axis=1)
+    # an infinite value is a return past float32 (a reward of 4e37 summed over the steps)
+    nan = ~np.isfinite(value.reshape(value.shape[0], -1)).all(axis=1)
     if nan.any() and not type(program.algorithm).__module__.startswith("cognet_jax."):
         env = program.algorithm.env
         also = (
             ""
             if type(env).__module__.startswith("cognet_jax.")
             else f", or the simulator {program.config.env.name!r} returned a NaN reward or "
-            "observation for policies it drew"
+            "observation, or returns past float32, for policies it drew"
         )
         raise UsageError(
-            f"{search}.tell (the search's code) returned a NaN value at iteration "
+            f"{search}.tell (the search's code) returned "
+            f"{'a NaN' if np.isnan(value).any() else 'an infinite'} value at iteration "
             f"{int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): a NaN of "
             f"its own computation{also}; nothing is written"
         )
@@ -347,10 +349,11 @@ def check_finite_values(history, program: Program) -> None:
         env = program.algorithm.env
         owner = f"{type(env).__module__}.{type(env).__name__}"
         raise SimulatorError(
-            f"simulator {program.config.env.name!r} ({owner}): the search's value is NaN at "
-            f"iteration {int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): "
-            "its step returned a NaN reward or observation for policies the search drew; "
-            "nothing is written"
+            f"simulator {program.config.env.name!r} ({owner}): the search's value is "
+            f"{'NaN' if np.isnan(value).any() else 'infinite'} at iteration "
+            f"{int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): its step "
+            "returned a NaN reward or observation, or rewards whose returns pass float32 "
+            "(|x| > 3.4e38), for policies the search drew; nothing is written"
         )
 
 

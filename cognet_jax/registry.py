@@ -296,7 +296,11 @@ def _lookup(name: str, table: dict, builtin: dict, kind: str):
     if name not in table:
         field = "env.name" if kind == "environment" else "experiment.algorithm"
         known = ", ".join(sorted(set(table) | set(builtin)))
-        raise ConfigError(field, f"unknown {kind} {name!r} (known: {known})")
+        raise ConfigError(
+            field,
+            f"unknown {kind} {name!r} (known: {known}; one of your own is registered by its "
+            "module: `cognet-jax --import MODULE.py ...`)",
+        )
     return table[name]
 
 

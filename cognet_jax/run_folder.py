@@ -21,6 +21,7 @@ they write ``out``:
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 from pathlib import Path
@@ -109,15 +110,14 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
                 _check_writable(out / sub)
         replaced = _replaced_files(out, kind) if found and overwrite else {}
         if resume and (out / REPLACING_NAME).exists():  # continues a replacing run: the old
-            replaced = _replaced_files(out, kind)  # run's files go when it finishes, as they
-            replaced.pop(out / "checkpoint.msgpack", None)  # would have (the checkpoint: new)
-        if replaced and not resume:
-            (out / REPLACING_NAME).write_text(f"{os.getpid()}\n")
+            replaced = _recorded_replaced(out, kind)  # run's files go when it finishes
+        if replaced and not resume:  # what is replaced, for a --resume after a stop
+            record = {str(p.relative_to(out)): m for p, m in replaced.items()}
+            (out / REPLACING_NAME).write_text(json.dumps(record))
         try:
             yield out
         except BaseException:
-            checkpoint = out / "checkpoint.msgpack"
-            if replaced and _mtime(checkpoint) == replaced.get(checkpoint, 0):
+            if replaced and not _new_state_written(out, replaced):
                 (out / REPLACING_NAME).unlink(missing_ok=True)  # stopped before a checkpoint
             raise
         _remove_unwritten(replaced)  # the block finished: what it did not write again is stale
@@ -212,6 +212,48 @@ def _replaced_files(out: Path, kind: str) -> dict[Path, float]:
     if kind != "sweep":
         paths += [out / "sweep-state", out / "runs"]
     return {p: _mtime(p) for p in paths if p.exists()}
+
+
+def _recorded_replaced(out: Path, kind: str) -> dict[Path, float]:
+    """The replaced run's files as ``REPLACING_NAME`` recorded them when ``--overwrite``
+    started, those still as they were (the stopped new run's own files -- a sweep's group
+    states and run folders, a checkpoint -- are not among them, so they stay). A record of
+    an earlier version (the process id alone): the replaced files found now, but the
+    checkpoint."""
+    text = (out / REPLACING_NAME).read_text()
+    try:
+        record = json.loads(text)
+    except ValueError:
+        record = None
+    if not isinstance(record, dict):
+        replaced = _replaced_files(out, kind)
+        replaced.pop(out / "checkpoint.msgpack", None)
+        return replaced
+    found = {out / name: mtime for name, mtime in record.items()}
+    kept = {p: m for p, m in found.items() if p.exists() and _mtime(p) == m}
+    # the tables and the evaluations log there now are the replaced run's (an evaluate of it
+    # after the stop appended to the log): the new run writes its own when it finishes
+    stale = [out / n for n in STALE_FILES if (out / n).is_file()]
+    return {**kept, **{p: _mtime(p) for p in stale}}
+
+
+def _new_state_written(out: Path, replaced: dict[Path, float]) -> bool:
+    """Whether the new run wrote a state to continue from: a train's checkpoint, or a group
+    state or run folder of a sweep, other than the replaced run's."""
+    news = [out / "checkpoint.msgpack", *(out / "sweep-state").glob("group*")]
+    news += [p for p in (out / "runs").glob("setting*") if p.is_dir()]
+    return any(p.exists() and _mtime(p) != replaced.get(p, 0) for p in news)
+
+
+def replacing(folder: Path) -> bool:
+    """Whether ``folder`` (a train's run folder, or a run folder ``runs/setting*`` of a sweep)
+    is written by a run that replaces another (``--overwrite``) and has not finished: a stop
+    then writes no results over the replaced run's."""
+    folder = Path(folder)
+    sweep = folder.parent.parent if folder.parent.name == "runs" else None
+    return (folder / REPLACING_NAME).exists() or (
+        sweep is not None and (sweep / REPLACING_NAME).exists()
+    )
 
 
 def _mtime(path: Path) -> int:

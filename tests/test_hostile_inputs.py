@@ -211,3 +211,13 @@ def test_a_simulator_number_whose_square_overflows_float32_is_refused(capsys):
     with pytest.raises(ConfigError, match="env.obs_noise"):
         registry.load_config("beacon-n5", ["env.obs_noise=-2e19"])
     assert registry.load_config("beacon-n5", ["env.obs_noise=1e3"]).env.obs_noise == 1e3
+
+
+def test_a_diverged_training_names_the_learning_rate(tmp_path, capsys):
+    # it blamed a damaged checkpoint or policy file: this run wrote both itself
+    out = tmp_path / "run"
+    args = ["train", "tagging-thesis-spec-n3", "--set", "network.learning_rate=1e20"]
+    args += ["--set", "algorithm.iterations=3", "--set", "run.plots=false", "--out", str(out)]
+    assert cli.main([*args, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "NaN parameters" in err and "network.learning_rate" in err, err

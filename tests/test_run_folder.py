@@ -620,7 +620,7 @@ class Seek:
         pos = jnp.clip(state[:2] + actions - 1.0, 0.0, 10.0)
         reward = jnp.sum(jnp.where(jnp.abs(pos - state[2]) < 1.0, 1.0, -0.1))
         count = state[3] + jnp.all(actions == 2).astype(jnp.float32)
-        reward = jnp.where(count >= 5.0, jnp.nan, reward)
+        reward = jnp.where(count >= COUNT, BAD, reward)
         return state.at[:2].set(pos).at[3].set(count), state[2] - pos, reward
 
 @dataclasses.dataclass
@@ -631,13 +631,17 @@ register_env("rare-nan-seek-test", SeekSection, lambda s, cfg: (Seek(), SeekPara
 """
 
 
-def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monkeypatch):
-    """A NaN reward that ``check_simulator``'s random episodes miss but the search's
-    candidates reach: refused when the search ends, naming the simulator and the first
-    iteration whose value is NaN; no results are written."""
+@pytest.mark.parametrize("bad", ["NaN", "infinite"])
+def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monkeypatch, bad):
+    """A NaN reward, or rewards whose return passes float32 (each finite), that
+    ``check_simulator``'s random episodes miss but the search's candidates reach: refused when
+    the search ends, naming the simulator and the first iteration whose value is NaN (or
+    infinite: the run ended in an internal error after writing results.json); no results are
+    written."""
     monkeypatch.setattr(registry, "_FOREIGN_CODE", {})
     module = tmp_path / "rare_nan_seek.py"
-    module.write_text(RARE_NAN_SEEK)
+    count, reward = ("5.0", "jnp.nan") if bad == "NaN" else ("4.0", "3e38")
+    module.write_text(RARE_NAN_SEEK.replace("COUNT", count).replace("BAD", reward))
     toml = tmp_path / "seek.toml"
     toml.write_text(
         '[experiment]\nalgorithm = "cogdice"\n[env]\nname = "rare-nan-seek-test"\n'
@@ -648,7 +652,7 @@ def test_nan_rewards_only_the_search_reaches_are_refused(tmp_path, capsys, monke
     args = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
     assert cli.main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "simulator 'rare-nan-seek-test'" in err and "value is NaN at iteration" in err, err
+    assert "simulator 'rare-nan-seek-test'" in err and f"value is {bad} at iteration" in err, err
     assert not (out / "results.json").exists()
 
 
@@ -663,3 +667,42 @@ def test_results_are_written_as_strict_json_whatever_numbers_they_hold(tmp_path)
     assert json.loads((tmp_path / "r.json").read_text()) == {"nan": None}
     with pytest.raises(TypeError):
         atomic_write_json(tmp_path / "s.json", {"set": {1}})
+
+
+def test_a_stopped_overwrite_leaves_the_replaced_run_readable(tmp_path, capsys, monkeypatch):
+    """``train --overwrite`` stopped after its first checkpoint: the replaced run's
+    results.json and policy stay as they were (the stop wrote the new run's interrupted
+    results over them), the new checkpoint beside them with ``.replacing``; ``--resume``
+    finishes the new run, which then replaces the old one."""
+    import signal
+
+    from cognet_jax import driver
+    from cognet_jax.signals import install_stop_handlers
+
+    out = tmp_path / "run"
+    assert cli.main(["train", "--out", str(out), *TINY_TRAIN]) == 0
+    old = {n: (out / n).read_bytes() for n in ("results.json", "policy.msgpack")}
+    saved = driver.save_group
+
+    def save_then_stop(*args):
+        saved(*args)
+        os.kill(os.getpid(), signal.SIGTERM)  # the stop handler raises at the next check
+
+    monkeypatch.setattr(driver, "save_group", save_then_stop)
+    previous = signal.getsignal(signal.SIGTERM)
+    install_stop_handlers()
+    longer = [*TINY_TRAIN, "--set", "algorithm.iterations=6", "--checkpoint-every", "1"]
+    try:
+        args = ["train", "--out", str(out), "--seed", "1", "--overwrite", *longer]
+        code = cli.main(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert code == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "beside the results of the run it replaces" in err, err
+    assert {n: (out / n).read_bytes() for n in old} == old
+    assert (out / ".replacing").exists()
+    monkeypatch.setattr(driver, "save_group", saved)
+    assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert json.loads((out / "results.json").read_text())["seed"] == 1
+    assert not (out / ".replacing").exists()

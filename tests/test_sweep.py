@@ -211,6 +211,29 @@ def test_two_processes_same_table(one_process, tmp_path):
     assert _table(gathered) == _table(result)
 
 
+def test_process_0_waiting_for_its_peers_obeys_a_stop(tmp_path):
+    """Process 0 of a multi-process sweep whose peer never starts waits in
+    ``jax.distributed.initialize`` (a native call that held SIGTERM until JAX's own timeout
+    aborted the process two minutes later): a SIGTERM ends it at once, status 143."""
+    port = _free_port()
+    args = [sys.executable, "-m", "cognet_jax", *_sweep_args(tmp_path / "p0")]
+    args += ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", "0"]
+    proc = subprocess.Popen(args, env=_env(2), stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline:  # the coordination service listens once it waits
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                break
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.1)
+    time.sleep(1.0)
+    t0 = time.time()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert time.time() - t0 < 15, err[-2000:]
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+
+
 TINY = [
     "algorithm.iterations=300",
     "algorithm.rollouts=40",
