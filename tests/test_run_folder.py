@@ -706,3 +706,25 @@ def test_a_stopped_overwrite_leaves_the_replaced_run_readable(tmp_path, capsys, 
     assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
     assert json.loads((out / "results.json").read_text())["seed"] == 1
     assert not (out / ".replacing").exists()
+
+
+def test_a_stopped_sweep_overwrite_is_resumed_and_then_replaces_the_old_run(tmp_path):
+    """``sweep --overwrite`` of a train's folder stopped after a group state: ``.replacing``
+    stays (it was removed, so the resumed sweep left the old train's results and policy beside
+    its tables); the resume removes the replaced files it recorded and keeps its own."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "results.json").write_text("{}")
+    (out / "policy.msgpack").write_bytes(b"old")
+    (out / "evaluations.jsonl").write_text('{"mean": 1.0}\n')
+    with pytest.raises(KeyboardInterrupt):
+        with claim(out, overwrite=True, kind="sweep"):
+            (out / "sweep-state").mkdir()
+            (out / "sweep-state" / "group0-p0.checkpoint.msgpack").write_bytes(b"new")
+            raise KeyboardInterrupt
+    assert (out / ".replacing").exists() and (out / "results.json").exists()
+    with claim(out, resume=True, kind="sweep"):
+        (out / "runs.json").write_text("{}")  # the sweep's tables, written at its end
+    assert not (out / "results.json").exists() and not (out / "policy.msgpack").exists()
+    assert not (out / "evaluations.jsonl").exists() and not (out / ".replacing").exists()
+    assert (out / "sweep-state" / "group0-p0.checkpoint.msgpack").read_bytes() == b"new"
