@@ -229,8 +229,9 @@ def _recorded_replaced(out: Path, kind: str) -> dict[Path, float]:
         replaced = _replaced_files(out, kind)
         replaced.pop(out / "checkpoint.msgpack", None)
         return replaced
-    found = {out / name: mtime for name, mtime in record.items()}
-    kept = {p: m for p, m in found.items() if p.exists() and _mtime(p) == m}
+    # only what a replaced run can hold, as it was: never a path the record names elsewhere
+    current = _replaced_files(out, kind)
+    kept = {out / n: m for n, m in record.items() if current.get(out / n) == m}
     # the tables and the evaluations log there now are the replaced run's (an evaluate of it
     # after the stop appended to the log): the new run writes its own when it finishes
     stale = [out / n for n in STALE_FILES if (out / n).is_file()]
