@@ -69,7 +69,7 @@ def claim(out: Path, *, resume: bool = False, overwrite: bool = False, kind: str
     found = held_run(out) if out.is_dir() else None
     if found and not resume and not overwrite:
         other = "sweep" if found in SWEEP_FILES else "train"
-        sweep_of = _sweep_holding(out)
+        sweep_of = sweep_holding(out)
         if sweep_of is not None:  # a run folder of a sweep: the sweep continues it
             advice = f"a run of the sweep in {sweep_of}: continue it with `sweep --resume "
             advice += f"{sweep_of}`, or replace this run with --overwrite"
@@ -148,7 +148,7 @@ def worth_keeping(out: Path) -> bool:
     return any((out / "runs").glob("setting*/results.json"))
 
 
-def _sweep_holding(out: Path) -> Path | None:
+def sweep_holding(out: Path) -> Path | None:
     """The sweep folder whose run folder ``out`` is (``SWEEP/runs/settingS-seedN`` beside the
     sweep's state), or None."""
     sweep = out.parent.parent

@@ -42,7 +42,7 @@ from cognet_jax.honest_value import final_value
 from cognet_jax.observations import legacy_run_files
 from cognet_jax.records import RESULTS_SCHEMA, RUN_OWN_FILES, current_meta, fingerprint
 from cognet_jax.registry import config_from_dict, env_entry
-from cognet_jax.run_folder import REPLACING_NAME
+from cognet_jax.run_folder import REPLACING_NAME, sweep_holding
 
 
 def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, int]:
@@ -53,6 +53,13 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
         if section != "run":
             raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
     path = Path(run_dir) / CHECKPOINT_NAME
+    sweep = Path(run_dir) if (Path(run_dir) / "sweep.json").is_file() else None
+    sweep = sweep or sweep_holding(Path(run_dir))
+    if sweep is not None and not path.is_file():  # a sweep continues its own runs
+        raise UsageError(
+            f"{run_dir} is {'a run of ' if sweep != Path(run_dir) else ''}the sweep in {sweep}: "
+            f"continue it with `cognet-jax sweep --resume {sweep}`"
+        )
     meta = current_meta(read_checkpoint(path)["meta"], path)
     if len(meta.get("runs", [])) != 1:
         raise ConfigError("", f"{run_dir} holds no checkpoint of a single train run")

@@ -728,3 +728,18 @@ def test_a_stopped_sweep_overwrite_is_resumed_and_then_replaces_the_old_run(tmp_
     assert not (out / "results.json").exists() and not (out / "policy.msgpack").exists()
     assert not (out / "evaluations.jsonl").exists() and not (out / ".replacing").exists()
     assert (out / "sweep-state" / "group0-p0.checkpoint.msgpack").read_bytes() == b"new"
+
+
+def test_train_resume_of_a_sweep_names_sweep_resume(tmp_path, capsys):
+    """``train --resume`` of a sweep's folder or of one of its run folders: one line naming
+    ``sweep --resume`` and the sweep (it said "no checkpoint at ...")."""
+    sweep = tmp_path / "sw"
+    run = sweep / "runs" / "setting0-seed0"
+    run.mkdir(parents=True)
+    (sweep / "sweep.json").write_text("{}")
+    (sweep / "runs.json").write_text("{}")
+    (run / "results.json").write_text("{}")
+    for folder, what in ((sweep, "is the sweep"), (run, "is a run of the sweep")):
+        assert cli.main(["train", "--resume", str(folder)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and what in err[0] and f"sweep --resume {sweep}" in err[0], err
