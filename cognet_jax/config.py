@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import struct
 import types
 import typing
 from importlib import resources
@@ -358,6 +359,11 @@ INT32_MAX = 2**31 - 1
 ENV_FLOAT_MAX = 1.8e19
 
 
+def _f32(v: float) -> float:
+    """``v`` rounded to float32 (``v`` within float32's range)."""
+    return struct.unpack("f", struct.pack("f", v))[0]
+
+
 def check_finite(config: Config) -> None:
     """Every number of every section is finite and fits the float32 / int32 arithmetic of the
     compiled programs: ``inf`` and ``nan`` parse as TOML floats but mean nothing as a noise
@@ -370,6 +376,11 @@ def check_finite(config: Config) -> None:
                 raise ConfigError(field, f"must be a finite number, got {v}")
             if isinstance(v, float) and abs(v) > FLOAT32_MAX:
                 raise ConfigError(field, f"{v} does not fit float32 (|x| <= {FLOAT32_MAX:.3g})")
+            if name in ("env", "problem") and isinstance(v, float) and v and not _f32(v):
+                raise ConfigError(  # a discount of 1e-46 became 0 and was named as the model's
+                    field,
+                    f"{v:g} is 0 in the simulator's float32 arithmetic (0, or |x| >= 1.4e-45)",
+                )
             if name == "env" and isinstance(v, (int, float)) and abs(v) > ENV_FLOAT_MAX:
                 raise ConfigError(
                     field,

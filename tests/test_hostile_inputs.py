@@ -211,6 +211,8 @@ def test_a_simulator_number_whose_square_overflows_float32_is_refused(capsys):
     with pytest.raises(ConfigError, match="env.obs_noise"):
         registry.load_config("beacon-n5", ["env.obs_noise=-2e19"])
     assert registry.load_config("beacon-n5", ["env.obs_noise=1e3"]).env.obs_noise == 1e3
+    with pytest.raises(ConfigError, match=r"env.obs_noise.*1e-46 is 0 in the simulator"):
+        registry.load_config("beacon-n5", ["env.obs_noise=1e-46"])  # named the model's params
 
 
 def test_a_diverged_training_names_the_learning_rate(tmp_path, capsys):
