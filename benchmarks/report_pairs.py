@@ -53,6 +53,11 @@ def headline(out: dict) -> str | None:
     )
 
 
+#: agent-steps of one rollout of the rollouts rows and of the thesis-setting iterations (h 3,
+#: 2 agents)
+STEPS_PER_ROLLOUT = 6
+
+
 def kernel_rates(out: dict) -> dict:
     """``{(nodes, rollouts): JAX seconds per agent-step}`` of the rollout kernel measured in
     paired rounds in this run (h 3, 2 agents): the rollouts rows of ``iteration_pairs`` (1e4)
@@ -61,9 +66,11 @@ def kernel_rates(out: dict) -> dict:
     for r in out.get("iteration_pairs") or []:
         if r["case"].startswith("rollouts"):
             nodes = int(r["case"].split(", ")[1].split()[0])
-            rates[nodes, int(r["agent_steps"] // 6)] = r["median_s"]["jax"] / r["agent_steps"]
+            per_step = r["median_s"]["jax"] / r["agent_steps"]
+            rates[nodes, int(r["agent_steps"] // STEPS_PER_ROLLOUT)] = per_step
     for p in out.get("paired") or []:
-        rates[p["nodes"], p["rollouts"]] = p["jax"]["median_s"]["jax"] / (p["rollouts"] * 6)
+        steps = p["rollouts"] * STEPS_PER_ROLLOUT
+        rates[p["nodes"], p["rollouts"]] = p["jax"]["median_s"]["jax"] / steps
     return rates
 
 
@@ -80,7 +87,7 @@ def rollout_ceiling(row: dict, rates: dict) -> float | None:
     sizes = [(k, v) for (n, k), v in rates.items() if n == nodes]
     if not sizes:
         return None
-    rollouts = row["agent_steps"] / 6
+    rollouts = row["agent_steps"] / STEPS_PER_ROLLOUT
     nearest = min(abs(math.log(k / rollouts)) for k, _ in sizes)
     per_step = min(v for k, v in sizes if abs(math.log(k / rollouts)) <= nearest + 1e-9)
     torch_s = min(row["median_s"]["torch-vectorized"], row["median_s"]["torch-compiled"])

@@ -331,6 +331,7 @@ def check_finite_values(history, program: Program) -> None:
         return
     # an infinite value is a return past float32 (a reward of 4e37 summed over the steps)
     nan = ~np.isfinite(value.reshape(value.shape[0], -1)).all(axis=1)
+    bad = "NaN" if np.isnan(value).any() else "infinite"
     if nan.any() and not type(program.algorithm).__module__.startswith("cognet_jax."):
         env = program.algorithm.env
         also = (
@@ -341,7 +342,7 @@ def check_finite_values(history, program: Program) -> None:
         )
         raise UsageError(
             f"{search}.tell (the search's code) returned "
-            f"{'a NaN' if np.isnan(value).any() else 'an infinite'} value at iteration "
+            f"{'a NaN' if bad == 'NaN' else 'an infinite'} value at iteration "
             f"{int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): a NaN of "
             f"its own computation{also}; nothing is written"
         )
@@ -350,7 +351,7 @@ def check_finite_values(history, program: Program) -> None:
         owner = f"{type(env).__module__}.{type(env).__name__}"
         raise SimulatorError(
             f"simulator {program.config.env.name!r} ({owner}): the search's value is "
-            f"{'NaN' if np.isnan(value).any() else 'infinite'} at iteration "
+            f"{bad} at iteration "
             f"{int(np.argmax(nan)) + 1} ({int(nan.sum())} of {nan.size} iterations): its step "
             "returned a NaN reward or observation, or rewards whose returns pass float32 "
             "(|x| > 3.4e38), for policies the search drew; nothing is written"

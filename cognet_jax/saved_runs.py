@@ -52,12 +52,12 @@ def resume_target(run_dir, overrides: list[str] | None = None) -> tuple[Config, 
         (section, _), _ = parse_override(text)
         if section != "run":
             raise ConfigError(text.split("=")[0], "cannot be changed when resuming")
-    path = Path(run_dir) / CHECKPOINT_NAME
-    sweep = Path(run_dir) if (Path(run_dir) / "sweep.json").is_file() else None
-    sweep = sweep or sweep_holding(Path(run_dir))
+    folder = Path(run_dir)
+    path = folder / CHECKPOINT_NAME
+    sweep = folder if (folder / "sweep.json").is_file() else sweep_holding(folder)
     if sweep is not None and not path.is_file():  # a sweep continues its own runs
         raise UsageError(
-            f"{run_dir} is {'a run of ' if sweep != Path(run_dir) else ''}the sweep in {sweep}: "
+            f"{run_dir} is {'a run of ' if sweep != folder else ''}the sweep in {sweep}: "
             f"continue it with `cognet-jax sweep --resume {sweep}`"
         )
     meta = current_meta(read_checkpoint(path)["meta"], path)
