@@ -32,7 +32,7 @@ from cognet_jax.checkpoint import (
 from cognet_jax.compiled import rollout_mesh
 from cognet_jax.config import Config
 from cognet_jax.loop import STOP_GRACE_S, Checkpointing, iterate
-from cognet_jax.memory import peak_rss_bytes
+from cognet_jax.memory import MemoryOverBudget, peak_rss_bytes
 from cognet_jax.program import Program, Run
 from cognet_jax.records import (
     check_finite_values,
@@ -99,7 +99,8 @@ class GroupOptions:
     of the bar, ``resume_dir`` named by ``Interrupted``, ``announce``: a run of its own
     (``train``), which logs its result and draws its plots (``run.plots``); a sweep's runs do
     neither (the sweep writes its tables); ``built``: the first run's ``api.build``, when the
-    caller made it (else the group builds it)."""
+    caller made it (else the group builds it); ``lanes``: the runs side by side at least (a
+    sweep's last batch is padded to its other batches' size, ``batches``: one program)."""
 
     checkpoint: Path | None = None
     resume: bool = False
@@ -109,6 +110,7 @@ class GroupOptions:
     resume_dir: Path | None = None
     announce: bool = False
     built: Built | None = None
+    lanes: int = 0
 
 
 def _stop(program: Program, state, iteration: int, opts: GroupOptions, signum):
@@ -179,22 +181,33 @@ def _prepare(runs: list[Run], opts: GroupOptions):
 
     def prepare():
         with rollout_mesh(config):
-            program = Program(runs, opts.built)  # built and checked once (``api.build``)
+            program = Program(runs, opts.built, opts.lanes)  # built and checked once
             _warn_if_long(program, len(runs))
             t0 = time.perf_counter()
-            state, raw, start = program.init(), None, 0
+            state, raw, start = _before_search(program.init), None, 0
             init_s = time.perf_counter() - t0  # its compilation (the run is dispatched)
             if opts.resume and opts.checkpoint is not None and opts.checkpoint.exists():
                 state, raw, start = restore_group(program, state, opts.checkpoint)
                 total = config.algorithm.iterations
                 opts.log(f"resuming {config.experiment.name} at iteration {start}/{total}")
-            step, step_s = program.compile_step(state, announce)
+            step, step_s = _before_search(program.compile_step, state, announce)
             compile_s = init_s + step_s
             print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
             history = [] if raw is None else restored_history(step, raw, opts.checkpoint)
         return program, state, history, start, step, compile_s
 
     return in_background(prepare)
+
+
+def _before_search(compile_fn, *args):
+    """``compile_fn(*args)``, a group's initial state or iteration compiled: a program over
+    the memory budget is marked ``before_search`` (fewer runs side by side would fit it,
+    ``batches``; nothing of the group has run)."""
+    try:
+        return compile_fn(*args)
+    except MemoryOverBudget as err:
+        err.before_search = True
+        raise
 
 
 def _warn_if_long(program: Program, runs: int) -> None:

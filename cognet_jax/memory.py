@@ -244,11 +244,36 @@ def check_traced(traced, memory: int | None, what: str = "one iteration") -> Non
         )
 
 
+class MemoryOverBudget(ResourceError):
+    """A compiled program's buffers exceed the budget: ``needed`` and ``budget`` in bytes;
+    ``before_search``: the program is a group's initial state or iteration (a sweep then runs
+    the group's runs in smaller batches, ``batches``)."""
+
+    def __init__(self, message: str, needed: int, budget: int):
+        super().__init__(message)
+        self.needed, self.budget = needed, budget
+        self.before_search = False
+
+
+def program_devices(compiled) -> int:
+    """How many devices a compiled program runs on (the devices of its arguments' and
+    outputs' shardings; 1 when it names none)."""
+    try:
+        shardings = jax.tree.leaves((compiled.input_shardings, compiled.output_shardings))
+        devices = {d for s in shardings for d in s.device_set}
+    except Exception:  # an object without shardings (a test's stand-in): one device
+        return 1
+    return max(1, len(devices))
+
+
 def check_compiled(compiled, memory: int | None, what: str = "one iteration") -> None:
     """Refuse a compiled program whose buffers at once (its arguments, outputs and XLA's
     temporaries, by XLA's memory analysis) exceed ``memory`` bytes. XLA on CPU allocates a
     program's temporaries as one block, which the largest-array check before compiling
-    (``check_traced``) does not see: e.g. one iteration of thousands of runs side by side."""
+    (``check_traced``) does not see: e.g. one iteration of thousands of runs side by side.
+    XLA's analysis counts one device's buffers: a program laid over several devices (a
+    sweep's runs, ``run.shard_rollouts``) holds that many times as much, all of it in this
+    machine's memory on CPU."""
     memory = budget_bytes() if memory is None else memory
     try:
         stats = compiled.memory_analysis()
@@ -256,15 +281,18 @@ def check_compiled(compiled, memory: int | None, what: str = "one iteration") ->
         return
     if stats is None:
         return
-    temp = int(stats.temp_size_in_bytes)
-    total = temp + int(stats.argument_size_in_bytes) + int(stats.output_size_in_bytes)
-    total -= int(stats.alias_size_in_bytes)
+    devices = program_devices(compiled)
+    temp = int(stats.temp_size_in_bytes) * devices
+    total = temp + (int(stats.argument_size_in_bytes) + int(stats.output_size_in_bytes)) * devices
+    total -= int(stats.alias_size_in_bytes) * devices
     if total > memory:
-        raise ResourceError(
+        raise MemoryOverBudget(
             f"{what} needs about {gb(total)} at once ({gb(temp)} of them XLA's temporaries), "
             f"over the memory budget of {gb(memory)}; lower the sizes in the config (nodes, "
             "samples, candidates, rollouts, horizon), run fewer seeds side by side, or raise "
-            "run.memory_gb"
+            "run.memory_gb",
+            total,
+            memory,
         )
 
 

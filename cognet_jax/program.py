@@ -136,19 +136,22 @@ _MEMORY_CHECKED: set = set()
 
 class Program:
     """The compiled functions of a group: ``init``, ``step`` (one iteration of every run),
-    ``finish`` and each run's honest evaluation. One run: the search itself, params as
-    constants. Several: ``vmap`` over ``[runs]`` (padded to a multiple of the local devices by
-    repeating the last run), hyper-parameters as data, env params as data only when the runs
-    differ in them (a zero noise level can then not skip its draws, ``envs.base.scaled_normal``)."""
+    ``finish`` and each run's honest evaluation. One run: the search itself, params as constants.
+    Several: ``vmap`` over ``[runs]`` (padded to ``lanes`` runs at least and to a multiple of the
+    local devices by repeating the last run), hyper-parameters as data, env params as data only when
+    the runs differ in them (a zero noise level can then not skip its draws,
+    ``envs.base.scaled_normal``)."""
 
-    def __init__(self, runs: list[Run], built: Built | None = None):
+    def __init__(self, runs: list[Run], built: Built | None = None, lanes: int = 0):
         self.runs = runs
-        config = runs[0].config
+        # the programs' config: the build's, which a sweep's batches share (``batches``)
+        config = runs[0].config if built is None else built.config
         self.config = config
-        self.batched = len(runs) > 1
+        self.batched = len(runs) > 1 or lanes > 1
         mesh = Mesh(np.array(jax.local_devices()), ("runs",)) if self.batched else None
         self.sharding = NamedSharding(mesh, PartitionSpec("runs")) if mesh else None
-        padded = runs + [runs[-1]] * (-len(runs) % (mesh.size if mesh else 1))
+        padded = runs + [runs[-1]] * max(0, lanes - len(runs))  # a sweep's last batch
+        padded += [runs[-1]] * (-len(padded) % (mesh.size if mesh else 1))
         self.lanes = len(padded)
         self.built = built or build(config, lanes=self.lanes)
         self.algorithm, self.params = self.built.algorithm, self.built.params

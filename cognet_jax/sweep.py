@@ -19,11 +19,12 @@ tests/test_sweep.py; larger networks can differ, docs/reference.md, "Sweeps"); a
 measures its inputs (``standardize_inputs``) uses the group's first setting's statistics.
 
 Devices: the ``[runs]`` axis is sharded over the local devices (``NamedSharding`` over a 1-D
-mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run); each
-device runs the vmapped search on its block of runs (``shard_map``, no collectives). On CPU the
-CLI splits the host into one device per core (``--cpu-devices``) so that every core works.
-Hosts: with ``jax.distributed`` initialised, process p runs the runs ``p, p + P, ...`` and
-process 0 gathers every row (``process_allgather``) and writes the tables.
+mesh ``("runs",)``; padded to a multiple of the device count by repeating the last run); each device
+runs the vmapped search on its block of runs (``shard_map``, no collectives). On CPU the CLI splits
+the host into one device per core (``--cpu-devices``) so that every core works. A group whose runs
+side by side exceed ``run.memory_gb`` runs them in batches, one after another
+(``cognet_jax.batches``). Hosts: with ``jax.distributed`` initialised, process p runs the runs ``p,
+p + P, ...`` and process 0 gathers every row (``process_allgather``) and writes the tables.
 
 Outputs (``write_outputs``): ``runs.csv`` / ``runs.json`` (one row per run: the run's
 results.json record, ``records.RESULTS_SCHEMA``, plus its group), ``summary.md`` (mean +- s.e.
@@ -52,9 +53,10 @@ from tqdm.auto import tqdm
 
 from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_json, atomic_write_text
+from cognet_jax.batches import run_in_batches
 from cognet_jax.compiled import DRIVING_FIELDS
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
-from cognet_jax.driver import GroupOptions, run_group
+from cognet_jax.driver import GroupOptions
 from cognet_jax.errors import (
     CorruptFileError,
     MismatchError,
@@ -291,7 +293,7 @@ def _run_one_group(
         return [], {"compile_s": 0.0, "loop_s": 0.0, "eval_s": 0.0, "runs": 0}
     checkpoint = None if state is None else state / f"{tag}.checkpoint.msgpack"
     opts = GroupOptions(checkpoint, resume, progress, log, desc, resume_dir=out, built=built)
-    rows, timing = run_group(_group_runs(group, out), opts)
+    rows, timing = run_in_batches(_group_runs(group, out), tag, state, opts)
     if done is not None:
         atomic_write_json(done, {"runs": group.runs, "rows": rows, "timing": timing}, None)
     return rows, timing

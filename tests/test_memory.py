@@ -239,3 +239,32 @@ def test_the_pilots_candidates_are_sized_before_the_input_statistics_compile(cap
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error: the noise pilot's 64 candidates take"), err
     assert time.perf_counter() - start < 60
+
+
+def test_a_program_over_several_devices_counts_every_devices_buffers():
+    """XLA's memory analysis counts one device's buffers: a program whose arguments are laid
+    over two devices holds twice as much, and is refused when that is over the budget."""
+    code = """
+import jax, jax.numpy as jnp, numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from cognet_jax.memory import MemoryOverBudget, check_compiled, program_devices
+mesh = Mesh(np.array(jax.devices()), ("r",))
+f = jax.shard_map(lambda x: x * 2, mesh=mesh, in_specs=P("r"), out_specs=P("r"))
+arg = jax.ShapeDtypeStruct((2, 250_000), jnp.float32, sharding=NamedSharding(mesh, P("r")))
+compiled = jax.jit(f).lower(arg).compile()
+assert program_devices(compiled) == 2
+check_compiled(compiled, 4_100_000)  # 2 x (1 MB in + 1 MB out): fits
+try:
+    check_compiled(compiled, 3_900_000)
+except MemoryOverBudget as err:
+    assert err.needed == 4_000_000, err.needed
+else:
+    raise SystemExit("not refused")
+"""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]

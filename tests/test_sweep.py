@@ -515,3 +515,30 @@ def test_a_resumed_sweep_writes_again_the_run_folders_deleted_since(tmp_path):
     assert (folder / "results.json").is_file() and (folder / "policy.msgpack").is_file()
     again = json.loads((out / "runs.json").read_text())["rows"]
     assert [r["final_value"] for r in again] == [r["final_value"] for r in first]
+
+
+def test_a_group_over_the_memory_budget_runs_in_batches_to_the_same_numbers(tmp_path, capsys):
+    """Six runs whose iteration side by side needs more than ``run.memory_gb``: run in two
+    batches of three (one line says so), to the numbers of the group run at once; a resumed
+    sweep keeps the finished batch and runs the other again, without compiling the whole
+    group (its batch size is stored)."""
+    import shutil
+
+    bigger = ["--set", "algorithm.rollouts=1000"]
+    whole, batched = tmp_path / "whole", tmp_path / "batched"
+    assert main(_sweep_args(whole) + bigger) == 0
+    capsys.readouterr()
+    assert main(_sweep_args(batched) + bigger + ["--set", "run.memory_gb=0.001"]) == 0
+    said = "".join(capsys.readouterr())
+    assert "over the memory budget of 0.001 GB (run.memory_gb): running them in 2 batches" in said
+    reference = _table(json.loads((whole / "runs.json").read_text()))
+    result = json.loads((batched / "runs.json").read_text())
+    assert _table(result) == reference
+    assert result["groups"][0]["batches"] == 2 and result["groups"][0]["runs"] == 6
+    # the second batch's rows and one of its folders lost: --resume runs that batch only
+    (batched / "sweep-state" / "group0-p0-b1.rows.json").unlink()
+    shutil.rmtree(batched / "runs" / "setting1-seed2")
+    assert main(["sweep", "--resume", str(batched), "--no-progress"]) == 0
+    said = "".join(capsys.readouterr())
+    assert "(6 runs)" not in said and "running them in" not in said
+    assert _table(json.loads((batched / "runs.json").read_text())) == reference
