@@ -16,7 +16,8 @@ import numpy as np
 from jax.sharding import Mesh
 
 from cognet_jax.config import Config
-from cognet_jax.memory import budget_bytes, check_compiled, trace_checked
+from cognet_jax.errors import ResourceError
+from cognet_jax.memory import SIZES, budget_bytes, check_compiled, trace_checked
 from cognet_jax.registry import (
     algorithm_entry,
     env_entry,
@@ -123,7 +124,45 @@ def compiled_program(
     memory = budget_bytes(config.run.memory_gb)
 
     def check(jitted, leaves):
-        trace_checked(jitted, leaves, memory, what)
+        with sizes_named(config):
+            trace_checked(jitted, leaves, memory, what)
         before_compile()
 
-    return compile_kept(fn, args, key, check, lambda c: check_compiled(c, memory, what))
+    def check_after(compiled):
+        with sizes_named(config):
+            check_compiled(compiled, memory, what)
+
+    return compile_kept(fn, args, key, check, check_after)
+
+
+#: the words of config fields that set array sizes (a memory refusal names them)
+SIZE_WORDS = ("nodes", "samples", "candidates", "rollouts", "horizon", "hidden", "restarts")
+
+
+def size_fields(config: Config, most: int = 5) -> str:
+    """``config``'s fields that set array sizes, largest value first (``"problem.horizon =
+    100000, algorithm.samples = 1000"``): integers above 1 whose names hold a ``SIZE_WORDS``
+    word; "" when none does."""
+    found = [
+        (value, f"{section}.{name}")
+        for section, fields in config.to_dict().items()
+        if section not in ("run", "experiment") and isinstance(fields, dict)
+        for name, value in fields.items()
+        if type(value) is int and value > 1 and any(w in name for w in SIZE_WORDS)
+    ]
+    found.sort(key=lambda f: (-f[0], f[1]))
+    return ", ".join(f"{name} = {value}" for value, name in found[:most])
+
+
+@contextlib.contextmanager
+def sizes_named(config: Config):
+    """A memory refusal (``ResourceError``) raised inside names ``config``'s own size fields
+    (``size_fields``) where it named the generic ``memory.SIZES``."""
+    try:
+        yield
+    except ResourceError as err:
+        named = size_fields(config)
+        text = str(err)
+        if named and f"({SIZES})" in text:
+            err.args = (text.replace(f"({SIZES})", f"({named})"),)
+        raise

@@ -41,6 +41,8 @@ import numpy as np
 
 from cognet_jax.errors import ResourceError
 
+#: the sizes a refusal asks to lower (``compiled.compiled_program`` names the config's own)
+SIZES = "nodes, samples, candidates, rollouts, horizon"
 #: the share of physical memory a run may use when ``run.memory_gb`` is 0
 DEFAULT_MEMORY_SHARE = 0.5
 #: rollouts per candidate and candidates of the probe that measures bytes per rollout
@@ -239,8 +241,8 @@ def check_traced(traced, memory: int | None, what: str = "one iteration") -> Non
         shape = "x".join(str(d) for d in aval.shape)
         raise ResourceError(
             f"{what} needs an array of {shape} {aval.dtype}, about {gb(size)}, over "
-            f"the memory budget of {gb(memory)}; lower the sizes in the config (nodes, samples, "
-            "candidates, rollouts, horizon) or raise run.memory_gb"
+            f"the memory budget of {gb(memory)}; lower the sizes in the config ({SIZES}) or raise "
+            "run.memory_gb"
         )
 
 
@@ -288,9 +290,8 @@ def check_compiled(compiled, memory: int | None, what: str = "one iteration") ->
     if total > memory:
         raise MemoryOverBudget(
             f"{what} needs about {gb(total)} at once ({gb(temp)} of them XLA's temporaries), "
-            f"over the memory budget of {gb(memory)}; lower the sizes in the config (nodes, "
-            "samples, candidates, rollouts, horizon), run fewer seeds side by side, or raise "
-            "run.memory_gb",
+            f"over the memory budget of {gb(memory)}; lower the sizes in the config ({SIZES}), "
+            "run fewer seeds side by side, or raise run.memory_gb",
             total,
             memory,
         )
@@ -307,16 +308,13 @@ def trace_checked(jitted, args: tuple, memory: int | None, what: str = "one iter
         size = f"a size of {found.group(1)}" if found else "a size"
         raise ResourceError(
             f"{what}: {size} does not fit the 32-bit integers arrays are indexed with; lower "
-            "the sizes in the config (nodes, samples, candidates, rollouts, horizon)"
+            f"the sizes in the config ({SIZES})"
         ) from None
     except ResourceError as err:  # this library's own draws (``prng``)
         raise ResourceError(f"{what}: {err}") from None
     except ValueError as err:
         if "random draws" in str(err) or "too large" in str(err):
-            raise ResourceError(
-                f"{what}: {err}; lower the sizes in the config (nodes, samples, candidates, "
-                "rollouts)"
-            ) from None
+            raise ResourceError(f"{what}: {err}; lower the sizes in the config ({SIZES})") from None
         raise
     check_traced(traced, memory, what)
     return traced

@@ -227,6 +227,7 @@ def test_temporaries_over_the_budget_are_refused_after_compiling(capsys, tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error: one iteration needs about"), err
     assert "XLA's temporaries" in err[-1] and "Traceback" not in "".join(err)
+    assert "(algorithm.eval_rollouts = 100000000, " in err[-1]  # the config's own sizes
     assert not out.exists()
 
 
@@ -268,3 +269,14 @@ else:
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def test_a_refusal_names_the_field_that_made_the_array(capsys):
+    """G-DICE's layered controller at horizon 100000 (500000 nodes): the refusal names
+    problem.horizon, the config's largest size, not a generic list of words."""
+    path = dpomdp_file("dectiger")
+    argv = ["check", "gdice-dpomdp", *sets(f"problem.path={path}", "problem.horizon=100000")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "over the memory budget" in err[-1], err
+    assert "lower the sizes in the config (problem.horizon = 100000, " in err[-1]
