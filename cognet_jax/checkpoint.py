@@ -210,7 +210,14 @@ FINGERPRINT_KEYS = {
         "these numeric settings",
         "evaluate with the settings and --import modules it was trained with",
     ),
+    "generator": (
+        "the generator its run drew with (results.json's run.prng_impl was edited)",
+        "restore results.json; --set run.prng_impl=... evaluates it with another on purpose",
+    ),
 }
+
+#: what evaluating under a differing key would give, where it is not another policy's number
+OUTCOMES = {"generator": "other rollouts than its run's, silently"}
 
 
 def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
@@ -225,9 +232,10 @@ def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:
     for key, (what, remedy) in FINGERPRINT_KEYS.items():
         differ = fingerprint_difference(stored, expected, (key,))
         if differ:
+            outcome = OUTCOMES.get(key, "a number of another policy")
             raise MismatchError(
                 f"{path}: this policy does not belong to {what}{differ[len(key) :]}; "
-                f"evaluating it would give a number of another policy ({remedy})"
+                f"evaluating it would give {outcome} ({remedy})"
             )
 
 

@@ -114,6 +114,7 @@ def save_group(program: Program, path: Path, iteration: int, state, history) -> 
 RESUME_DIFFERENCES = {
     "model": "another model file",
     "numerics": "other numeric settings or --import modules",
+    "generator": "another generator",
 }
 
 
@@ -362,12 +363,16 @@ def fingerprint(config: Config, written: dict | None = None) -> dict:
     """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections
     (as ``written`` to results.json when given: a newer version of the library may add
     settings with defaults, which must not make an old run's policy a stranger), the model
-    file it reads (a simulator that reads ``[problem]``) and the numeric settings. Stored in
-    the policy file; ``load_run`` refuses a policy whose results.json or model changed since."""
+    file it reads (a simulator that reads ``[problem]``), the numeric settings and the run's
+    ``run.prng_impl`` (``generator``: the run's own evaluation draws with it). Stored in the
+    policy file; ``load_run`` refuses a policy whose results.json or model changed since."""
     written = config.to_dict() if written is None else written
     shaping = {k: v for k, v in written.items() if k not in ("run", "evaluation")}
     text = json.dumps(shaping, sort_keys=True, default=str).encode()
     out = {"config": hashlib.sha256(text).hexdigest(), "numerics": numeric_settings()}
+    run = written.get("run")
+    if isinstance(run, dict) and "prng_impl" in run:  # the run's keys: its results.json's
+        out["generator"] = {"run.prng_impl": run["prng_impl"]}
     path = Path(config.problem.path).expanduser() if config.problem.path else None
     if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
         out["model"] = file_digest(path)

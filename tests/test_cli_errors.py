@@ -365,3 +365,21 @@ def test_xla_flags_xla_refuses_are_one_line_not_an_abort():
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: XLA_FLAGS='--xla_no_such_flag=1'")
     assert "xla_no_such_flag" in lines[0].split("refuses it")[1]
+
+
+def test_a_generator_edited_in_results_json_is_refused_and_a_set_one_warned(
+    capsys, run_dir, tmp_path
+):
+    """results.json's run.prng_impl edited by hand: evaluate refuses, naming the field and
+    both generators (it gave another number without a word); --set run.prng_impl evaluates
+    with another generator on purpose, with a warning."""
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    results = json.loads((copy / "results.json").read_text())
+    results["config"]["run"]["prng_impl"] = "rbg"
+    (copy / "results.json").write_text(json.dumps(results))
+    one_line_error(
+        capsys, ["evaluate", str(copy)], "run.prng_impl: trained 'threefry2x32', now 'rbg'"
+    )
+    assert main(["evaluate", str(run_dir), "--set", "run.prng_impl=rbg"]) == 0
+    assert "warning: run.prng_impl rbg where the run had threefry2x32" in capsys.readouterr().err
