@@ -702,3 +702,22 @@ def test_a_binary_or_oversized_file_is_refused_before_it_is_read(tmp_path, monke
     monkeypatch.setattr(dpomdp, "MAX_FILE_BYTES", 1000)
     with pytest.raises(dpomdp.DpomdpParseError, match=r"big.dpomdp: .*GiB, over the"):
         dpomdp.parse_dpomdp(big)
+
+
+def test_a_long_parse_says_how_far_it_is(monkeypatch):
+    """A parse past ``PROGRESS_AFTER_S`` says which phase and line it is at (a 50 MB file took
+    28 s without a word); a quick one says nothing."""
+    from cognet_jax import status
+    from cognet_jax.io import dpomdp
+
+    heard = []
+    monkeypatch.setattr(status, "listener", heard.append)
+    body = FULL_T + FULL_O + "R: * : * : * : * : 1\n" * 20000
+    parse(body)
+    assert heard == []
+    monkeypatch.setattr(dpomdp, "PROGRESS_AFTER_S", 0.0)
+    monkeypatch.setattr(dpomdp, "PROGRESS_LINES", 4096)
+    model = parse(body)
+    assert model.reward.max() == 1.0
+    assert any(line.startswith("reading <string>: splitting, line ") for line in heard), heard
+    assert any("reading the entries, line " in line and "%)" in line for line in heard), heard

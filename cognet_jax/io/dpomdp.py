@@ -78,12 +78,14 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import time
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from cognet_jax import status
 from cognet_jax.errors import InputError
 
 __all__ = [
@@ -329,12 +331,37 @@ def _gunzip(data: bytes, label: str) -> bytes:
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
-def _tokenise(text: str) -> list[tuple[int, list[str]]]:
+#: a parse longer than this says how far it is (``status.say``), about once a second
+PROGRESS_AFTER_S = 2.0
+#: lines between two looks at the clock
+PROGRESS_LINES = 8192
+
+
+class _Progress:
+    """Status lines of a long parse: ``tick(line, lines, phase)`` says ``"reading FILE:
+    phase, line N of M (P%)"`` once ``PROGRESS_AFTER_S`` have passed, at most once a second."""
+
+    def __init__(self, label: str):
+        self.label = label
+        self.start = self.last = time.monotonic()
+
+    def tick(self, line: int, lines: int, phase: str) -> None:
+        now = time.monotonic()
+        if now - self.start >= PROGRESS_AFTER_S and now - self.last >= 1.0:
+            self.last = now
+            share = 100 * line // max(lines, 1)
+            status.say(f"reading {self.label}: {phase}, line {line} of {lines} ({share}%)")
+
+
+def _tokenise(text: str, progress: _Progress | None = None) -> list[tuple[int, list[str]]]:
     """Non-empty logical lines as ``(line number, tokens)``; ``:`` is always its own token.
     Lines end at ``\n``, ``\r\n`` or ``\r`` only (``str.splitlines`` also breaks at
     Unicode separators such as U+2028, which would turn the rest of a comment into a line)."""
     out = []
-    for lineno, raw in enumerate(_LINE_BREAK.split(text), start=1):
+    raw_lines = _LINE_BREAK.split(text)
+    for lineno, raw in enumerate(raw_lines, start=1):
+        if progress is not None and lineno % PROGRESS_LINES == 0:
+            progress.tick(lineno, len(raw_lines), "splitting")
         cut = raw.find("#")
         if cut >= 0:
             raw = raw[:cut]
@@ -374,7 +401,8 @@ def _fmt(tok: str) -> str:
 class _Parser:
     def __init__(self, text: str, label: str):
         self.label = label
-        self.lines = _tokenise(text)
+        self.progress = _Progress(label)
+        self.lines = _tokenise(text, self.progress)
         self.pos = 0
         self.last_line = text.count("\n") + 1 if text else 1
 
@@ -389,6 +417,8 @@ class _Parser:
             raise self.error(after, f"file ends here; expected {what} on the next line")
         item = self.lines[self.pos]
         self.pos += 1
+        if self.pos % PROGRESS_LINES == 0:
+            self.progress.tick(item[0], self.last_line, "reading the entries")
         return item
 
     def rest_or_next(self, lineno: int, rest: list[str], what: str) -> tuple[int, list[str]]:
@@ -697,6 +727,8 @@ class _Parser:
         while self.pos < len(self.lines):
             lineno, toks = self.lines[self.pos]
             self.pos += 1
+            if self.pos % PROGRESS_LINES == 0:
+                self.progress.tick(lineno, self.last_line, "reading the entries")
             kind = toks[0]
             if len(toks) < 2 or toks[1] != ":" or kind not in ("T", "O", "R"):
                 found = self.header_key(toks)
