@@ -716,6 +716,7 @@ def test_a_long_parse_says_how_far_it_is(monkeypatch):
     parse(body)
     assert heard == []
     monkeypatch.setattr(dpomdp, "PROGRESS_AFTER_S", 0.0)
+    monkeypatch.setattr(dpomdp, "PROGRESS_EVERY_S", 0.0)
     monkeypatch.setattr(dpomdp, "PROGRESS_LINES", 4096)
     model = parse(body)
     assert model.reward.max() == 1.0

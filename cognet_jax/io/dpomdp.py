@@ -331,23 +331,25 @@ def _gunzip(data: bytes, label: str) -> bytes:
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 
 
-#: a parse longer than this says how far it is (``status.say``), about once a second
-PROGRESS_AFTER_S = 2.0
+#: a parse longer than this says how far it is (``status.say``), once every
+#: ``PROGRESS_EVERY_S``
+PROGRESS_AFTER_S, PROGRESS_EVERY_S = 2.0, 1.0
 #: lines between two looks at the clock
 PROGRESS_LINES = 8192
 
 
 class _Progress:
     """Status lines of a long parse: ``tick(line, lines, phase)`` says ``"reading FILE:
-    phase, line N of M (P%)"`` once ``PROGRESS_AFTER_S`` have passed, at most once a second."""
+    phase, line N of M (P%)"`` once ``PROGRESS_AFTER_S`` have passed, at most once every
+    ``PROGRESS_EVERY_S``."""
 
     def __init__(self, label: str):
         self.label = label
-        self.start = self.last = time.monotonic()
+        self.start, self.last = time.monotonic(), float("-inf")
 
     def tick(self, line: int, lines: int, phase: str) -> None:
         now = time.monotonic()
-        if now - self.start >= PROGRESS_AFTER_S and now - self.last >= 1.0:
+        if now - self.start >= PROGRESS_AFTER_S and now - self.last >= PROGRESS_EVERY_S:
             self.last = now
             share = 100 * line // max(lines, 1)
             status.say(f"reading {self.label}: {phase}, line {line} of {lines} ({share}%)")
