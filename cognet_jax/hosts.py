@@ -21,8 +21,8 @@ def init_distributed(args) -> None:
 
     explicit = (args.coordinator, args.num_processes, args.process_id)
     if args.cluster:
-        try:
-            jax.distributed.initialize()
+        try:  # in a worker thread, as below: a stop signal ends the wait for the peers
+            in_background(jax.distributed.initialize)
         except (RuntimeError, ValueError) as err:
             raise UsageError(f"--cluster: cannot start jax.distributed: {err}") from None
     elif any(v is not None for v in explicit):
