@@ -242,11 +242,14 @@ def test_a_cluster_process_waiting_for_its_coordinator_obeys_a_stop(tmp_path):
     slurm = {"SLURM_JOB_ID": "4242", "SLURM_NTASKS": "2", "SLURM_PROCID": "1"}
     slurm |= {"SLURM_LOCALID": "0", "SLURM_STEP_NODELIST": "localhost"}
     proc = subprocess.Popen(args, env={**_env(2), **slurm}, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)  # imports, then the wait
-    assert proc.poll() is None, proc.communicate()
-    t0 = time.time()
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+    try:
+        time.sleep(8.0)  # imports, then the wait
+        assert proc.poll() is None, proc.communicate()
+        t0 = time.time()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
     assert time.time() - t0 < 15, err[-2000:]
     assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
 
