@@ -38,7 +38,8 @@ def test_chunked_candidates_equal_unchunked(crn):
     env, ctrl, num = alg.env, alg.controller, 200
     one = jax.tree.map(lambda x: x[0], policies)
     per_rollout = memory.rollout_bytes(run_of(env, ctrl), params, one)
-    budget = int(3.5 * num * per_rollout)  # three candidates at once: chunks 3,3,3,3 + 1
+    # three candidates at once (in the chunks' share of the budget): chunks 3,3,3,3 + 1
+    budget = int(3.5 * num * per_rollout / memory.CHUNK_SHARE)
 
     assert memory.candidate_chunk(run_of(env, ctrl), params, one, 13, num, budget) == 3
 
@@ -280,3 +281,14 @@ def test_a_refusal_names_the_field_that_made_the_array(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert "over the memory budget" in err[-1], err
     assert "lower the sizes in the config (problem.horizon = 100000, " in err[-1]
+
+
+def test_a_built_in_experiment_with_its_own_budget_fits_it(capsys):
+    """The paper setting's full budget sets ``run.memory_gb`` (chunks of candidates kept in
+    the CPU's cache) and passes ``check``: the chunk leaves the rest of the iteration room
+    (``CHUNK_SHARE``; at the whole budget it, and the COG-DICE one, were refused after
+    compiling)."""
+    name = "tagging-paper-cognet-full"
+    assert load_config(name).run.memory_gb > 0
+    assert main(["check", name]) == 0, capsys.readouterr().err
+    assert f"{name}: valid" in capsys.readouterr().out
