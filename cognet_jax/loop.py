@@ -40,6 +40,10 @@ STOP_GRACE_S = 5.0
 #: the loop dispatches iterations ahead of the one it waits for, about this many seconds of
 #: them (at least 2; at most ``AHEAD_MAX`` and ``AHEAD_BYTES`` of search states)
 AHEAD_S = 0.1
+#: iterations longer than this are dispatched one at a time: the host's gap between two is
+#: then under 1% of one, and a stop waits for one iteration, not two (a second one queued
+#: kept a stopped paper-setting run writing its checkpoint 4.6 s after the first had ended)
+ONE_AHEAD_S = 0.5
 
 
 AHEAD_MAX = 256
@@ -65,18 +69,22 @@ def wait_ready(tree, flag=None, timeout: float | None = None) -> bool:
 class Ahead:
     """How many iterations the loop keeps dispatched: about ``AHEAD_S`` seconds of them, from
     the mean time between finished iterations, so short iterations queue up (the dispatch
-    overhead hides behind the computation) while long ones stay two deep; bounded by
+    overhead hides behind the computation) while long ones stay two deep, and those longer
+    than ``ONE_AHEAD_S`` one deep (the first one alone, until its time is known); bounded by
     ``AHEAD_MAX`` and by ``AHEAD_BYTES`` of search states in flight."""
 
     def __init__(self, state):
         size = sum(x.nbytes for x in jax.tree.leaves(state) if hasattr(x, "nbytes"))
         self.cap = int(max(2, min(AHEAD_MAX, AHEAD_BYTES // max(size, 1))))
-        self.depth, self.count, self.t0 = 2, 0, time.perf_counter()
+        self.depth, self.count, self.t0 = 1, 0, time.perf_counter()
 
     def finished(self) -> None:
         self.count += 1
         mean = (time.perf_counter() - self.t0) / self.count
-        self.depth = int(max(2, min(self.cap, AHEAD_S / max(mean, 1e-6))))
+        if mean > ONE_AHEAD_S:
+            self.depth = 1
+        else:
+            self.depth = int(max(2, min(self.cap, AHEAD_S / max(mean, 1e-6))))
 
 
 def iterate(
@@ -89,10 +97,10 @@ def iterate(
     still computing ``STOP_GRACE_S`` after it (then reading any array waits for that
     iteration: nothing more can be written promptly).
 
-    Iterations are dispatched ahead of the one waited for (``Ahead``: about 0.1 s of them, at
-    least 2); the loop waits on an event (``wait_ready``), so a stop signal is seen at once.
-    It then waits at most ``STOP_GRACE_S`` for the oldest iteration in flight and keeps the
-    last finished state.
+    Iterations are dispatched ahead of the one waited for (``Ahead``: about 0.1 s of them, at least
+    2, one at a time when each takes over ``ONE_AHEAD_S``); the loop waits on an event
+    (``wait_ready``), so a stop signal is seen at once. It then waits at most ``STOP_GRACE_S`` for
+    the oldest iteration in flight and keeps the last finished state.
     ``save(i, state, history)`` writes a checkpoint (``checkpointing``); ``probe(i, state)``
     is called after every finished iteration (``Probes``)."""
     last_save = time.perf_counter()

@@ -79,8 +79,15 @@ def _without_run_section(meta: dict) -> dict:
 
 
 def _run_keys(program: Program):
-    keys = jax.vmap(lambda k: split_seed_key(k)[1])(program.seed_keys)  # [runs]
-    return keys[0] if not program.batched else keys
+    """Every run's run key (``[runs]``, or the one run's), computed once per program: a stop
+    writes its checkpoint while an iteration may still be computing, and a new computation
+    would wait behind it."""
+    keys = getattr(program, "_run_keys", None)
+    if keys is None:
+        keys = jax.vmap(lambda k: split_seed_key(k)[1])(program.seed_keys)  # [runs]
+        keys = keys[0] if not program.batched else keys
+        program._run_keys = keys
+    return keys
 
 
 def _run_fingerprints(program: Program) -> list[dict]:

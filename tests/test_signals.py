@@ -213,3 +213,23 @@ def test_a_stop_raised_inside_a_compiled_call_is_reported_as_the_stop(monkeypatc
         signal.signal(signal.SIGTERM, previous)
     assert code == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip() == "error: stopped by SIGTERM"
+
+
+def test_long_iterations_are_dispatched_one_at_a_time():
+    """Iterations over ``ONE_AHEAD_S`` stay one deep, so a stop waits for one iteration, not
+    for a second one queued behind it; short ones queue about ``AHEAD_S`` of them."""
+    import time as clock
+
+    import jax.numpy as jnp
+
+    from cognet_jax import loop
+
+    ahead = loop.Ahead({"x": jnp.zeros(3)})
+    assert ahead.depth == 1  # the first iteration alone, until its time is known
+    ahead.t0 = clock.perf_counter() - 2 * loop.ONE_AHEAD_S
+    ahead.finished()
+    assert ahead.depth == 1
+    ahead = loop.Ahead({"x": jnp.zeros(3)})
+    ahead.t0 = clock.perf_counter() - loop.AHEAD_S / 10
+    ahead.finished()
+    assert ahead.depth >= 2
