@@ -211,13 +211,15 @@ FINGERPRINT_KEYS = {
         "evaluate with the settings and --import modules it was trained with",
     ),
     "generator": (
-        "the generator its run drew with (results.json's run.prng_impl was edited)",
-        "restore results.json; --set run.prng_impl=... evaluates it with another on purpose",
+        "the seed and generator of the run in this folder (results.json's seed or "
+        "run.prng_impl was edited, or the policy file comes from another run)",
+        "restore the run's files; --seed N or --set run.prng_impl=... evaluates a policy with "
+        "others on purpose",
     ),
 }
 
 #: what evaluating under a differing key would give, where it is not another policy's number
-OUTCOMES = {"generator": "other rollouts than its run's, silently"}
+OUTCOMES = {"generator": "a number its run never had, silently"}
 
 
 def _check_fingerprint(path: Path, stored, expected: dict | None) -> None:

@@ -366,20 +366,24 @@ def check_finite_values(history, program: Program) -> None:
         )
 
 
-def fingerprint(config: Config, written: dict | None = None) -> dict:
+def fingerprint(config: Config, written: dict | None = None, seed=None) -> dict:
     """What shapes a policy, hashed: ``config`` without its ``run`` and ``evaluation`` sections
     (as ``written`` to results.json when given: a newer version of the library may add
     settings with defaults, which must not make an old run's policy a stranger), the model
     file it reads (a simulator that reads ``[problem]``), the numeric settings and the run's
-    ``run.prng_impl`` (``generator``: the run's own evaluation draws with it). Stored in the
-    policy file; ``load_run`` refuses a policy whose results.json or model changed since."""
+    ``run.prng_impl`` and ``seed`` (``generator``: the run's own evaluation draws with them).
+    Stored in the policy file; ``load_run`` refuses a policy whose results.json or model
+    changed since."""
     written = config.to_dict() if written is None else written
     shaping = {k: v for k, v in written.items() if k not in ("run", "evaluation")}
     text = json.dumps(shaping, sort_keys=True, default=str).encode()
     out = {"config": hashlib.sha256(text).hexdigest(), "numerics": numeric_settings()}
     run = written.get("run")
-    if isinstance(run, dict) and "prng_impl" in run:  # the run's keys: its results.json's
-        out["generator"] = {"run.prng_impl": run["prng_impl"]}
+    generator = {"seed": seed} if seed is not None else {}  # the run's keys: its results.json's
+    if isinstance(run, dict) and "prng_impl" in run:
+        generator["run.prng_impl"] = run["prng_impl"]
+    if generator:
+        out["generator"] = generator
     path = Path(config.problem.path).expanduser() if config.problem.path else None
     if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
         out["model"] = file_digest(path)
@@ -422,7 +426,7 @@ def write_run(run: Run, record: dict, policy, algorithm, files: dict | None = No
     if run.folder is None:
         return
     run.folder.mkdir(parents=True, exist_ok=True)
-    policy_file = policy_bytes(policy, fingerprint(run.config))
+    policy_file = policy_bytes(policy, fingerprint(run.config, seed=run.seed))
     atomic_write_bytes(run.folder / "policy.msgpack", policy_file)
     # the file's digest: ``evaluate`` refuses a policy file replaced since (another run's)
     record = {**record, "policy_sha256": hashlib.sha256(policy_file).hexdigest()}

@@ -207,8 +207,14 @@ def load_run(
         lambda k: algorithm.best_policy(algorithm.init(k, params)), jax.random.key(0)
     )
     # after the build and a trace: a user module may import its helpers only then
-    trained = fingerprint(config_from_dict(apply_overrides(ran, model_sets)), results["config"])
-    saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
+    trained = fingerprint(
+        config_from_dict(apply_overrides(ran, model_sets)), results["config"], results.get("seed")
+    )
+    try:
+        saved = read_policy(run_dir / "policy.msgpack", template, fingerprint=trained)
+    except MismatchError:  # a policy copied from another run is named as that, if it is one
+        _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
+        raise
     _check_digest(run_dir / "policy.msgpack", results.get("policy_sha256"), "policy_sha256")
     for name, file in kept.items():
         _check_digest(file.get("path", run_dir / name), file["sha256"], recorded)
