@@ -1448,7 +1448,8 @@ d3ca24d, drew the flags on the stream of the hidden weights: every row here ran 
 code, except plume-refine-half). The COG-DICE column
 runs COG-DICE's defaults (`--set experiment.algorithm=cogdice`, `python experiments/suite.py
 cogdice ROW`) on the rows with a scalar observation; its Dec-Tiger sweep shared the machine with
-another sweep and the test suite for most of its hour, so its wall time is an upper bound.
+another sweep and the test suite for most of its hour, and its README-simulator sweep (2026-12-01)
+with test runs and a 4000-run sweep, so their wall times are upper bounds.
 The defaults of now also keep policies with their votes x 10 (`kept_sharpness`: the argmax
 next node) and, on scalar observations, let half of the refine phase's candidates redraw one
 hidden unit from the initial distribution (`refine_redraw` "auto", `redraw_share` in
