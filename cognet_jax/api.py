@@ -26,6 +26,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.budget import check_budget
@@ -92,6 +93,7 @@ def build(config: Config, env=None, env_params=None, lanes: int = 1) -> Built:
     memory = budget_bytes(config.run.memory_gb) // max(lanes, 1)
     algorithm = entry.build(config, env, env_params, memory)
     _check_search(algorithm, config.experiment.algorithm, entry.build)
+    _check_rollout_count(algorithm, config, env)
     return Built(config, env, env_params, algorithm, params_of(config, env_params), seconds)
 
 
@@ -108,6 +110,31 @@ def _check_search(algorithm, name: str, build_fn) -> None:
         raise UsageError(
             f"algorithm {name!r}: its build ({where}) returned {type(algorithm).__name__}, "
             f"not a search (missing {', '.join(missing)}; see cognet_jax.algorithms.engine)"
+        )
+
+
+#: a run's agent-steps (iterations x rollouts per iteration x horizon x agents) stay below this:
+#: results.json and the sweep's tables hold them as 64-bit integers
+MAX_AGENT_STEPS = 2**63 - 1
+
+
+def _check_rollout_count(algorithm, config: Config, env) -> None:
+    """Refuse, before anything runs, a search whose ``rollouts_per_iteration`` is not a count,
+    or makes the run's agent-steps pass ``MAX_AGENT_STEPS`` (they were refused only after the
+    search, when its results were written)."""
+    rollouts, name = algorithm.rollouts_per_iteration, type(algorithm).__name__
+    if isinstance(rollouts, bool) or not isinstance(rollouts, int | np.integer) or rollouts < 0:
+        raise UsageError(
+            f"{name}.rollouts_per_iteration (the search's code) is {rollouts!r}: expected a "
+            "count of rollouts, an integer >= 0"
+        )
+    iterations = config.algorithm.iterations
+    steps = iterations * int(rollouts) * int(env.horizon) * int(env.num_agents)
+    if steps > MAX_AGENT_STEPS:
+        raise UsageError(
+            f"{name}.rollouts_per_iteration (the search's code) is {int(rollouts):.3g}: with "
+            f"{iterations} iterations of horizon {env.horizon} and {env.num_agents} agents, "
+            f"{steps:.3g} agent-steps, past 64-bit integers (no machine simulates them)"
         )
 
 

@@ -289,12 +289,7 @@ def history_fields(history, r: int | None, iterations: int, algorithm) -> dict:
     curves every run writes and what the search adds (``Search.history_record``)."""
     h = history if r is None else jax.tree.map(lambda x: x[:, r], history)
     env = algorithm.env
-    rollouts = algorithm.rollouts_per_iteration
-    if isinstance(rollouts, bool) or not isinstance(rollouts, int | np.integer) or rollouts < 0:
-        raise UsageError(
-            f"{type(algorithm).__name__}.rollouts_per_iteration (the search's code) is "
-            f"{rollouts!r}: expected a count of rollouts, an integer >= 0"
-        )
+    rollouts = algorithm.rollouts_per_iteration  # a count (checked by ``api.build``)
     fields = {
         "in_loop_best": float(h.in_loop_best[-1]),
         # the search's budget: agent-steps simulated by all its iterations

@@ -237,6 +237,30 @@ def test_a_build_that_returns_no_search_is_named(tmp_path, capsys):
         assert "broken_search.build" in err[0] and "not a search" in err[0], err
 
 
+@pytest.mark.parametrize("count", ["10**30", "-1", "2.5"])
+def test_a_rollout_count_past_64_bit_or_no_count_is_refused_before_the_search(
+    tmp_path, capsys, count
+):
+    """A plug-in's ``rollouts_per_iteration`` of 10**30 (or one that is no count): ``train``
+    refuses it in one line naming the search's code, before anything runs (it was refused
+    after the search, when the results were written)."""
+    module = tmp_path / "huge_search.py"
+    source = THRESHOLD_SEARCH.replace(
+        "        return self.settings.samples * self.settings.eval_rollouts",
+        f"        return {count}",
+    ).replace('register_algorithm("thresholds"', 'register_algorithm("thresholds-huge"')
+    module.write_text(source)
+    toml = tmp_path / "huge.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-huge"\n')
+    out = tmp_path / "run"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ThresholdSearch.rollouts_per_iteration (the search's code)" in err[0]
+    assert ("past 64-bit integers" if count == "10**30" else "an integer >= 0") in err[0], err
+    assert not (out / "results.json").exists()
+
+
 #: (code of THRESHOLD_SEARCH, its replacement, what the refusal says): a controller that acts
 #: past its agents' actions, and one whose ``next_node`` leads past its ``num_nodes``
 OUT_OF_RANGE = {
