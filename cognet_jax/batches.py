@@ -14,8 +14,9 @@ of the whole group's bytes: the batch size is ``runs x budget / needed`` (times 
 multiple of the local devices, the batches balanced (the last one pads the fewest runs to the
 others' size: one program), found by one compile of the whole group. It is written to
 ``OUT/sweep-state/{tag}.batch.json`` so that ``--resume`` runs the same batches without that
-compile. Each batch has its own checkpoint (``{tag}-b{k}.checkpoint.msgpack``) and, once done, its
-rows (``{tag}-b{k}.rows.json``), which a resumed sweep keeps.
+compile. Each batch has its own checkpoint (``{tag}-b{k}of{size}.checkpoint.msgpack``) and, once
+done, its rows (``{tag}-b{k}of{size}.rows.json``, checked to be its runs'), which a resumed sweep
+keeps; a resume under a budget the stored batches no longer fit runs smaller ones, all afresh.
 """
 
 from __future__ import annotations
@@ -89,15 +90,15 @@ def _batches(runs: list[Run], size: int, tag: str, state: Path | None, opts: Gro
     count = -(-len(runs) // size)
     for k in range(count):
         batch = runs[k * size : (k + 1) * size]
-        done = None if state is None else state / f"{tag}-b{k}.rows.json"
-        whole = all(run.folder is None or (run.folder / "results.json").is_file() for run in batch)
-        if done is not None and opts.resume and done.exists() and whole:
-            stored = read_json(done, ("rows", "timing"))
+        name = f"{tag}-b{k}of{size}"  # batches of another size hold other runs
+        done = None if state is None else state / f"{name}.rows.json"
+        stored = _stored_rows(done, batch) if opts.resume else None
+        if stored is not None:
             b_rows, b_timing = stored["rows"], stored["timing"]
         else:
             b_opts = dataclasses.replace(
                 opts,
-                checkpoint=None if state is None else state / f"{tag}-b{k}.checkpoint.msgpack",
+                checkpoint=None if state is None else state / f"{name}.checkpoint.msgpack",
                 desc=f"{opts.desc or 'group'} batch {k + 1}/{count}",
                 built=built,
                 lanes=size,
@@ -110,6 +111,21 @@ def _batches(runs: list[Run], size: int, tag: str, state: Path | None, opts: Gro
             timing[name] = timing.get(name, 0) + (b_timing.get(name) or 0)
     timing["batches"] = count
     return rows, timing
+
+
+def _stored_rows(path: Path | None, batch: list[Run]) -> dict | None:
+    """A finished batch's ``{"rows", "timing"}``, when ``path`` holds the rows of exactly
+    ``batch``'s runs and their folders are whole (else None: the batch runs again, from its
+    checkpoint if it has one)."""
+    if path is None or not path.exists():
+        return None
+    if not all(run.folder is None or (run.folder / "results.json").is_file() for run in batch):
+        return None
+    stored = read_json(path, ("rows", "timing"))
+    runs = [(r.get("setting"), r.get("seed")) for r in stored["rows"] if isinstance(r, dict)]
+    if runs != [(run.setting, run.seed) for run in batch]:
+        raise CorruptFileError(path, "its rows are not the runs of its batch")
+    return stored
 
 
 def _group_built(runs: list[Run], built: Built | None) -> Built:

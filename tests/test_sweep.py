@@ -556,7 +556,7 @@ def test_a_group_over_the_memory_budget_runs_in_batches_to_the_same_numbers(tmp_
     assert _table(result) == reference
     assert result["groups"][0]["batches"] == 2 and result["groups"][0]["runs"] == 6
     # the second batch's rows and one of its folders lost: --resume runs that batch only
-    (batched / "sweep-state" / "group0-p0-b1.rows.json").unlink()
+    (batched / "sweep-state" / "group0-p0-b1of3.rows.json").unlink()
     shutil.rmtree(batched / "runs" / "setting1-seed2")
     assert main(["sweep", "--resume", str(batched), "--no-progress"]) == 0
     said = "".join(capsys.readouterr())
