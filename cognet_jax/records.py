@@ -222,11 +222,31 @@ def restore_group(program: Program, state, path: Path):
     expected = jax.random.key_data(_run_keys(program))
     if not np.array_equal(np.asarray(jax.random.key_data(stored)), np.asarray(expected)):
         raise MismatchError(f"{path}: stored run keys do not match the seeds")
+    if program.batched:
+        _relaid(raw, len(program.runs), program.lanes)
     restored = restore_state(jax.device_get(state), raw)
     _check_restored(restored, state, raw, path, program.config.algorithm.iterations)
     # laid out as the initial state (its programs are compiled for that layout)
     state = jax.tree.map(lambda x, like: jax.device_put(x, like.sharding), restored, state)
     return state, raw, int(raw["iteration"])
+
+
+def _relaid(raw: dict, runs: int, lanes: int) -> None:
+    """A batched checkpoint's state and history, padded to another number of lanes than
+    ``lanes`` (the devices of the process that wrote it: ``--cpu-devices``, another machine),
+    laid out again: its ``runs`` real runs kept, the padding (copies of the last run, whose
+    state it is) made again to ``lanes``."""
+
+    def fit(x, axis: int):
+        if not isinstance(x, np.ndarray) or x.ndim <= axis or not runs <= x.shape[axis] != lanes:
+            return x
+        kept = np.take(x, np.arange(runs), axis=axis)
+        pad = np.repeat(np.take(kept, [runs - 1], axis=axis), lanes - runs, axis=axis)
+        return np.concatenate([kept, pad], axis=axis)
+
+    raw["state"] = jax.tree.map(lambda x: fit(x, 0), raw["state"])
+    if raw.get("history") is not None:  # [iterations, lanes, ...]
+        raw["history"] = jax.tree.map(lambda x: fit(x, 1), raw["history"])
 
 
 def _check_restored(restored, initial, raw: dict, path: Path, iterations: int) -> None:

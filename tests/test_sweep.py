@@ -562,3 +562,30 @@ def test_a_group_over_the_memory_budget_runs_in_batches_to_the_same_numbers(tmp_
     said = "".join(capsys.readouterr())
     assert "(6 runs)" not in said and "running them in" not in said
     assert _table(json.loads((batched / "runs.json").read_text())) == reference
+
+
+def test_a_checkpoint_resumes_on_another_number_of_devices(tmp_path):
+    """Three runs checkpointed on one device (3 lanes) resume on two (padded to 4 lanes): the
+    padding is laid out again from the last run's state, to the same numbers (the resume was
+    refused: state ... is float32[3, ...], the run's is float32[4, ...])."""
+    import shutil
+
+    out = tmp_path / "sweep"
+    args = ["sweep", "tagging-thesis-spec-n3", "--seeds", "3", "--out", str(out)]
+    args += [a for s in [*TINY, "algorithm.iterations=20"] for a in ("--set", s)]
+    assert main([*args, "--no-progress", "--cpu-devices", "1"]) == 0
+    first = _table(json.loads((out / "runs.json").read_text()))
+    assert json.loads((out / "runs.json").read_text())["local_devices"] == 1
+    (out / "sweep-state" / "group0-p0.rows.json").unlink()  # the search's final checkpoint stays
+    shutil.rmtree(out / "runs" / "setting0-seed2")
+    proc = subprocess.run(
+        [sys.executable, "-m", "cognet_jax", "sweep", "--resume", str(out), "--no-progress"],
+        env=_env(2),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    again = json.loads((out / "runs.json").read_text())
+    assert again["local_devices"] == 2 and again["groups"][0]["resumed_from_iteration"] == 20
+    assert _table(again) == first
