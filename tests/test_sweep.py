@@ -161,6 +161,13 @@ def _env(devices: int = 1) -> dict:
     return env
 
 
+def _on_devices(devices: int, args: list[str]) -> subprocess.CompletedProcess:
+    """``python ARGS`` in a process whose CPU is split into ``devices`` JAX devices."""
+    return subprocess.run(
+        [sys.executable, *args], env=_env(devices), capture_output=True, text=True, timeout=600
+    )
+
+
 def test_two_devices_same_table(one_process, tmp_path):
     """The 6 runs sharded over a 2-device mesh (NamedSharding): the same numbers."""
     _, result = one_process
@@ -170,13 +177,7 @@ def test_two_devices_same_table(one_process, tmp_path):
         "sys.exit(main(sys.argv[1:]))"
     )
     out = tmp_path / "dev2"
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *_sweep_args(out)],
-        env=_env(2),
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    proc = _on_devices(2, ["-c", code, *_sweep_args(out)])
     assert proc.returncode == 0, proc.stderr[-3000:]
     sharded = json.loads((out / "runs.json").read_text())
     assert sharded["local_devices"] == 2
@@ -578,13 +579,7 @@ def test_a_checkpoint_resumes_on_another_number_of_devices(tmp_path):
     assert json.loads((out / "runs.json").read_text())["local_devices"] == 1
     (out / "sweep-state" / "group0-p0.rows.json").unlink()  # the search's final checkpoint stays
     shutil.rmtree(out / "runs" / "setting0-seed2")
-    proc = subprocess.run(
-        [sys.executable, "-m", "cognet_jax", "sweep", "--resume", str(out), "--no-progress"],
-        env=_env(2),
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    proc = _on_devices(2, ["-m", "cognet_jax", "sweep", "--resume", str(out), "--no-progress"])
     assert proc.returncode == 0, proc.stderr[-3000:]
     again = json.loads((out / "runs.json").read_text())
     assert again["local_devices"] == 2 and again["groups"][0]["resumed_from_iteration"] == 20
