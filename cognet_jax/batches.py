@@ -107,10 +107,21 @@ def _batches(runs: list[Run], size: int, tag: str, state: Path | None, opts: Gro
             if done is not None:
                 atomic_write_json(done, {"rows": b_rows, "timing": b_timing}, None)
         rows.extend(b_rows)
-        for name in SUMMED:
-            timing[name] = timing.get(name, 0) + (b_timing.get(name) or 0)
+        for field in SUMMED:
+            timing[field] = timing.get(field, 0) + (b_timing.get(field) or 0)
     timing["batches"] = count
     return rows, timing
+
+
+def folders_whole(runs: list[Run]) -> bool:
+    """Whether every run of ``runs`` with a folder has its results.json and policy there (a
+    finished group's or batch's rows are kept only then)."""
+    return all(
+        (run.folder / name).is_file()
+        for run in runs
+        if run.folder is not None
+        for name in ("results.json", "policy.msgpack")
+    )
 
 
 def _stored_rows(path: Path | None, batch: list[Run]) -> dict | None:
@@ -119,7 +130,7 @@ def _stored_rows(path: Path | None, batch: list[Run]) -> dict | None:
     checkpoint if it has one)."""
     if path is None or not path.exists():
         return None
-    if not all(run.folder is None or (run.folder / "results.json").is_file() for run in batch):
+    if not folders_whole(batch):
         return None
     stored = read_json(path, ("rows", "timing"))
     runs = [(r.get("setting"), r.get("seed")) for r in stored["rows"] if isinstance(r, dict)]

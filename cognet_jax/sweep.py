@@ -53,7 +53,7 @@ from tqdm.auto import tqdm
 
 from cognet_jax.api import Built
 from cognet_jax.atomic_files import atomic_write_json, atomic_write_text
-from cognet_jax.batches import run_in_batches
+from cognet_jax.batches import folders_whole, run_in_batches
 from cognet_jax.compiled import DRIVING_FIELDS
 from cognet_jax.config import Config, ConfigError, apply_overrides, parse_override
 from cognet_jax.driver import GroupOptions
@@ -257,11 +257,7 @@ def _run_one_group(
     tag = f"group{g_index}-p{jax.process_index()}"
     state = None if out is None else out / STATE_DIR
     done = None if state is None else state / f"{tag}.rows.json"
-    whole = out is None or all(
-        (run.folder / name).is_file()
-        for run in _group_runs(group, out)
-        for name in ("results.json", "policy.msgpack")
-    )
+    whole = out is None or folders_whole(_group_runs(group, out))
     if done is not None and resume and done.exists() and whole:
         stored = read_json(done, ("runs", "rows", "timing"))
         if stored["runs"] != [list(r) for r in group.runs]:
