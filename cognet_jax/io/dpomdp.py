@@ -419,9 +419,13 @@ class _Parser:
             raise self.error(after, f"file ends here; expected {what} on the next line")
         item = self.lines[self.pos]
         self.pos += 1
-        if self.pos % PROGRESS_LINES == 0:
-            self.progress.tick(item[0], self.last_line, "reading the entries")
+        self.tick(item[0])
         return item
+
+    def tick(self, line: int) -> None:
+        """Every ``PROGRESS_LINES`` consumed lines, the progress of a long parse."""
+        if self.pos % PROGRESS_LINES == 0:
+            self.progress.tick(line, self.last_line, "reading the entries")
 
     def rest_or_next(self, lineno: int, rest: list[str], what: str) -> tuple[int, list[str]]:
         if rest:
@@ -729,8 +733,7 @@ class _Parser:
         while self.pos < len(self.lines):
             lineno, toks = self.lines[self.pos]
             self.pos += 1
-            if self.pos % PROGRESS_LINES == 0:
-                self.progress.tick(lineno, self.last_line, "reading the entries")
+            self.tick(lineno)
             kind = toks[0]
             if len(toks) < 2 or toks[1] != ":" or kind not in ("T", "O", "R"):
                 found = self.header_key(toks)
