@@ -15,7 +15,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh
 
-from cognet_jax.config import Config
+from cognet_jax.config import OPTIONAL_SECTIONS, Config
 from cognet_jax.errors import ResourceError
 from cognet_jax.memory import SIZES, budget_bytes, check_compiled, trace_checked
 from cognet_jax.registry import (
@@ -142,11 +142,17 @@ SIZE_WORDS = ("nodes", "samples", "candidates", "rollouts", "horizon", "hidden",
 def size_fields(config: Config, most: int = 5) -> str:
     """``config``'s fields that set array sizes, largest value first (``"problem.horizon =
     100000, algorithm.samples = 1000"``): integers above 1 whose names hold a ``SIZE_WORDS``
-    word; "" when none does."""
+    word, in the sections the simulator or the algorithm reads; "" when none does."""
+    try:
+        reads = set(env_entry(config.env.name).reads)
+        reads |= set(algorithm_entry(config.experiment.algorithm).reads)
+    except Exception:  # a simulator given as an object (``api.make_algorithm``): every section
+        reads = set(OPTIONAL_SECTIONS)
+    unread = {"run", "experiment", *(set(OPTIONAL_SECTIONS) - reads)}
     found = [
         (value, f"{section}.{name}")
         for section, fields in config.to_dict().items()
-        if section not in ("run", "experiment") and isinstance(fields, dict)
+        if section not in unread and isinstance(fields, dict)
         for name, value in fields.items()
         if type(value) is int and value > 1 and any(w in name for w in SIZE_WORDS)
     ]

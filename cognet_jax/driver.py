@@ -191,7 +191,9 @@ def _prepare(runs: list[Run], opts: GroupOptions):
                 total = config.algorithm.iterations
                 opts.log(f"resuming {config.experiment.name} at iteration {start}/{total}")
             step, step_s = _before_search(program.compile_step, state, announce)
-            compile_s = init_s + step_s
+            t1 = time.perf_counter()
+            _before_search(program.compile_finish, state)  # its memory checked before the search
+            compile_s = init_s + step_s + time.perf_counter() - t1
             print(f"compiled {what} in {compile_s:.1f} s", file=sys.stderr, flush=True)
             history = [] if raw is None else restored_history(step, raw, opts.checkpoint)
         return program, state, history, start, step, compile_s

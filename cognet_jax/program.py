@@ -84,6 +84,12 @@ def _stack(trees):
     return jax.tree.map(lambda *xs: _stacked(xs), *trees)
 
 
+def shape_of(x) -> jax.ShapeDtypeStruct:
+    """``x``'s shape, dtype, sharding and weak type: what a program compiled for it reads."""
+    weak = bool(getattr(x, "weak_type", False))
+    return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=weak)
+
+
 def _stack_shared(trees):
     """``_stack(trees)`` where many of ``trees`` are the same object (a sweep's seeds of one
     setting share their params): the distinct ones stacked once, then gathered per run, so
@@ -170,6 +176,7 @@ class Program:
         self.k_init, self.k_run, _ = split_seed_key(self.seed_keys[0])
         self._step = iteration_step(self.algorithm)
         self._evaluations: list = []  # (env params, compiled honest evaluation)
+        self._finish_programs = None  # ``compile_finish``'s
         if self.batched:
             padded_params = self.run_params + [self.run_params[-1]] * (len(padded) - len(runs))
             self.shared_env = all(same_tree(p.env, self.params.env) for p in self.run_params)
@@ -332,12 +339,13 @@ class Program:
                 "the controller's act and next_node read it)"
             ) from None
 
-    def finish(self, state, report=lambda work: None):
-        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run
-        as its steps (``finish_start``, ``finish_advance`` until ``finish_done``,
-        ``finish_end``; the same steps ``make_train`` runs in one ``while_loop``), with
-        ``report(work)`` after each step. Runs that are done stay as they are while the
-        others advance."""
+    def compile_finish(self, state):
+        """``(args, start, advance, done)``: the programs of the algorithm's ``finish``
+        (``advance`` and ``done`` None when it has nothing to do), compiled once on the
+        shapes of ``state`` -- before the search, so a finish over the memory budget is
+        refused (or a sweep's group batched, ``batches``) before the search's time is spent."""
+        if self._finish_programs is not None:
+            return self._finish_programs
         alg = self.algorithm
         if not self.batched:
             args = (self.held,)
@@ -346,12 +354,26 @@ class Program:
             _, hyper, env = self.data
             args = (hyper, env)
             start_fn, advance_fn = self._finish_start_one, self._finish_advance_one
-        start = self.compiled("the finish", start_fn, (state, *args))
-        if start.out_shapes is None:  # nothing to do
+        start = self.compiled("the finish", start_fn, (jax.tree.map(shape_of, state), *args))
+        advance = done = None
+        if start.out_shapes is not None:
+            work = start.out_shapes
+            advance = self.compiled("a finish step", advance_fn, (work, *args))
+            done = self.compiled("the finish's end", alg.finish_done, (work,))
+        self._finish_programs = (args, start, advance, done)
+        return self._finish_programs
+
+    def finish(self, state, report=lambda work: None):
+        """``(state, info)``: the algorithm's ``finish`` of every run (``info`` stacked), run
+        as its steps (``finish_start``, ``finish_advance`` until ``finish_done``,
+        ``finish_end``; the same steps ``make_train`` runs in one ``while_loop``), with
+        ``report(work)`` after each step (programs of ``compile_finish``). Runs that are done
+        stay as they are while the others advance."""
+        alg = self.algorithm
+        args, start, advance, done = self.compile_finish(state)
+        if advance is None:  # nothing to do
             return state, None
         work = start(state, *args)
-        advance = self.compiled("a finish step", advance_fn, (work, *args))
-        done = self.compiled("the finish's end", alg.finish_done, (work,))
         while not np.all(np.asarray(done(work))):
             work = advance(work, *args)
             report(work)

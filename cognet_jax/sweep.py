@@ -363,7 +363,9 @@ def run_sweep(
         if isinstance(experiment, Config):  # --resume rebuilds from it, not from the name
             spec["config"] = experiment.to_dict()
         atomic_write_text(Path(out) / STATE_DIR / SWEEP_SPEC, json.dumps(spec, indent=1))
-    rows, timings = [], []
+    settings = {s.index: s.values for g in groups for s in g.settings}
+    settings_list = [settings[i] for i in sorted(settings)]
+    rows, timings, said = [], [], set()
     for g_index, g in enumerate(groups):
         desc = f"group {g_index + 1}/{len(groups)}"
         g_rows, timing = _run_one_group(g, g_index, out, resume, progress, log, desc, built)
@@ -372,16 +374,18 @@ def run_sweep(
         rows.extend(g_rows)
         timing.update(group=g_index, settings=[s.index for s in g.settings])
         timings.append(timing)
+        if jax.process_count() == 1:  # said as soon as a group repeats one: Ctrl-C saves time
+            said |= _warn_new(same_runs_lines(rows, settings_list), said)
     rows = sorted(gather_rows(rows), key=lambda r: (r["setting"], r["seed"]))
     if len(rows) != total:  # pragma: no cover - a lost process
         raise RuntimeError(f"gathered {len(rows)} runs, expected {total}")
+    _warn_new(same_runs_lines(rows, settings_list), said)
     wall_s = time.perf_counter() - t0
     log(
         f"sweep {name}: {total} runs in {len(groups)} compiled group(s), "
         f"{jax.process_count()} process(es) x {jax.local_device_count()} device(s), "
         f"wall {wall_s:.1f} s"
     )
-    settings = {s.index: s.values for g in groups for s in g.settings}
     return {
         "experiment": name,
         "overrides": overrides or [],
@@ -508,6 +512,60 @@ def summarize(result: dict) -> list[dict]:
     return out
 
 
+def _run_signature(row: dict) -> tuple:
+    """What tells a run's numbers apart: its honest value and standard error, the in-loop best
+    and the value of every iteration."""
+    fv = row["final_value"]
+    return (
+        fv["mean"],
+        fv["stderr"],
+        row["in_loop_best"],
+        tuple(row.get("values_per_iteration") or ()),
+    )
+
+
+def same_runs(rows: list[dict]) -> list[tuple[int, int]]:
+    """``[(setting, earlier setting)]``: settings whose runs gave an earlier setting's numbers
+    run for run (every seed's ``_run_signature`` equal): a grid over a field the search never
+    reads runs one search again under another name."""
+    by_setting: dict[int, dict] = {}
+    for r in rows:
+        by_setting.setdefault(r["setting"], {})[r["seed"]] = _run_signature(r)
+    pairs, seen = [], {}
+    for index in sorted(by_setting):
+        runs = by_setting[index]
+        key = json.dumps(sorted(runs.items()), default=repr)
+        if key in seen:
+            pairs.append((index, seen[key]))
+        else:
+            seen[key] = index
+    return pairs
+
+
+def same_runs_lines(rows: list[dict], settings: list[dict]) -> list[str]:
+    """One line per setting that repeats an earlier one's runs (``same_runs``), naming the
+    grid fields the two differ in."""
+    lines = []
+    for index, earlier in same_runs(rows):
+        fields = [k for k in settings[index] if settings[index][k] != settings[earlier].get(k)]
+        lines.append(
+            f"setting {index} ({_setting_label(settings[index])}) gave the numbers of setting "
+            f"{earlier} ({_setting_label(settings[earlier])}) run for run: "
+            f"{', '.join(fields) or 'its grid fields'} changed nothing this search computes "
+            "(a field it does not read, or one its other settings switch off)"
+        )
+    return lines
+
+
+def _warn_new(lines: list[str], said: set) -> set:
+    """Warn each of ``lines`` not in ``said``; returns the lines warned."""
+    new = {line for line in lines if line not in said}
+    for line in lines:
+        if line in new:
+            warnings.warn(line, OneLineWarning, stacklevel=3)
+    return new
+
+
 def _setting_label(values: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in values.items()) or "(base config)"
 
@@ -574,6 +632,9 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
             mean, lo, hi = s["added"][k]
             row += f" {mean:.6f} [{lo:.6f}, {hi:.6f}] |"
         lines.append(row)
+    repeats = same_runs_lines(result["rows"], result["settings"])
+    if repeats:
+        lines += ["", *(f"Note: {line}." for line in repeats)]
     atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
     written = [out / n for n in ("runs.csv", "runs.json", "summary.md")]
     if result.get("config", {}).get("run", {}).get("plots", True):

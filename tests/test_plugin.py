@@ -477,3 +477,39 @@ def test_run_files_named_outside_the_run_folder_are_refused_before_anything_is_w
     assert _train_variant(tmp_path, source, "thresholds-files", out) == 2
     assert not (out / "policy.msgpack").exists() and not (out / "results.json").exists()
     assert not (tmp_path / "escape.bin").exists()
+
+
+#: a finish whose step holds a 4 GB array (the iteration a few kilobytes)
+HEAVY_FINISH = """
+    def finish_start(self, state, params):
+        return jnp.float32(0.0)
+
+    def finish_advance(self, work, params):
+        return work + jnp.ones((32768, 32768), jnp.float32).sum() * 0.0 + 1.0
+
+    def finish_done(self, work):
+        return work >= 1.0
+
+    def history_record(self, history):"""
+
+
+def test_a_finish_over_the_memory_budget_is_refused_before_the_search(tmp_path, capsys):
+    """A search whose ``finish`` step needs more than ``run.memory_gb`` is refused when it is
+    compiled, before the first iteration (it was compiled after the search, whose time was
+    then lost), and a sweep's group runs in batches when fewer runs side by side fit it."""
+    old = "\n    def history_record(self, history):"
+    module = tmp_path / "heavy_finish.py"
+    module.write_text(
+        THRESHOLD_SEARCH.replace(old, HEAVY_FINISH, 1).replace(
+            'register_algorithm("thresholds"', 'register_algorithm("thresholds-heavy"'
+        )
+    )
+    toml = tmp_path / "heavy.toml"
+    toml.write_text('[experiment]\nalgorithm = "thresholds-heavy"\n[run]\nmemory_gb = 1.0\n')
+    out = tmp_path / "run"
+    argv = ["--import", str(module), "train", str(toml), "--out", str(out), "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "a finish step needs" in err and "over the memory budget of 1 GB" in err, err
+    assert "compiled" not in err  # refused while compiling: no iteration ran
+    assert not (out / "results.json").exists() and not (out / "checkpoint.msgpack").exists()

@@ -22,7 +22,7 @@ from cognet_jax.cli import main
 from cognet_jax.config import ConfigError
 from cognet_jax.driver import train as run_training
 from cognet_jax.registry import load_config
-from cognet_jax.sweep import assign_runs, parse_grid, plan
+from cognet_jax.sweep import assign_runs, parse_grid, plan, same_runs, same_runs_lines
 
 ROOT = Path(__file__).parents[1]
 SMALL = [
@@ -119,6 +119,7 @@ def test_sweep_outputs(one_process):
     se = np.std(finals, ddof=1) / np.sqrt(3)
     assert f"| algorithm.alpha=0.1 | 3 | {np.mean(finals):.3f} +- {se:.3f} |" in summary
     assert (out / "values.png").stat().st_size > 1000
+    assert "Note:" not in summary  # alpha changes the numbers: no setting repeats another
     # every run's folder works with `cognet-jax evaluate` (here under observation noise)
     run_dir = out / "runs" / "setting1-seed2"
     args = ["evaluate", str(run_dir), "--rollouts", "50", "--set", "env.obs_noise=0.5"]
@@ -584,3 +585,29 @@ def test_a_checkpoint_resumes_on_another_number_of_devices(tmp_path):
     again = json.loads((out / "runs.json").read_text())
     assert again["local_devices"] == 2 and again["groups"][0]["resumed_from_iteration"] == 20
     assert _table(again) == first
+
+
+def test_settings_that_repeat_another_settings_runs_are_named():
+    def row(setting, seed, value):
+        final = {"mean": value, "stderr": 0.1, "rollouts": 10}
+        return {"setting": setting, "seed": seed, "final_value": final, "in_loop_best": value,
+                "values_per_iteration": [value, value]}  # fmt: skip
+
+    rows = [row(0, 0, 1.0), row(0, 1, 2.0), row(1, 0, 1.0), row(1, 1, 2.0)]
+    rows += [row(2, 0, 1.0), row(2, 1, 2.5)]  # one seed differs: another search
+    assert same_runs(rows) == [(1, 0)]
+    settings = [{"algorithm.a": 1, "algorithm.b": 0}, {"algorithm.a": 2, "algorithm.b": 0}]
+    (line,) = same_runs_lines(rows, [*settings, {"algorithm.a": 3, "algorithm.b": 0}])
+    assert line.startswith("setting 1 (algorithm.a=2, algorithm.b=0) gave the numbers of setting 0")
+    assert "algorithm.a changed nothing this search computes" in line
+
+
+def test_a_grid_over_a_field_switched_off_warns_and_notes_it(tmp_path, capsys):
+    args = ["sweep", "tagging-thesis-n3", "--seeds", "1", "--out", str(tmp_path / "s")]
+    args += ["--set", "algorithm.iterations=2", "--set", "algorithm.polish_share=0"]
+    args += ["--set", "run.plots=false", "--grid", "algorithm.polish_extend=1.0,2.0"]
+    assert main([*args, "--no-progress", "--cpu-devices", "1"]) == 0
+    err = capsys.readouterr().err
+    said = "setting 1 (algorithm.polish_extend=2.0) gave the numbers of setting 0"
+    assert err.count(said) == 1  # said once, when the second group ended
+    assert said in (tmp_path / "s" / "summary.md").read_text()
