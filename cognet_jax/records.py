@@ -41,6 +41,7 @@ from cognet_jax.errors import (
     UsageError,
 )
 from cognet_jax.hook_results import RUN_RECORD_FIELDS, checked_record
+from cognet_jax.io.dpomdp import model_digest
 from cognet_jax.plugins import one_line, user_code_error
 from cognet_jax.program import Program, Run
 from cognet_jax.registry import (
@@ -401,7 +402,9 @@ def fingerprint(config: Config, written: dict | None = None, seed=None) -> dict:
         out["generator"] = generator
     path = Path(config.problem.path).expanduser() if config.problem.path else None
     if path is not None and "problem" in env_entry(config.env.name).reads and path.is_file():
-        out["model"] = file_digest(path)
+        out["model"] = model_digest(path)  # the text: a .gz copy is the same model
+        if out["model"] != file_digest(path):  # what runs of gzip files recorded before
+            out["model_file"] = file_digest(path)
     return out
 
 

@@ -76,6 +76,7 @@ hundreds of states and several hundred KB parse in well under a second or two.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import re
 import time
@@ -325,6 +326,15 @@ def _gunzip(data: bytes, label: str) -> bytes:
             raise EOFError("the gzip data ends before its end-of-stream marker")
         data = member.unused_data.lstrip(b"\x00")  # the next member (gzip pads with NULs)
     return b"".join(parts)
+
+
+def model_digest(path: Path) -> str:
+    """SHA-256 of the model text ``path`` holds: gzip data decompressed first, so a ``.gz``
+    copy of a model is the same model (the bytes of a plain file otherwise)."""
+    data = Path(path).read_bytes()
+    if data[:2] == b"\x1f\x8b":
+        data = _gunzip(data, str(path))
+    return hashlib.sha256(data).hexdigest()
 
 
 #: the line breaks of a .dpomdp file
