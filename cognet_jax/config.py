@@ -132,9 +132,10 @@ class NetworkSection(VaeFields):
     """Node networks of COGNet-DICE and what they read (``cognet_jax.observations``; read by the
     algorithms that declare it): ``hidden`` units; the thesis algorithm's optimiser
     (``optimizer``, ``learning_rate``, ``momentum``, ``train_steps``); ``observation``:
-    ``"raw"`` (the environment's observation) or ``"encoded"`` (heatmap only: the patch VAE's
-    encoder mean, ``VaeFields``); ``augment``: add ``augment_samples`` VAE-sampled training
-    pairs per pair (SPEC section 6).
+    ``"raw"`` (the environment's observation) or ``"encoded"`` (a VAE's encoder mean, ``VaeFields``:
+    the heatmap's patch VAE, or one trained on any other simulator's own observations,
+    ``observations.simulator_vae``); ``augment``: add ``augment_samples`` VAE-sampled training pairs
+    per pair (SPEC section 6).
     """
 
     hidden: int = 10

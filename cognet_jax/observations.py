@@ -1,7 +1,7 @@
 """Observation pipelines of COGNet-DICE: what the node networks read, and how training pairs are
 made from what the rollouts saw (SPEC section 6).
 
-Rollouts always see the simulator's raw observation (a heatmap patch ``[16]``). One function,
+Rollouts always see the simulator's raw observation (e.g. a heatmap patch ``[16]``). One function,
 ``ObservationPipeline.features``, maps it to the node networks' input; it is applied in exactly
 two places, both inside the compiled iteration: where the controller consumes an observation
 (``NeuralController.next_node``) and where training pairs are built
@@ -9,7 +9,9 @@ two places, both inside the compiled iteration: where the controller consumes an
 
 * ``"raw"``: the identity; networks read the flattened patch ``[16]`` (2D COGNet-DICE, hidden
   160 in the thesis experiments).
-* ``"encoded"``: the patch VAE's encoder mean ``mu [latent]`` (encoded COGNet-DICE, hidden 10).
+* ``"encoded"``: the VAE's encoder mean ``mu [latent]`` (encoded COGNet-DICE, hidden 10): the
+  heatmap's patch VAE, or on any other simulator whose observation holds several numbers one
+  trained on its own observations (``simulator_vae``).
 
 **Augmentation** (thesis Fig. 4.1; ``augment_samples = m > 0``): every training pair
 ``(z, q')`` gets ``m`` extra pairs with the same target: the observation's latent sample
@@ -29,10 +31,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from cognet_jax.config import ConfigError, require, require_positive
 from cognet_jax.controllers.neural import NeuralController
@@ -99,7 +103,12 @@ class ObservationPipeline:
         """``obs [..., *raw_shape]`` -> ``[..., *feature_shape]`` (identity or encoder mean)."""
         if self.kind == "raw":
             return obs
-        return self.vae.encode(obs.astype(jnp.float32))[0]
+        return self.vae.encode(self._flat(obs))[0]
+
+    def _flat(self, obs: jax.Array) -> jax.Array:
+        """``obs [..., *raw_shape]`` as the VAE reads it: ``[..., F]`` float32."""
+        lead = obs.shape[: obs.ndim - len(self.raw_shape)]
+        return obs.reshape(lead + (-1,)).astype(jnp.float32)
 
     def training_pairs(self, key: jax.Array, obs, src, tgt, valid):
         """Network inputs of the training pairs, with ``augment_samples`` extra pairs per pair.
@@ -116,10 +125,13 @@ class ObservationPipeline:
         m = self.augment_samples
         if m == 0:
             return feats, src, tgt, valid
-        mu, logvar = self.vae.encode(obs.astype(jnp.float32))  # [agents, P, latent]
+        mu, logvar = self.vae.encode(self._flat(obs))  # [agents, P, latent]
         eps = jax.random.normal(key, (m,) + mu.shape)
         latent = mu[None] + jnp.exp(0.5 * logvar)[None] * eps  # [m, agents, P, latent]
-        extra = latent if self.kind == "encoded" else self.vae.decode(latent)
+        extra = latent
+        if self.kind != "encoded":  # decoded: raw observations again
+            decoded = self.vae.decode(latent)
+            extra = decoded.reshape(decoded.shape[:-1] + tuple(self.raw_shape))
         extra = jnp.moveaxis(extra, 0, 1)  # [agents, m, P, F]
         agents, p = src.shape
         extra = extra.reshape((agents, m * p) + extra.shape[3:]).astype(feats.dtype)
@@ -210,29 +222,39 @@ def check_network(config, training: bool) -> None:
     )
     require(net.vae_kl_weight > 0, "network.vae_kl_weight", f"must be > 0, got {net.vae_kl_weight}")
     require(net.vae_seed >= 0, "network.vae_seed", f"must be >= 0, got {net.vae_seed}")
-    needs_vae = net.observation == "encoded" or net.augment
-    require(
-        not needs_vae or config.env.name == "heatmap",
-        "network.observation" if net.observation == "encoded" else "network.augment",
-        "the patch VAE reads 4 x 4 heatmap patches: needs env.name = 'heatmap'",
-    )
 
 
-def build_pipeline(config, env) -> ObservationPipeline:
+def build_pipeline(config, env, env_params=None) -> ObservationPipeline:
     """The observation pipeline of ``config.network`` (trains or loads the VAE only when the
-    encoded pipeline or augmentation needs it)."""
+    encoded pipeline or augmentation needs it): the heatmap's patch VAE (``resolve_vae``), or
+    for any other simulator one trained on its own observations under ``env_params``
+    (``simulator_vae``; ``None``: the config's)."""
     net = config.network
     vae = None
     if net.observation == "encoded" or net.augment:
-        if tuple(env.obs_shape) != (PATCH_FEATURES,):
+        features = math.prod(env.obs_shape)
+        if env.num_obs is not None or features < 2:
             raise ConfigError(
-                "network.observation",
-                f"the patch VAE reads [{PATCH_FEATURES}] patches; this simulator observes "
-                f"shape {tuple(env.obs_shape)}",
+                "network.observation" if net.observation == "encoded" else "network.augment",
+                "a VAE encodes continuous observations; this simulator observes "
+                + ("discrete ones" if env.num_obs is not None else "a single number"),
             )
-        vae = resolve_vae(
-            net.vae_path, net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight
-        )
+        if config.env.name == "heatmap" or net.vae_path:
+            vae = resolve_vae(
+                net.vae_path, net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight
+            )
+        else:
+            if env_params is None:
+                from cognet_jax.registry import build_env
+
+                env_params = build_env(config)[1]
+            vae = simulator_vae(env, env_params, net)
+        if vae.model.features != features:
+            raise ConfigError(
+                "network.vae_path",
+                f"the VAE reads {vae.model.features} numbers per observation; this simulator "
+                f"observes {features} (shape {tuple(env.obs_shape)})",
+            )
     return ObservationPipeline(
         kind=net.observation,
         raw_shape=env.obs_shape,
@@ -243,6 +265,49 @@ def build_pipeline(config, env) -> ObservationPipeline:
 
 #: Rollouts of the uniformly random controller that give the input statistics.
 STATS_ROLLOUTS = 4096
+#: Observations a simulator's own VAE trains on (``simulator_vae``)
+VAE_OBSERVATIONS = 8192
+#: the VAEs trained on simulators' observations in this process: key -> (env, params, vae)
+_SIMULATOR_VAES: dict = {}
+
+
+def simulator_vae(env, env_params, net) -> TrainedVAE:
+    """The VAE of a simulator other than the heatmap: ``train_vae`` on ``VAE_OBSERVATIONS``
+    of the observations of rollouts of the uniformly random controller (enough for 4 times as many,
+    at most ``STATS_ROLLOUTS``; key ``network.vae_seed``), every agent's and step's alike,
+    flattened; ``network``'s ``vae_epochs``, ``vae_latent``, ``vae_kl_weight``; cached in the
+    process per simulator, params and settings. **[choice]** The random controller's observations:
+    what a search sees first, with no policy to prefer; the run keeps its VAE (``vae.msgpack``), so
+    its policy is evaluated with the encoder it was searched with."""
+    settings = (net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight)
+    leaves = tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(env_params))
+    try:
+        key = (hash(env), env, leaves, settings)
+    except TypeError:  # an unhashable simulator object: one cache entry per object
+        key = (id(env), None, leaves, settings)
+    if key not in _SIMULATOR_VAES:
+        controller = neural_controller(env, 2, 1)[1]
+        template = controller.init(jax.random.key(0))
+        uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+        seed = jax.random.key(net.vae_seed)
+        k_roll, k_pick = jax.random.split(seed)
+        per_rollout = env.horizon * env.num_agents  # 4 x the observations kept, at most
+        count = int(np.clip(-(-4 * VAE_OBSERVATIONS // per_rollout), 16, STATS_ROLLOUTS))
+        traj = jax.jit(
+            lambda k: rollouts(env, controller, k, count, env_params, uniform, record=True)
+        )(k_roll)
+        obs = np.asarray(traj.obs, np.float32)
+        obs = obs.reshape(-1, math.prod(env.obs_shape))
+        pick = np.asarray(jax.random.permutation(k_pick, obs.shape[0]))[:VAE_OBSERVATIONS]
+        vae = train_vae(
+            seed=net.vae_seed,
+            epochs=net.vae_epochs,
+            latent=net.vae_latent,
+            kl_weight=net.vae_kl_weight,
+            observations=obs[pick],
+        )[0]
+        _SIMULATOR_VAES[key] = (env, env_params, vae)
+    return _SIMULATOR_VAES[key][2]
 
 
 #: statistics of raw observations computed in this process: ``(id(env), id(env_params),

@@ -1,4 +1,6 @@
-"""Patch VAE (SPEC section 6): compresses a 4 x 4 heatmap patch ``[16]`` into a latent ``[latent]``.
+"""Patch VAE (SPEC section 6): compresses a 4 x 4 heatmap patch ``[16]`` into a latent ``[latent]``;
+the same model compresses any simulator's observations of ``F`` numbers (``train_vae`` with
+``observations``: each feature's range, ``observation_range``, mapped to [0, 1] first).
 
 Model: encoder ``16 -> hidden (ReLU) -> (mu [latent], logvar [latent])``; decoder
 ``latent -> hidden (ReLU) -> 16 (sigmoid)``. Loss per patch (minimised): summed binary
@@ -96,18 +98,30 @@ class TrainedVAE:
 
     model: PatchVAE
     params: Any
+    #: ``[F]`` each input feature's range ``(low, high)``: the encoder reads ``(x - low) /
+    #: (high - low)`` and the decoder's (0, 1) output is mapped back; None: the heatmap's
+    #: patches, read as they are
+    low: Any = None
+    high: Any = None
 
     @property
     def latent(self) -> int:
         return self.model.latent
 
+    def _unit(self, x):
+        if self.low is None:
+            return x
+        return (x - self.low) / (self.high - self.low)
+
     def encode(self, x):
-        """``x [..., 16]`` -> ``(mu [..., latent], logvar [..., latent])``."""
-        return self.model.apply(self.params, x, method=PatchVAE.encode)
+        """``x [..., F]`` -> ``(mu [..., latent], logvar [..., latent])``."""
+        return self.model.apply(self.params, self._unit(x), method=PatchVAE.encode)
 
     def decode(self, z):
-        """``z [..., latent]`` -> reconstruction ``[..., 16]`` in (0, 1)."""
-        return self.model.apply(self.params, z, method=PatchVAE.decode)
+        """``z [..., latent]`` -> reconstruction ``[..., F]`` (in (0, 1) for the heatmap's
+        patches; in the features' range otherwise)."""
+        out = self.model.apply(self.params, z, method=PatchVAE.decode)
+        return out if self.low is None else self.low + out * (self.high - self.low)
 
     def sample_latent(self, key, x):
         """One draw ``z ~ N(mu(x), sigma(x))``, ``[..., latent]``."""
@@ -182,18 +196,27 @@ def train_vae(
     noisy: bool = True,
     progress=None,
     kl_weight: float = 1.0,
+    observations: np.ndarray | None = None,
 ) -> tuple[TrainedVAE, np.ndarray]:
-    """Train the patch VAE deterministically from ``seed``.
+    """Train the patch VAE deterministically from ``seed``: on the heatmap's patches
+    (``training_patches``), or on ``observations [N, F]`` of any simulator
+    (``observation_range`` maps them to [0, 1]).
 
     Returns ``(vae, losses [epochs])`` (mean training loss per epoch). ``progress`` is called
     with ``(epoch, loss)`` after each epoch (e.g. to drive a progress bar).
     """
-    x_np, t_np = training_patches(noisy, seed)
+    low = high = None
+    if observations is None:
+        x_np, t_np = training_patches(noisy, seed)
+    else:
+        low, high = observation_range(observations)
+        x_np = ((observations - low) / (high - low)).astype(np.float32)
+        t_np = np.clip(x_np, 0.0, 1.0)
     n = x_np.shape[0] - x_np.shape[0] % batch
-    model = PatchVAE(latent=latent, hidden=hidden)
+    model = PatchVAE(latent=latent, hidden=hidden, features=x_np.shape[-1])
     key = jax.random.key(seed)
     k_init, k_train = jax.random.split(key)
-    params = model.init(k_init, jnp.zeros((1, 16)), jnp.zeros((1, latent)))
+    params = model.init(k_init, jnp.zeros((1, x_np.shape[-1])), jnp.zeros((1, latent)))
     opt = optax.adam(learning_rate)
     opt_state = opt.init(params)
     x_all, t_all = jnp.asarray(x_np), jnp.asarray(t_np)
@@ -221,7 +244,26 @@ def train_vae(
         losses.append(float(loss))
         if progress is not None:
             progress(i, losses[-1])
+    if observations is not None:  # no scene to orient the latent by
+        bounds = (jnp.asarray(low, jnp.float32), jnp.asarray(high, jnp.float32))
+        return TrainedVAE(model, params, *bounds), np.asarray(losses)
     return _canonical_sign(TrainedVAE(model, params)), np.asarray(losses)
+
+
+#: quantiles of each feature that ``observation_range`` maps to 0 and 1
+RANGE_QUANTILES = (0.01, 0.99)
+
+
+def observation_range(observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high) [F]``: each feature's 1% and 99% quantiles over ``observations [N,
+    F]``, the range the VAE maps to [0, 1] (its reconstruction targets are clipped there).
+    **[choice]** Quantiles, not the extremes: a rare outlier of Gaussian noise would squeeze
+    the rest of a feature into a sliver of the range. A feature that never varies gets a
+    range of 1 around its value."""
+    low, high = np.quantile(np.asarray(observations, np.float64), RANGE_QUANTILES, axis=0)
+    flat = high - low < 1e-6
+    low, high = np.where(flat, low - 0.5, low), np.where(flat, high + 0.5, high)
+    return low.astype(np.float32), high.astype(np.float32)
 
 
 def vae_bytes(vae: TrainedVAE) -> bytes:
@@ -231,6 +273,9 @@ def vae_bytes(vae: TrainedVAE) -> bytes:
         "hidden": vae.model.hidden,
         "params": serialization.to_state_dict(jax.device_get(vae.params)),
     }
+    if vae.low is not None:  # a simulator's own observations (the heatmap's files: as before)
+        blob["features"] = vae.model.features
+        blob["low"], blob["high"] = np.asarray(vae.low), np.asarray(vae.high)
     return serialization.msgpack_serialize(blob)
 
 
@@ -251,19 +296,26 @@ def load_vae(path: str | Path) -> TrainedVAE:
         raise ValueError(f"{path.stat().st_size} bytes, over the {MAX_VAE_BYTES} a VAE file has")
     blob = serialization.msgpack_restore(path.read_bytes())
     latent, hidden = int(blob["latent"]), int(blob["hidden"])
-    if not (1 <= latent <= PATCH_FEATURES and 1 <= hidden <= 4096):
-        raise ValueError(f"latent {latent} and hidden {hidden} out of range")
-    model = PatchVAE(latent=latent, hidden=hidden)
+    features = int(blob.get("features", PATCH_FEATURES))
+    if not (1 <= features <= 1 << 20 and 1 <= latent <= features and 1 <= hidden <= 4096):
+        raise ValueError(f"features {features}, latent {latent} and hidden {hidden} out of range")
+    model = PatchVAE(latent=latent, hidden=hidden, features=features)
     params = jax.tree.map(jnp.asarray, blob["params"])
     shapes = jax.eval_shape(
-        model.init, jax.random.key(0), jnp.zeros((1, PATCH_FEATURES)), jnp.zeros((1, latent))
+        model.init, jax.random.key(0), jnp.zeros((1, features)), jnp.zeros((1, latent))
     )
     want = jax.tree.map(lambda x: tuple(x.shape), shapes)
     if jax.tree.map(lambda x: tuple(x.shape), params) != want:
         raise ValueError(f"its parameters do not fit latent {latent} and hidden {hidden}")
-    if not all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(params)):
+    low = high = None
+    if "low" in blob:
+        low, high = (jnp.asarray(blob[k], jnp.float32) for k in ("low", "high"))
+        if low.shape != (features,) or high.shape != (features,) or not bool(jnp.all(high > low)):
+            raise ValueError(f"its input range is not {features} intervals")
+    leaves = jax.tree.leaves(params) + ([low, high] if low is not None else [])
+    if not all(bool(jnp.all(jnp.isfinite(x))) for x in leaves):
         raise ValueError("its parameters are not finite (its training diverged)")
-    return TrainedVAE(model, params)
+    return TrainedVAE(model, params, low, high)
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:

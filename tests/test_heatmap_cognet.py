@@ -94,14 +94,23 @@ def test_bad_network_values_name_the_field(network, field):
     assert err.value.field == field
 
 
-def test_vae_pipelines_need_the_heatmap():
+def test_vae_pipelines_need_continuous_observations_of_several_numbers():
+    """A VAE encodes an observation of several numbers: tagging's single number is refused
+    with the config, naming the field that asked for it."""
     for network, field in (
         ({"observation": "encoded"}, "network.observation"),
         ({"augment": True}, "network.augment"),
     ):
-        with pytest.raises(ConfigError) as err:
-            config_from_dict(
-                {"env": {"name": "tagging"}, "network": network, "algorithm": {"iterations": 2}}
+        with pytest.raises(ConfigError, match="a single number") as err:
+            build_algorithm(  # (the thesis algorithm's pipeline is built with its search)
+                config_from_dict(
+                    {
+                        "experiment": {"algorithm": "cognet-dice-thesis"},
+                        "env": {"name": "tagging"},
+                        "network": network,
+                        "algorithm": {"iterations": 2},
+                    }
+                )
             )
         assert err.value.field == field
 

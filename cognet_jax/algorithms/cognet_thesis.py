@@ -449,7 +449,7 @@ class CognetThesis(NeuralSearch):
 def build(config, env, env_params, memory: int | None = None) -> CognetThesis:
     """The search of ``config`` (``experiment.algorithm = "cognet-dice-thesis"``)."""
     settings = fields_from(CognetSettings, config.algorithm, config.network)
-    return CognetThesis(env, settings, memory, build_pipeline(config, env))
+    return CognetThesis(env, settings, memory, build_pipeline(config, env, env_params))
 
 
 def hyper(config) -> CognetHyper:

@@ -33,7 +33,7 @@ def build(
     whose shapes only are read (``noise_pilot.check_pilot_fits``)."""
     settings = fields_from(WeightsSettings, config.algorithm, config.network)
     pipeline, controller = neural_controller(
-        env, settings.nodes, settings.hidden, build_pipeline(config, env)
+        env, settings.nodes, settings.hidden, build_pipeline(config, env, env_params)
     )
     if settings.standardize_inputs == "auto":  # not resolved: a config made in code
         decided = resolve_standardize(config, env, env_params).standardize_inputs

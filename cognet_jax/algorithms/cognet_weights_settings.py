@@ -413,7 +413,7 @@ def resolve_standardize(config, env, env_params) -> CognetWeightsSection:
     if section.standardize_inputs != "auto":
         return section
     pipeline, controller = neural_controller(
-        env, section.nodes, config.network.hidden, build_pipeline(config, env)
+        env, section.nodes, config.network.hidden, build_pipeline(config, env, env_params)
     )
     if controller.in_features < NARROW_MIN_FEATURES:
         return dataclasses.replace(section, standardize_inputs=False)
