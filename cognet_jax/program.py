@@ -206,15 +206,21 @@ class Program:
         return self.algorithm.finish_advance(work, self._params(hyper, env_params))
 
     # -- the programs --------------------------------------------------------------------
-    def compiled(self, what: str, fn, args: tuple, before_compile=None):
+    def compiled(self, what: str, fn, args: tuple, before_compile=None, mapped: bool = True):
         """``fn(*args)`` compiled once (``compiled_program``). One run: the params are
         constants of the program, except the held arrays (``hoist_large``), which a ``fn``
         that needs them takes as its last argument (``_one``). Several runs: ``fn`` is mapped
         over them (``per_run``), the first run's env params constants when all runs share
-        them."""
+        them; with ``mapped`` false it is compiled as it is, for one run of the group at a
+        time (its hyper-parameters and env params arguments, ``finish_per_run``)."""
         if not self.batched:
             constants = baked_constants(self.params)
             identity = program_identity(self.config, search=True)
+        elif not mapped:  # one run of a group, its hyper-parameters and env params as data
+            constants = self.params.env if self.shared_env else []
+            identity = program_identity(
+                self.config, search=True, one_run_of_group=True, shared=self.shared_env
+            )
         else:
             constants = self.params.env if self.shared_env else []
             fn = per_run(fn, self.sharding, len(args))
@@ -347,6 +353,22 @@ class Program:
         if self._finish_programs is not None:
             return self._finish_programs
         alg = self.algorithm
+        if self._finish_per_run:  # one run's programs, run for each run in turn (``finish``)
+            one = jax.tree.map(shape_of, self._run_slice((state, *self.data[1:]), 0))
+            args, mapped = one[1:], False
+            start_fn = lambda s, h, e: alg.finish_start(s, self._params(h, e))  # noqa: E731
+            advance_fn = lambda w, h, e: alg.finish_advance(w, self._params(h, e))  # noqa: E731
+            start = self.compiled("the finish of one run", start_fn, one, mapped=False)
+            advance = done = None
+            if start.out_shapes is not None:
+                work = start.out_shapes
+                what = "a finish step of one run"
+                advance = self.compiled(what, advance_fn, (work, *args), mapped=mapped)
+                done = self.compiled(
+                    "the finish's end of one run", alg.finish_done, (work,), mapped=False
+                )
+            self._finish_programs = (None, start, advance, done)
+            return self._finish_programs
         if not self.batched:
             args = (self.held,)
             start_fn, advance_fn = self._one(alg.finish_start), self._one(alg.finish_advance)
@@ -373,11 +395,38 @@ class Program:
         args, start, advance, done = self.compile_finish(state)
         if advance is None:  # nothing to do
             return state, None
-        work = start(state, *args)
-        while not np.all(np.asarray(done(work))):
-            work = advance(work, *args)
-            report(work)
+        if self._finish_per_run:
+            work = self._finish_each_run(state, start, advance, done, report)
+        else:
+            work = start(state, *args)
+            while not np.all(np.asarray(done(work))):
+                work = advance(work, *args)
+                report(work)
         return self.compiled("the finished state", alg.finish_end, (state, work))(state, work)
+
+    @property
+    def _finish_per_run(self) -> bool:
+        """A group's finish runs one run after another (the algorithm's ``finish_per_run``)."""
+        return self.batched and bool(getattr(self.algorithm, "finish_per_run", False))
+
+    def _run_slice(self, tree, r: int):
+        """Run ``r``'s leaves of a group's ``tree``, on the first local device."""
+        first = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        return jax.device_put(jax.tree.map(lambda x: x[r], tree), first)
+
+    def _finish_each_run(self, state, start, advance, done, report):
+        """The finish's work of every run, one run after another, stacked over the group's
+        lanes (a padded lane repeats the last run's, as its state does)."""
+        works = []
+        for r in range(len(self.runs)):
+            one_state, hyper, env = self._run_slice((state, *self.data[1:]), r)
+            work = start(one_state, hyper, env)
+            while not bool(np.asarray(done(work))):
+                work = advance(work, hyper, env)
+                report(work)
+            works.append(work)
+        works += [works[-1]] * (self.lanes - len(works))
+        return jax.device_put(jax.tree.map(lambda *w: jnp.stack(w), *works), self.sharding)
 
     def best_policies(self, state) -> list:
         """Every run's best policy, on the host."""

@@ -1177,6 +1177,23 @@ def run_cogdice(rows: list[str]) -> None:
             _sweep(ROWS[row][0], overrides, SEEDS, RESULTS / f"cogdice-{row}", imports)
 
 
+#: rows whose observation is an image patch: the encoded variant applies (``encoded`` column)
+ENCODED_ROWS = ("plume",)
+#: the encoded variant: the defaults on a VAE's encoder mean, the VAE trained on the
+#: simulator's own observations with the heatmap's encoded experiments' settings (a 2-D latent
+#: at KL weight 0.01: cognet_jax/experiments/heatmap-encoded-n4.toml)
+ENCODED = ['network.observation="encoded"', "network.vae_latent=2", "network.vae_kl_weight=0.01"]
+
+
+def run_encoded(rows: list[str]) -> None:
+    """The encoded variant (``ENCODED``) on the rows of ``rows`` whose observation is an image
+    patch."""
+    for row in rows:
+        if row in ENCODED_ROWS:
+            imports = ["--import", str(IMPORTS[row])] if row in IMPORTS else []
+            _sweep(ROWS[row][0], ENCODED, SEEDS, RESULTS / f"encoded-{row}", imports)
+
+
 def run_extra(names: list[str]) -> None:
     for name in names:
         experiment, overrides, seeds, _, _ = EXTRA[name]
@@ -1407,10 +1424,13 @@ def table() -> list[str]:
             if cognet == "not run" and earlier.is_file():  # not swept under the defaults of now
                 cognet = f"not yet re-run under {change}; before: " + _search_cell(earlier, hand)
         cogdice = _search_cell(RESULTS / f"cogdice-{row}" / "runs.json", hand)
+        encoded = "n/a"
+        if row in ENCODED_ROWS:
+            encoded = _search_cell(RESULTS / f"encoded-{row}" / "runs.json", hand)
         name = Path(experiment).name if row in IMPORTS else experiment
         rows.append(
             f"| {row} (`{name}`) | {what} | {hand_cell} | {bound_cell} | {cogdice} | "
-            f"{cognet} | n/a |"
+            f"{cognet} | {encoded} |"
         )
     if not_counted:
         rows += ["", f"Not yet re-run with the COUNTER moves: {', '.join(not_counted)}."]
@@ -1775,7 +1795,7 @@ def write_table() -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    kinds = ["hand", "cognet", "cogdice", "extra", "reactive"]
+    kinds = ["hand", "cognet", "cogdice", "encoded", "extra", "reactive"]
     p.add_argument("what", nargs="?", choices=kinds, default=None)
     p.add_argument(
         "rows", nargs="*", help=f"default: all of {', '.join(ROWS)} (with extra: of EXTRA)"
@@ -1794,6 +1814,8 @@ def main(argv=None) -> int:
             run_cognet(rows)
         if args.what in (None, "cogdice"):
             run_cogdice(rows)
+        if args.what in (None, "encoded"):
+            run_encoded(rows)
         if args.what in (None, "extra"):
             run_extra(args.rows if args.what == "extra" and args.rows else list(EXTRA))
         if args.what in (None, "reactive"):

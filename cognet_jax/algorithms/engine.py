@@ -226,6 +226,11 @@ class Search:
         return self.tell(key, state, samples, self.evaluate(key, policies, params), params)
 
     # -- after the last iteration: ``finish``, also as steps ---------------------------------
+    #: a sweep runs the ``finish`` of its runs one after another, each with its own program,
+    #: instead of side by side (``vmap``): side by side, a ``lax.cond`` in a step computes
+    #: every branch for every run (G-DICE's polish: its best responses on every sweep)
+    finish_per_run: ClassVar[bool] = False
+
     def finish_start(self, state, params: SearchParams):
         """The work ``finish`` does after the last iteration, as a pytree advanced by
         ``finish_advance`` until ``finish_done`` (a driver shows progress and obeys signals

@@ -69,6 +69,9 @@ class GDicePortfolio(TabularReports, Search):
     search.
     """
 
+    #: its polish branches between sweeps and best responses (``polish.Polish.advance``)
+    finish_per_run = True
+
     shared_restarts: int = 0
     explore_restarts: int = 0
     explore_rate: float = 0.2

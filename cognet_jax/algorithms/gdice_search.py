@@ -144,11 +144,12 @@ HYBRID_MIN_TOP = 5
 
 
 #: Largest exact cost of one polish sweep (every single-entry change of the best controller,
-#: ``GDice.polish_moves``); above it the polish is skipped. **[choice]** The exact values of a
-#: sweep are gather-bound: the limit keeps the polish of box pushing and fire fighting 2-3-3
-#: and skips the meeting grid's at h 4, which costs a large share of a minute for no gain
+#: ``GDice.polish_moves``); above it the polish is skipped. **[choice]** 1e10 keeps the polish
+#: of every model of the minute table at h 4 and 5 (Mars rovers at h 5: 6.2e9, 5 - 8 s of
+#: polish, which lifts three seeds of eight from 11.56 - 12.0 to the optimum; the meeting grid
+#: at h 4: 2.0e9, 10 s), while its budget (``polish_budget``) bounds what it spends
 #: (experiments/NOTES.md)
-POLISH_SWEEP_LIMIT = 1_000_000_000
+POLISH_SWEEP_LIMIT = 10_000_000_000
 
 
 #: ``repeats = "auto"`` runs every search at most this many times (Dec-Tiger h 8-10: a single
@@ -294,6 +295,9 @@ class GDice(TabularReports, ThresholdSearch):
     """G-DICE on an environment with discrete observations; ``init`` / ``ask`` / ``evaluate``
     / ``tell`` / ``step`` / ``finish`` are pure functions of explicit state and params
     (``algorithms.engine``)."""
+
+    #: its polish branches between sweeps and best responses (``polish.Polish.advance``)
+    finish_per_run = True
 
     def __post_init__(self):
         env, settings = self.env, self.settings
