@@ -1443,8 +1443,14 @@ below it by more than 3% of its magnitude (issue 52's bar); "below" marks a row 
 not. The hand-written controllers are the rules of each simulator's module (`hand_controller`):
 counting clear hearings (Dec-Tiger), stepping along the larger offset (beacon), stepping toward
 the bearing (chase), climbing the patch (plume), pushing when the range is small (box pushing).
-The encoded variant needs a VAE trained on the simulator's patches; only the heatmap's is built
-in, so the column is "n/a" here (heatmap rows: experiments/README.md, heatmap). The defaults
+The encoded variant runs the defaults on a VAE's encoder mean, the VAE trained on the
+simulator's own observations (`network.observation = "encoded"`, a 2-D latent at KL weight 0.01
+as the heatmap's encoded experiments; `python experiments/suite.py encoded ROW`) on the row
+whose observation is an image patch, the plume; the other rows observe no image ("n/a";
+heatmap rows: experiments/README.md, heatmap). On the plume it ends well below the raw patch
+(its VAE trained on the random controller's patches, most of them far from the source, with
+the heatmap's settings, not chosen for this simulator); its sweep (2026-12-01) shared the
+machine with the test suite for most of its hour, so its wall time is an upper bound. The defaults
 size the search from a noise pilot (cognet_jax/algorithms/sizing.py): on Dec-Tiger, its noisy
 variant and box pushing it moves the budget from rollouts to candidates; on beacon, chase and
 the README simulator it keeps the sizes of before. They end with a refine phase
