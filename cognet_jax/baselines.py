@@ -36,7 +36,7 @@ class Tuned:
     values: list  # [(thresholds dict, mean)]
     best: dict
     honest: tuple[float, float]
-    rollouts: int
+    rollouts: int  # of the honest value
 
 
 def simulator_module(env_name: str):
@@ -64,8 +64,11 @@ def _program(env, controller, num: int):
     return jax.jit(lambda k, e, p: rollouts(env, controller, k, num, e, p))
 
 
-def tune(env_name: str, env, env_params, rollouts_per_point: int = 20_000) -> Tuned:
-    """Grid search of the simulator's ``HAND_GRID`` (module docstring)."""
+def tune(
+    env_name: str, env, env_params, rollouts_per_point: int = 20_000, honest_rollouts: int = 0
+) -> Tuned:
+    """Grid search of the simulator's ``HAND_GRID`` (module docstring); the winner's honest
+    value on ``honest_rollouts`` fresh rollouts (0: ``rollouts_per_point``)."""
     module = simulator_module(env_name)
     grid = module.HAND_GRID
     values = []
@@ -78,8 +81,7 @@ def tune(env_name: str, env, env_params, rollouts_per_point: int = 20_000) -> Tu
         values.append((theta, float(r.mean())))
     best = max(values, key=lambda tv: tv[1])[0]
     controller, policy = module.hand_controller(env, **best)
-    r = hand_returns(
-        env, env_params, controller, policy, jax.random.key(HONEST_SEED), rollouts_per_point
-    )
+    count = honest_rollouts or rollouts_per_point
+    r = hand_returns(env, env_params, controller, policy, jax.random.key(HONEST_SEED), count)
     honest = (float(r.mean()), float(r.std() / np.sqrt(len(r))))
-    return Tuned(dict(grid), values, best, honest, rollouts_per_point)
+    return Tuned(dict(grid), values, best, honest, count)
