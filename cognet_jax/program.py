@@ -355,7 +355,7 @@ class Program:
         alg = self.algorithm
         if self._finish_per_run:  # one run's programs, run for each run in turn (``finish``)
             one = jax.tree.map(shape_of, self._run_slice((state, *self.data[1:]), 0))
-            args, mapped = one[1:], False
+            args = one[1:]
             start_fn = lambda s, h, e: alg.finish_start(s, self._params(h, e))  # noqa: E731
             advance_fn = lambda w, h, e: alg.finish_advance(w, self._params(h, e))  # noqa: E731
             start = self.compiled("the finish of one run", start_fn, one, mapped=False)
@@ -363,7 +363,7 @@ class Program:
             if start.out_shapes is not None:
                 work = start.out_shapes
                 what = "a finish step of one run"
-                advance = self.compiled(what, advance_fn, (work, *args), mapped=mapped)
+                advance = self.compiled(what, advance_fn, (work, *args), mapped=False)
                 done = self.compiled(
                     "the finish's end of one run", alg.finish_done, (work,), mapped=False
                 )

@@ -68,6 +68,7 @@ from cognet_jax.plots import plot_sweep_values
 from cognet_jax.plugins import one_line
 from cognet_jax.program import Run
 from cognet_jax.registry import config_from_dict, dynamic_fields, load_config
+from cognet_jax.sweep_repeats import same_runs_lines, setting_label, warn_new
 
 #: The sweep's own arguments, written next to its checkpoints (read by ``--resume``).
 SWEEP_SPEC = "sweep.json"
@@ -375,11 +376,11 @@ def run_sweep(
         timing.update(group=g_index, settings=[s.index for s in g.settings])
         timings.append(timing)
         if jax.process_count() == 1:  # said as soon as a group repeats one: Ctrl-C saves time
-            said |= _warn_new(same_runs_lines(rows, settings_list), said)
+            said |= warn_new(same_runs_lines(rows, settings_list), said)
     rows = sorted(gather_rows(rows), key=lambda r: (r["setting"], r["seed"]))
     if len(rows) != total:  # pragma: no cover - a lost process
         raise RuntimeError(f"gathered {len(rows)} runs, expected {total}")
-    _warn_new(same_runs_lines(rows, settings_list), said)
+    warn_new(same_runs_lines(rows, settings_list), said)
     wall_s = time.perf_counter() - t0
     log(
         f"sweep {name}: {total} runs in {len(groups)} compiled group(s), "
@@ -512,64 +513,6 @@ def summarize(result: dict) -> list[dict]:
     return out
 
 
-def _run_signature(row: dict) -> tuple:
-    """What tells a run's numbers apart: its honest value and standard error, the in-loop best
-    and the value of every iteration."""
-    fv = row["final_value"]
-    return (
-        fv["mean"],
-        fv["stderr"],
-        row["in_loop_best"],
-        tuple(row.get("values_per_iteration") or ()),
-    )
-
-
-def same_runs(rows: list[dict]) -> list[tuple[int, int]]:
-    """``[(setting, earlier setting)]``: settings whose runs gave an earlier setting's numbers
-    run for run (every seed's ``_run_signature`` equal): a grid over a field the search never
-    reads runs one search again under another name."""
-    by_setting: dict[int, dict] = {}
-    for r in rows:
-        by_setting.setdefault(r["setting"], {})[r["seed"]] = _run_signature(r)
-    pairs, seen = [], {}
-    for index in sorted(by_setting):
-        runs = by_setting[index]
-        key = json.dumps(sorted(runs.items()), default=repr)
-        if key in seen:
-            pairs.append((index, seen[key]))
-        else:
-            seen[key] = index
-    return pairs
-
-
-def same_runs_lines(rows: list[dict], settings: list[dict]) -> list[str]:
-    """One line per setting that repeats an earlier one's runs (``same_runs``), naming the
-    grid fields the two differ in."""
-    lines = []
-    for index, earlier in same_runs(rows):
-        fields = [k for k in settings[index] if settings[index][k] != settings[earlier].get(k)]
-        lines.append(
-            f"setting {index} ({_setting_label(settings[index])}) gave the numbers of setting "
-            f"{earlier} ({_setting_label(settings[earlier])}) run for run: "
-            f"{', '.join(fields) or 'its grid fields'} changed nothing this search computes "
-            "(a field it does not read, or one its other settings switch off)"
-        )
-    return lines
-
-
-def _warn_new(lines: list[str], said: set) -> set:
-    """Warn each of ``lines`` not in ``said``; returns the lines warned."""
-    new = {line for line in lines if line not in said}
-    for line in lines:
-        if line in new:
-            warnings.warn(line, OneLineWarning, stacklevel=3)
-    return new
-
-
-def _setting_label(values: dict) -> str:
-    return ", ".join(f"{k}={v}" for k, v in values.items()) or "(base config)"
-
-
 def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     """``runs.csv``, ``runs.json``, ``summary.md`` and, unless the sweep's ``run.plots`` is
     false, ``values.png`` in ``out_dir``; returns the paths written. A figure that cannot be
@@ -624,7 +567,7 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     ]
     for s in summary:
         row = (
-            f"| {_setting_label(s['grid'])} | {s['seeds']} | "
+            f"| {setting_label(s['grid'])} | {s['seeds']} | "
             f"{_mean_se(s['final_mean'], s['final_se'])} | "
             f"{_mean_se(s['in_loop_best_mean'], s['in_loop_best_se'])} |"
         )
@@ -639,7 +582,7 @@ def write_outputs(result: dict, out_dir: str | Path) -> list[Path]:
     written = [out / n for n in ("runs.csv", "runs.json", "summary.md")]
     if result.get("config", {}).get("run", {}).get("plots", True):
         try:
-            plot_sweep_values(result, out / "values.png", _setting_label)
+            plot_sweep_values(result, out / "values.png", setting_label)
             written.append(out / "values.png")
         except OSError as err:
             warnings.warn(

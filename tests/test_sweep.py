@@ -22,7 +22,8 @@ from cognet_jax.cli import main
 from cognet_jax.config import ConfigError
 from cognet_jax.driver import train as run_training
 from cognet_jax.registry import load_config
-from cognet_jax.sweep import assign_runs, parse_grid, plan, same_runs, same_runs_lines
+from cognet_jax.sweep import assign_runs, parse_grid, plan
+from cognet_jax.sweep_repeats import same_runs, same_runs_lines
 
 ROOT = Path(__file__).parents[1]
 SMALL = [
