@@ -281,14 +281,14 @@ def simulator_vae(env, env_params, net) -> TrainedVAE:
     its policy is evaluated with the encoder it was searched with."""
     settings = (net.vae_seed, net.vae_epochs, net.vae_latent, net.vae_kl_weight)
     leaves = tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(env_params))
+    key = (env, leaves, settings)
     try:
-        key = (hash(env), env, leaves, settings)
+        hash(key)
     except TypeError:  # an unhashable simulator object: one cache entry per object
-        key = (id(env), None, leaves, settings)
+        key = (id(env), leaves, settings)
     if key not in _SIMULATOR_VAES:
         controller = neural_controller(env, 2, 1)[1]
-        template = controller.init(jax.random.key(0))
-        uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+        uniform = uniform_policy(controller)
         seed = jax.random.key(net.vae_seed)
         k_roll, k_pick = jax.random.split(seed)
         per_rollout = env.horizon * env.num_agents  # 4 x the observations kept, at most
@@ -317,6 +317,13 @@ def simulator_vae(env, env_params, net) -> TrainedVAE:
 _RAW_STATS: dict = {}
 
 
+def uniform_policy(controller):
+    """The uniformly random policy of a neural ``controller``: its initial policy's uniform
+    actions, zero networks (uniform next nodes)."""
+    template = controller.init(jax.random.key(0))
+    return template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+
+
 def input_statistics(env, controller, pipeline, env_params, memory=None):
     """``(mean, scale) [agents, F]`` of the networks' input features over the observations
     of ``STATS_ROLLOUTS`` rollouts of the uniformly random controller (key 0) under
@@ -324,8 +331,7 @@ def input_statistics(env, controller, pipeline, env_params, memory=None):
     ``memory`` bytes (``memory.trace_checked``). Raw observations' statistics are computed
     once per simulator, params and controller shape in a process (``_RAW_STATS``)."""
     check_made_fits(controller.init, (jax.random.key(0),), memory, "one joint policy's arrays")
-    template = controller.init(jax.random.key(0))  # uniform actions; zero nets: uniform nodes
-    uniform = template.replace(net_params=jax.tree.map(jnp.zeros_like, template.net_params))
+    uniform = uniform_policy(controller)
     record = jax.jit(
         lambda k: rollouts(env, controller, k, STATS_ROLLOUTS, env_params, uniform, record=True)
     )
