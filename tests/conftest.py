@@ -76,44 +76,54 @@ gc.set_threshold(*GC_THRESHOLDS)
 
 
 #: the test files taking 5 s or more, longest first (seconds of test time, both workers, on the
-#: 2-core CPU, 2026-11-27): run in this order, the rest after them. With ``--dist loadfile``
-#: and ``--no-loadscope-reorder`` (pyproject.toml) xdist hands the files out in this order
-#: (the next one to a worker with at most 2 of its tests left), so the long files start early
-#: and short ones fill the end; by default it orders them by their number of tests, and a long
-#: file with few tests could start last.
+#: 2-core CPU, 2026-12-02, ``pytest --durations=0``; the three marked were cut after it): run
+#: in this order, the rest after them. With ``--dist loadfile`` and ``--no-loadscope-reorder``
+#: (pyproject.toml) xdist hands the files out in this order (the next one to a worker with at
+#: most 2 of its tests left), so the long files start early and short ones fill the end; by
+#: default it orders them by their number of tests, and a long file with few tests could start
+#: last (the list of 2026-11-27 had grown stale: the fuzz, listed at 6 s, took 125 s).
 LONGEST_FIRST = {
     name: rank
     for rank, name in enumerate(
         (
-            "test_sweep.py",  # 48-55 s
-            "test_engine.py",  # 34 (47-50 before its by-hand iteration was compared as jaxprs)
-            "test_gdice_defaults.py",  # 37-43
-            "test_one_truth.py",  # 33-34
-            "test_cognet_thesis.py",  # 27
-            "test_polish.py",  # 25-27
-            "test_models.py",  # 25
-            "test_heatmap_cognet.py",  # 21-24
-            "test_memory.py",  # 21
-            "test_signals.py",  # 20-21
-            "test_prng.py",  # 19-21
-            "test_cognet_weights.py",  # 19-21
-            "test_rollout.py",  # 17-20
-            "test_controller_step.py",  # 15-18
-            "test_checkpoint.py",  # 16-17
-            "test_gdice.py",  # 14-16
-            "test_cli_errors.py",  # 13-16
-            "test_shard_rollouts.py",  # 11
-            "test_registry.py",  # 9-10
-            "test_compile_cache.py",  # 9
-            "test_best_response.py",  # 7-8 (11-12 before its brute force cut the other agent)
-            "test_exact_jax.py",  # 7-8
-            "test_torch_reference.py",  # 7-8
-            "test_cogdice.py",  # 7
-            "test_neural.py",  # 7
-            "test_fuzz.py",  # 6
-            "test_large_dpomdp.py",  # 5-6
-            "test_vae.py",  # 5
-            "test_config_cli.py",  # 5
+            "test_sweep.py",  # 198
+            "test_cognet_weights.py",  # 147
+            "test_compile_cache.py",  # 140 (cut: one first run for the file)
+            "test_fuzz.py",  # 125 (cut: every field of a section's kind once, 88 s -> 45 s)
+            "test_run_folder.py",  # 53
+            "test_signals.py",  # 45
+            "test_gdice_defaults.py",  # 45
+            "test_one_truth.py",  # 44
+            "test_engine.py",  # 44
+            "test_cognet_thesis.py",  # 41
+            "test_config_cli.py",  # 55 (cut: the suite's experiments loaded in one file only)
+            "test_torch_reference.py",  # 39
+            "test_suite_envs.py",  # 39
+            "test_weight_polish.py",  # 36
+            "test_memory.py",  # 36
+            "test_neural.py",  # 36
+            "test_checkpoint.py",  # 35
+            "test_polish.py",  # 35
+            "test_models.py",  # 35
+            "test_torch_weights.py",  # 34
+            "test_registry.py",  # 31
+            "test_cli_errors.py",  # 30
+            "test_heatmap_cognet.py",  # 28
+            "test_vae.py",  # 27
+            "test_build_once.py",  # 27
+            "test_plugin.py",  # 25
+            "test_hostile_round7.py",  # 24
+            "test_hostile_inputs.py",  # 22
+            "test_rollout.py",  # 22
+            "test_controller_step.py",  # 21
+            "test_prng.py",  # 20
+            "test_shard_rollouts.py",  # 20
+            "test_gdice.py",  # 12
+            "test_cogdice.py",  # 9
+            "test_best_response.py",  # 7
+            "test_tabular_env.py",  # 7
+            "test_heatmap.py",  # 6
+            "test_large_dpomdp.py",  # 5
         )
     )
 }

@@ -64,3 +64,9 @@ TINY_TRAIN = [
     *("--set", "algorithm.best_rollouts=10", "--set", "evaluation.rollouts=50"),
     *("--set", "run.plots=false", "--no-progress"),
 ]
+
+
+#: the continuous suite's experiments, one per simulator, loaded (each sizing its search by a
+#: noise pilot, 1-2 s apiece) by tests/test_suite_envs.py and so left out of
+#: tests/test_config_cli.py's load of every built-in experiment
+SUITE_EXPERIMENTS = ("hearing-tiger-n7", "beacon-n5", "bearing-chase-n5", "plume-n5", "box-push-n3")

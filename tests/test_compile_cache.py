@@ -4,9 +4,12 @@ that turns it off (docs/reference.md, "Compiled programs are kept")."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from cognet_jax.compile_cache import compile_cache_dir
 
@@ -62,15 +65,41 @@ def _train(out: Path, cache: Path) -> tuple[dict, str]:
     return json.loads((out / "results.json").read_text()), log
 
 
-def test_a_repeated_run_loads_its_programs_and_off_keeps_none(tmp_path):
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory) -> tuple[dict, str, Path]:
+    """The first run in a fresh cache (its results, its log, the cache), made once for the
+    file, with a copy of the cache as the run left it: each test starts from that state
+    (``_cache_after_first``) without compiling again."""
+    tmp = tmp_path_factory.mktemp("first")
+    first, log = _train(tmp / "a", tmp / "cache")
+    for suffix in ("", "-traced"):  # the traced programs are kept beside the cache
+        if (tmp / f"cache{suffix}").exists():
+            shutil.copytree(tmp / f"cache{suffix}", tmp / f"left{suffix}")
+    return first, log, tmp / "cache"
+
+
+def _cache_after_first(first_run) -> Path:
+    """The first run's cache folder as that run left it (restored from the copy). In place,
+    not a copy elsewhere: a program's key holds the cache's folder (JAX passes it to XLA's
+    compile options), so entries copied to another folder are never looked up."""
+    cache = first_run[2]
+    for suffix in ("", "-traced"):
+        folder, left = (cache.with_name(name + suffix) for name in (cache.name, "left"))
+        shutil.rmtree(folder, ignore_errors=True)
+        if left.exists():
+            shutil.copytree(left, folder)
+    return cache
+
+
+def test_a_repeated_run_loads_its_programs_and_off_keeps_none(first_run, tmp_path):
     """The first run says it compiles and how long that took; the same run again in a fresh
     process loads its programs: ``compile_s`` (the initial state's and the iteration's
     programs) under a third of the first run's, and the same numbers. (Alone on the 2-core CPU
     the second run's ``compile_s`` is 0.4 s against 2.7 s, with two busy loops beside it 0.66 s
     against 4.4 s, so an absolute bound would depend on the suite's load; a run without the
     cache compiles as long as the first.) With ``--no-compile-cache`` nothing is written."""
-    cache = tmp_path / "cache"
-    first, log = _train(tmp_path / "a", cache)
+    first, log, _ = first_run
+    cache = _cache_after_first(first_run)
     assert "compiling tagging-thesis-spec-n3" in log and "compiled tagging-thesis-spec-n3 in" in log
     assert any(cache.iterdir())
     second, _ = _train(tmp_path / "b", cache)
@@ -78,6 +107,7 @@ def test_a_repeated_run_loads_its_programs_and_off_keeps_none(tmp_path):
     assert second["final_value"] == first["final_value"]
     assert second["values_per_iteration"] == first["values_per_iteration"]
     unused = tmp_path / "unused"
+    shutil.copytree(first_run[2].parent / "a", tmp_path / "a")
     _cli(unused, "evaluate", str(tmp_path / "a"), "--rollouts", "50", "--no-compile-cache")
     assert not unused.exists() or not any(unused.iterdir())
 
@@ -86,12 +116,12 @@ def _entries(cache: Path, prefix: str = "") -> list[Path]:
     return sorted(cache.glob(f"{prefix}*-cache"))
 
 
-def test_damaged_compilation_cache_entries_are_removed_not_blocking(tmp_path):
+def test_damaged_compilation_cache_entries_are_removed_not_blocking(first_run, tmp_path):
     """Entries of JAX's compilation cache swapped between programs (they load, then fail) or
     with flipped bytes (they do not decompress): the run still gives its numbers, says one
     line, and leaves the cache whole again -- the next run has nothing to say."""
-    cache = tmp_path / "cache"
-    first, _ = _train(tmp_path / "a", cache)
+    first = first_run[0]
+    cache = _cache_after_first(first_run)
     programs = _entries(cache, "jit_call-")
     assert len(programs) >= 2
     blobs = [p.read_bytes() for p in programs]
@@ -112,12 +142,12 @@ def test_damaged_compilation_cache_entries_are_removed_not_blocking(tmp_path):
     assert again["final_value"] == first["final_value"] and "note:" not in log, log
 
 
-def test_an_entry_swapped_with_a_sweeps_program_is_compiled_afresh(tmp_path):
+def test_an_entry_swapped_with_a_sweeps_program_is_compiled_afresh(first_run, tmp_path):
     """An entry holding another command's program (a sweep's, sharded over two devices) under
     the key of a train program: every entry is sealed to its key, so it is removed and
     compiled afresh with one note (XLA aborted the process on loading it before)."""
-    cache = tmp_path / "cache"
-    first, _ = _train(tmp_path / "a", cache)
+    first = first_run[0]
+    cache = _cache_after_first(first_run)
     trains = set(_entries(cache, "jit_call-"))
     sweep = ["sweep", "tagging-thesis-spec-n3", "--seeds", "2", "--out", str(tmp_path / "s")]
     _cli(
@@ -142,7 +172,7 @@ def test_an_entry_swapped_with_a_sweeps_program_is_compiled_afresh(tmp_path):
     assert again["final_value"] == first["final_value"] and "note:" not in log, log
 
 
-def test_a_folder_of_other_files_is_not_used_as_the_cache(tmp_path):
+def test_a_folder_of_other_files_is_not_used_as_the_cache(first_run, tmp_path):
     """COGNET_JAX_CACHE pointed at a folder of the user's own (names like a cache's entries):
     nothing in it is removed or added, one note says programs are not kept there."""
     mine = tmp_path / "project"
@@ -155,8 +185,7 @@ def test_a_folder_of_other_files_is_not_used_as_the_cache(tmp_path):
     assert sorted(p.relative_to(mine) for p in mine.rglob("*")) == before
     assert "not compiled programs" in log and "build-cache" in log, log
     # a folder under an entry's name in a cache in use (a run folder put there) is kept too
-    cache = tmp_path / "cache"
-    _train(tmp_path / "b", cache)
+    cache = _cache_after_first(first_run)  # a cache in use
     run = cache / f"run-{'a' * 64}-cache"
     _train(run, cache)
     _, log = _train(tmp_path / "c", cache)

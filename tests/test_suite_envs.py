@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.special import ndtri
+from shared_files import SUITE_EXPERIMENTS
 
 from cognet_jax import baselines
 from cognet_jax.envs import beacon, bearing_chase, box_push, hearing_tiger, plume
@@ -177,10 +178,7 @@ def test_grid_search_keeps_the_best_point_and_stays_below_the_bound(name):
         assert tuned.honest[0] <= bound()
 
 
-@pytest.mark.parametrize(
-    "experiment",
-    ["hearing-tiger-n7", "beacon-n5", "bearing-chase-n5", "plume-n5", "box-push-n3"],
-)
+@pytest.mark.parametrize("experiment", SUITE_EXPERIMENTS)
 def test_suite_experiments_set_only_env_and_nodes(experiment):
     from cognet_jax.config import read_experiment
 
