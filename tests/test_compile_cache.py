@@ -80,8 +80,8 @@ def first_run(tmp_path_factory) -> tuple[dict, str, Path]:
 
 def _cache_after_first(first_run) -> Path:
     """The first run's cache folder as that run left it (restored from the copy). In place,
-    not a copy elsewhere: a program's key holds the cache's folder (JAX passes it to XLA's
-    compile options), so entries copied to another folder are never looked up."""
+    not a copy elsewhere: runs on a copy of the entries in another folder compiled as long as
+    the first run (tried 2026-12-02), so the folder is part of what a program is kept by."""
     cache = first_run[2]
     for suffix in ("", "-traced"):
         folder, left = (cache.with_name(name + suffix) for name in (cache.name, "left"))
