@@ -1219,7 +1219,7 @@ def _rescored_value(run: Path, imports: list[str]) -> dict:
     def found():
         path = run / "evaluations.jsonl"
         lines = path.read_text().splitlines() if path.is_file() else []
-        hits = [json.loads(x) for x in lines if json.loads(x)["rollouts"] == RESCORE_ROLLOUTS]
+        hits = [e for e in map(json.loads, lines) if e["rollouts"] == RESCORE_ROLLOUTS]
         return hits[-1] if hits else None
 
     if found() is None:
@@ -1301,6 +1301,11 @@ def _hand_within_nodes(row: str, hand: dict) -> str:
     )
 
 
+def _holds(mean: float, worst: float, bar: float) -> bool:
+    """Issue 52's bar: the 8-seed mean at least ``bar``, no seed below it by over 3%."""
+    return mean >= bar and worst >= bar - 0.03 * abs(bar)
+
+
 def _search_cell(
     path: Path, hand: float | None, history: Path | None = None, previous: Path | None = None
 ) -> str:
@@ -1341,8 +1346,7 @@ def _search_cell(
     else:
         judged, note = (mean, min(values)), ""
     if hand is not None:
-        ok = judged[0] >= hand and judged[1] >= hand - 0.03 * abs(hand)
-        verdict = " (holds)" if ok else " (**below**)"
+        verdict = " (holds)" if _holds(*judged, hand) else " (**below**)"
     verdict = note + verdict
     history = path if history is None else history
     before_cell = ""
@@ -1474,8 +1478,8 @@ def _at_hand_nodes(row: str, hand_path: Path) -> str:
     values = _values(RESULTS / f"{row}-n{nodes}-counter" / "runs.json")
     if nodes <= _config(row).algorithm.nodes or not values:
         return ""
-    mean, bar = sum(values) / len(values), hand["honest"][0]
-    ok = mean >= bar and min(values) >= bar - 0.03 * abs(bar)
+    mean = sum(values) / len(values)
+    ok = _holds(mean, min(values), hand["honest"][0])
     return (
         f"; with the hand-written controller's {nodes} nodes (`--set algorithm.nodes={nodes}`): "
         f"{mean:.3f}, min {min(values):.3f} ({'holds' if ok else '**below**'})"
