@@ -1110,6 +1110,13 @@ AFTER_AXES["plume-i1600-counter"] = (
     "exploring searches of the defaults, each of about 95 iterations)",
     "plume-s0i800",
 )
+AFTER_AXES["plume-budget2x"] = (
+    "plume-n5",
+    ["algorithm.budget=2.4e9"],
+    SEEDS,
+    "the defaults (code of main) with twice the default budget, 2.4e9 agent-steps",
+    "cognet-plume",
+)
 AFTER_AXES["hearing-tiger-noisy-n9-counter"] = (
     "hearing-tiger-noisy-n7",
     ["algorithm.nodes=9"],
