@@ -101,9 +101,16 @@ def started(sample: WeightSample) -> WeightSample:
     nodes, first = jnp.arange(q), sample.start[..., None]
     perm = jnp.where(nodes == 0, first, jnp.where(nodes == first, 0, nodes))  # [..., agents, Q]
 
-    def along_nodes(x):
+    def along_nodes(x):  # x[..., perm[n], ...] at node n, by selects, not a gather: XLA's
+        # CPU compile of that gather fused with standardised weights of one input feature ran
+        # for over 20 minutes in sweeps of 4 or more runs (experiments/NOTES.md); selects copy
+        # the same numbers
         index = perm.reshape(perm.shape + (1,) * (x.ndim - perm.ndim))
-        return jnp.take_along_axis(x, jnp.broadcast_to(index, x.shape), axis=lead)
+        out = jnp.zeros_like(x)
+        for k in range(q):
+            node = jax.lax.index_in_dim(x, k, axis=lead, keepdims=True)
+            out = jnp.where(index == k, node, out)
+        return out
 
     def renamed(votes):  # a vote for node t goes to where t now sits: perm is an involution
         flat = votes.reshape(votes.shape[:lead] + (-1,))  # [..., agents, Q x H]
