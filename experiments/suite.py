@@ -1576,8 +1576,9 @@ rule with its three values set by `--set` (their runs.json record those override
 Dec-Tiger and chase sweeps ran again under the rule and gave the same values seed for seed. Wall
 times were measured one sweep at a time, at times beside lighter work (the test suite, a second
 session's commands) on the same 2 cores. "not run" marks a simulator not yet swept under the
-defaults. `standardize_inputs` "auto" standardises the plume's 3 x 3 patch only
-(`narrow_inputs`; row cognet-plume-raw of the next table: a sweep without). `distinct_actions`
+defaults. `standardize_inputs` "auto" standardises the plume's 3 x 3 patch only of these rows
+(`missed_inputs`: inputs narrow or far off centre; row cognet-plume-raw of the next table: a
+sweep without). `distinct_actions`
 "auto" (`covers_rarely`) draws the nodes' actions without repeats, for the candidates whose
 flag says so, on beacon, chase and plume (5 nodes, 5 moves; "before distinct" gives the sweep of
 the defaults before it, rows "-before-distinct" of the next table; its first version, commit

@@ -1,6 +1,7 @@
 """The default COGNet-DICE: cross-entropy over node-network weights (cognet_weights.py)."""
 
 import itertools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -9,13 +10,14 @@ import pytest
 
 from cognet_jax.algorithms.cognet_weights import CognetWeights
 from cognet_jax.algorithms.cognet_weights_settings import (
+    NARROW_INPUTS,
     SEARCH_LONG_HORIZON,
     SEARCH_SHORT_HORIZON,
     WeightsHyper,
     WeightsSettings,
     cover_probability,
     covers_rarely,
-    narrow_inputs,
+    missed_inputs,
 )
 from cognet_jax.algorithms.engine import SearchParams
 from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw, reproduces_distinct
@@ -513,16 +515,29 @@ def test_tied_candidates_default_votes_are_scaled_and_the_others_not():
     assert tied.any() and (~tied).any()
 
 
-def test_auto_standardisation_turns_on_for_narrow_inputs_only():
+def test_auto_standardisation_turns_on_for_missed_inputs_only():
     """``standardize_inputs = "auto"``: the plume's 3 x 3 patch (pixels spread about 0.25)
-    is standardised, tagging's signed distance (spread about 5) is not; the resolved config
-    holds the decision."""
+    is standardised, tagging's signed distance (spread about 5, centred) is not; the resolved
+    config holds the decision. For centred features the rule is the spread against
+    ``NARROW_INPUTS x sqrt(F)``, at any number of features; a reading far off centre, or in
+    units a hundred times smaller, is standardised too."""
     sizes = [f"algorithm.{k}={v}" for k, v in SMALL_SIZES.items()]
     auto = ['algorithm.standardize_inputs="auto"', *sizes]
     assert load_config("plume-n5", auto).algorithm.standardize_inputs is True
     assert load_config("tagging-thesis-n3", auto).algorithm.standardize_inputs is False
-    mean, scale = jnp.zeros((2, 9)), jnp.full((2, 9), 0.25)
-    assert narrow_inputs((mean, scale)) and not narrow_inputs((mean, scale * 10))
+    for f in (1, 2, 9, 16):
+        zero = jnp.zeros((2, f))
+        limit = NARROW_INPUTS * math.sqrt(f)
+        assert missed_inputs((zero, jnp.full((2, f), 0.95 * limit)))
+        assert not missed_inputs((zero, jnp.full((2, f), 1.05 * limit)))
+    distance = jnp.full((2, 1), 4.2)  # the README simulator's signed distance
+    assert not missed_inputs((jnp.zeros((2, 1)), distance))
+    assert missed_inputs((jnp.full((2, 1), 50.0), distance))  # offset by 50
+    assert missed_inputs((jnp.full((2, 1), 10.0), distance))  # offset by 10
+    assert missed_inputs((jnp.zeros((2, 1)), distance / 100))  # in units 100 times larger
+    assert not missed_inputs((jnp.zeros((2, 1)), distance * 100))  # ... smaller: centred
+    metres = jnp.stack([jnp.full((2,), 50.0), jnp.zeros((2,))], -1)  # a distance, a bearing
+    assert missed_inputs((metres, jnp.stack([jnp.full((2,), 29.0), jnp.full((2,), 1.8)], -1)))
 
 
 def test_auto_search_fields_follow_the_horizon_against_the_nodes():

@@ -102,14 +102,15 @@ applied when it also wins on fresh ones, within that share of the search's rollo
 twice it while every sweep moves (``algorithms.weight_polish``; experiments/NOTES.md).
 
 **Input standardisation** (``standardize_inputs``, **[choice]**, "auto": on where the inputs
-are narrow, ``narrow_inputs``; experiments/NOTES.md): the Gaussians are then over a network
-that reads ``(x - mean) / scale`` per input feature, ``mean`` and ``scale [agents, F]`` the
-features' mean and standard deviation over ``STATS_ROLLOUTS`` rollouts of the uniformly random
-controller (fixed key: every seed of a run sees the same constants). ``to_policy`` folds them
-into the first layer (``W1 / scale``, ``b1 - (mean / scale) . W1``), so the policy still reads
-the raw features. Without it a hidden unit's threshold ``-b / w`` is spread over the scale of
-``init_scale``; on the raw heatmap patch (pixels in [0, 1], most positions differing by a few
-hundredths) almost no sampled unit then splits the positions that matter.
+are narrow or far off centre, ``missed_inputs``; experiments/NOTES.md): the Gaussians are then
+over a network that reads ``(x - mean) / scale`` per input feature, ``mean`` and ``scale
+[agents, F]`` the features' mean and standard deviation over ``STATS_ROLLOUTS`` rollouts of the
+uniformly random controller (fixed key: every seed of a run sees the same constants).
+``to_policy`` folds them into the first layer (``W1 / scale``, ``b1 - (mean / scale) . W1``),
+so the policy still reads the raw features. Without it a hidden unit's threshold ``-b / w`` is
+spread over the scale of ``init_scale`` around 0; on the raw heatmap patch (pixels in [0, 1],
+most positions differing by a few hundredths) almost no sampled unit then splits the positions
+that matter, and on a reading offset far from 0 none does.
 
 The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits), so evaluation,
 ``controller_step`` and saved policies are those of the thesis algorithm.

@@ -35,11 +35,11 @@ def build(
     pipeline, controller = neural_controller(
         env, settings.nodes, settings.hidden, build_pipeline(config, env, env_params)
     )
-    if settings.standardize_inputs == "auto":  # not resolved: a config made in code
+    if not statistics:  # shapes only: nothing measured, not even the "auto" decision
+        settings = dataclasses.replace(settings, standardize_inputs=False)
+    elif settings.standardize_inputs == "auto":  # not resolved: a config made in code
         decided = resolve_standardize(config, env, env_params).standardize_inputs
         settings = dataclasses.replace(settings, standardize_inputs=decided)
-    if not statistics:
-        settings = dataclasses.replace(settings, standardize_inputs=False)
     stats = None
     if statistics and (settings.standardize_inputs or settings.polish_share > 0):
         stats = input_statistics(env, controller, pipeline, env_params, memory)
@@ -61,10 +61,15 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
     if config.algorithm.budget_minutes <= 0:
         check_budget(dataclasses.replace(config, algorithm=sized(config.algorithm, env)), env)
     config = dataclasses.replace(config, algorithm=resolve_search(config.algorithm, env))
+    minutes = config.algorithm.budget_minutes > 0
+    piloted = config.algorithm.eval_rollouts == "auto" or minutes
+    if piloted:
+        # the pilot's candidates sized first: the input statistics of "auto" standardisation
+        # compile a large controller long
+        check_pilot_fits(build(config, env, env_params, statistics=False))
     section = resolve_standardize(config, env, env_params)
     config = dataclasses.replace(config, algorithm=section)
-    minutes = section.budget_minutes > 0
-    if section.eval_rollouts != "auto" and not minutes:
+    if not piloted:
         return sized(section, env)
     shown = {
         k: v
@@ -72,8 +77,6 @@ def resolve(config, env, env_params) -> CognetWeightsSection:
         if k not in (*SIZE_FIELDS, "budget", "budget_minutes")
     }
     network = dataclasses.asdict(config.network) if config.network is not None else None
-    # the pilot's candidates sized first: the input statistics compile a large controller long
-    check_pilot_fits(build(config, env, env_params, statistics=False))
     noise = measure_noise_cached(
         [env_description(config), shown, network],
         lambda: (build(config, env, env_params), env_params),
