@@ -1,7 +1,9 @@
-"""Inputs in other units: the defaults on the README's simulator with its reading scaled and
-offset (experiments/seek_units.py), as they are (``standardize_inputs`` "auto": the rule
-``missed_inputs`` standardises a reading the initial thresholds miss) and with standardisation
-off, 8 seeds each; writes the ``offcentre`` block of experiments/README.md.
+"""Observations as a user brings them: the defaults on the README's simulator with its reading
+scaled and offset (experiments/seek_units.py), or with features it does not need beside the
+reading (its own position, pure noise: experiments/seek_extra.py), as they are
+(``standardize_inputs`` "auto": the rule ``missed_inputs`` standardises a reading the initial
+thresholds miss) and with standardisation off, 8 seeds each; writes the ``offcentre`` block
+of experiments/README.md.
 
     python experiments/offcentre.py               # every sweep, then the table
     python experiments/offcentre.py --table-only  # the table from saved results
@@ -19,17 +21,25 @@ from _readme import replace_block
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "offcentre"
-MODULE = HERE / "seek_units.py"
-EXPERIMENT = HERE / "seek-units-n3.toml"
+#: simulator -> (module to --import, experiment)
+SIMULATORS = {
+    "units": (HERE / "seek_units.py", HERE / "seek-units-n3.toml"),
+    "extra": (HERE / "seek_extra.py", HERE / "seek-extra-n3.toml"),
+}
 SEEDS = 8
 #: the README simulator's tuned hand-written controller (experiments/README.md, suite): its
 #: thresholds move with the units, so its value is the same on every row
 HAND = HERE / "results" / "suite" / "hand-readme-seek.json"
-#: row -> (the reading's units, [env] overrides)
+#: row -> (the observation, simulator, [env] overrides)
 UNITS = {
-    "offset50": ("offset by 50", ["env.offset=50"]),
-    "scale0.01": ("in units 100 times larger (x 0.01)", ["env.scale=0.01"]),
-    "offset10": ("offset by 10", ["env.offset=10"]),
+    "offset50": ("the reading offset by 50", "units", ["env.offset=50"]),
+    "scale0.01": ("the reading in units 100 times larger (x 0.01)", "units", ["env.scale=0.01"]),
+    "offset10": ("the reading offset by 10", "units", ["env.offset=10"]),
+    "scale100": ("the reading in units 100 times smaller (x 100)", "units", ["env.scale=100"]),
+    "scale10": ("the reading in units 10 times smaller (x 10)", "units", ["env.scale=10"]),
+    "position": ("the reading and the agent's position", "extra", []),
+    "noise3": ("the reading, the position and 3 features of pure noise", "extra", ["env.extras=3"]),
+    "noise8": ("the reading, the position and 8 features of pure noise", "extra", ["env.extras=8"]),
 }
 #: column -> overrides of the search
 MODES = {"on": [], "off": ["algorithm.standardize_inputs=false"]}
@@ -38,9 +48,11 @@ MODES = {"on": [], "off": ["algorithm.standardize_inputs=false"]}
 def run(rows: list[str]) -> None:
     for row in rows:
         for mode, extra in MODES.items():
-            cmd = ["cognet-jax", "--import", str(MODULE), "sweep", str(EXPERIMENT)]
+            what, simulator, overrides = UNITS[row]
+            module, experiment = SIMULATORS[simulator]
+            cmd = ["cognet-jax", "--import", str(module), "sweep", str(experiment)]
             cmd += ["--seeds", str(SEEDS), "--no-progress", "--set", "run.plots=false"]
-            for o in [*UNITS[row][1], *extra]:
+            for o in [*overrides, *extra]:
                 cmd += ["--set", o]
             cmd += ["--out", str(RESULTS / f"{row}-{mode}"), "--overwrite"]
             print(" ".join(cmd), flush=True)
@@ -64,25 +76,28 @@ def table() -> None:
     hand = json.loads(HAND.read_text()) if HAND.is_file() else None
     bar = f"{hand['honest'][0]:.3f}" if hand else "(see the suite table)"
     lines = [
-        "## Inputs in other units: the README's simulator scaled and offset",
+        "## Observations as a user brings them: the README's simulator in other units, with "
+        "features it does not need",
         "",
-        "| reading | defaults (`missed_inputs` decides): 8-seed mean, min | "
+        "| observation | defaults (`missed_inputs` decides): 8-seed mean, min | "
         "`standardize_inputs = false` |",
         "|---|---|---|",
     ]
-    for row, (what, _) in UNITS.items():
+    for row, (what, _, _) in UNITS.items():
         cells = [_cell(RESULTS / f"{row}-{mode}") for mode in MODES]
         lines.append(f"| {what} (`{row}`) | {' | '.join(cells)} |")
     lines += [
         "",
         "`python experiments/offcentre.py`: `cognet-jax --import experiments/seek_units.py "
-        "sweep experiments/seek-units-n3.toml --seeds 8` with the row's `[env]` overrides. The "
-        "reading is the README simulator's signed distance in other units, the same problem: "
-        f"its tuned hand-written controller gives {bar} on every row (its thresholds move with "
-        "the units), and the defaults 19.849 (worst 19.808) on the unchanged reading (suite "
-        "table). The defaults' sweeps ran with no override of `standardize_inputs`; their "
-        "runs.json record what the rule decided (`true`, the cell's word). Wall times shared "
-        "the 2 cores with other sweeps for part of the time.",
+        "sweep experiments/seek-units-n3.toml --seeds 8` (the reading in other units) or "
+        "`--import experiments/seek_extra.py sweep experiments/seek-extra-n3.toml` (the "
+        "others) with the row's `[env]` overrides. Every row is the README's problem: its "
+        f"tuned hand-written controller gives {bar} on every row (its thresholds move with "
+        "the units; it reads the distance only), and the defaults 19.849 (worst 19.808) on "
+        "the unchanged reading (suite table; 19.888 on 200,000 rollouts per seed). The "
+        "defaults' sweeps ran with no override of "
+        "`standardize_inputs`; their runs.json record what the rule decided (the cell's "
+        "word). Wall times shared the 2 cores with other sweeps for part of the time.",
     ]
     replace_block("offcentre", "\n".join(lines))
 
