@@ -1,6 +1,6 @@
 """Observations as a user brings them: the defaults on the README's simulator with its reading
-scaled and offset (experiments/seek_units.py), or with features it does not need beside the
-reading (its own position, pure noise: experiments/seek_extra.py), as they are
+scaled and offset, or with features it does not need beside the reading (its own position,
+pure noise; experiments/seek_units.py), as they are
 (``standardize_inputs`` "auto": the rule ``missed_inputs`` standardises a reading the initial
 thresholds miss) and with standardisation off, 8 seeds each; writes the ``offcentre`` block
 of experiments/README.md.
@@ -21,25 +21,28 @@ from _readme import replace_block
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "offcentre"
-#: simulator -> (module to --import, experiment)
-SIMULATORS = {
-    "units": (HERE / "seek_units.py", HERE / "seek-units-n3.toml"),
-    "extra": (HERE / "seek_extra.py", HERE / "seek-extra-n3.toml"),
-}
+MODULE = HERE / "seek_units.py"
+EXPERIMENT = HERE / "seek-units-n3.toml"
 SEEDS = 8
 #: the README simulator's tuned hand-written controller (experiments/README.md, suite): its
 #: thresholds move with the units, so its value is the same on every row
 HAND = HERE / "results" / "suite" / "hand-readme-seek.json"
-#: row -> (the observation, simulator, [env] overrides)
+#: row -> (the observation, [env] overrides)
 UNITS = {
-    "offset50": ("the reading offset by 50", "units", ["env.offset=50"]),
-    "scale0.01": ("the reading in units 100 times larger (x 0.01)", "units", ["env.scale=0.01"]),
-    "offset10": ("the reading offset by 10", "units", ["env.offset=10"]),
-    "scale100": ("the reading in units 100 times smaller (x 100)", "units", ["env.scale=100"]),
-    "scale10": ("the reading in units 10 times smaller (x 10)", "units", ["env.scale=10"]),
-    "position": ("the reading and the agent's position", "extra", []),
-    "noise3": ("the reading, the position and 3 features of pure noise", "extra", ["env.extras=3"]),
-    "noise8": ("the reading, the position and 8 features of pure noise", "extra", ["env.extras=8"]),
+    "offset50": ("the reading offset by 50", ["env.offset=50"]),
+    "scale0.01": ("the reading in units 100 times larger (x 0.01)", ["env.scale=0.01"]),
+    "offset10": ("the reading offset by 10", ["env.offset=10"]),
+    "scale100": ("the reading in units 100 times smaller (x 100)", ["env.scale=100"]),
+    "scale10": ("the reading in units 10 times smaller (x 10)", ["env.scale=10"]),
+    "position": ("the reading and the agent's position", ["env.position=true"]),
+    "noise3": (
+        "the reading, the position and 3 features of pure noise",
+        ["env.position=true", "env.extras=3"],
+    ),
+    "noise8": (
+        "the reading, the position and 8 features of pure noise",
+        ["env.position=true", "env.extras=8"],
+    ),
 }
 #: column -> overrides of the search
 MODES = {"on": [], "off": ["algorithm.standardize_inputs=false"]}
@@ -48,11 +51,9 @@ MODES = {"on": [], "off": ["algorithm.standardize_inputs=false"]}
 def run(rows: list[str]) -> None:
     for row in rows:
         for mode, extra in MODES.items():
-            what, simulator, overrides = UNITS[row]
-            module, experiment = SIMULATORS[simulator]
-            cmd = ["cognet-jax", "--import", str(module), "sweep", str(experiment)]
+            cmd = ["cognet-jax", "--import", str(MODULE), "sweep", str(EXPERIMENT)]
             cmd += ["--seeds", str(SEEDS), "--no-progress", "--set", "run.plots=false"]
-            for o in [*overrides, *extra]:
+            for o in [*UNITS[row][1], *extra]:
                 cmd += ["--set", o]
             cmd += ["--out", str(RESULTS / f"{row}-{mode}"), "--overwrite"]
             print(" ".join(cmd), flush=True)
@@ -83,15 +84,15 @@ def table() -> None:
         "`standardize_inputs = false` |",
         "|---|---|---|",
     ]
-    for row, (what, _, _) in UNITS.items():
+    for row, (what, _) in UNITS.items():
         cells = [_cell(RESULTS / f"{row}-{mode}") for mode in MODES]
         lines.append(f"| {what} (`{row}`) | {' | '.join(cells)} |")
     lines += [
         "",
         "`python experiments/offcentre.py`: `cognet-jax --import experiments/seek_units.py "
-        "sweep experiments/seek-units-n3.toml --seeds 8` (the reading in other units) or "
-        "`--import experiments/seek_extra.py sweep experiments/seek-extra-n3.toml` (the "
-        "others) with the row's `[env]` overrides. Every row is the README's problem: its "
+        "sweep experiments/seek-units-n3.toml --seeds 8` with the row's `[env]` overrides "
+        "(`env.scale`, `env.offset`, `env.position`, `env.extras`). Every row is the README's "
+        "problem: its "
         f"tuned hand-written controller gives {bar} on every row (its thresholds move with "
         "the units; it reads the distance only), and the defaults 19.849 (worst 19.808) on "
         "the unchanged reading (suite table; 19.888 on 200,000 rollouts per seed). The "
