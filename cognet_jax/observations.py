@@ -330,6 +330,17 @@ def input_statistics(env, controller, pipeline, env_params, memory=None):
     ``env_params``; a feature that never varies gets scale 1. Their trajectories must fit
     ``memory`` bytes (``memory.trace_checked``). Raw observations' statistics are computed
     once per simulator, params and controller shape in a process (``_RAW_STATS``)."""
+    return _measured(env, controller, pipeline, env_params, memory)[:2]
+
+
+def input_covariance(env, controller, pipeline, env_params, memory=None):
+    """``[agents, F, F]``: the covariance of the networks' input features over the rollouts
+    of ``input_statistics`` (the same measurement)."""
+    return _measured(env, controller, pipeline, env_params, memory)[2]
+
+
+def _measured(env, controller, pipeline, env_params, memory):
+    """``_statistics`` of the rollouts of ``input_statistics``, cached for raw observations."""
     check_made_fits(controller.init, (jax.random.key(0),), memory, "one joint policy's arrays")
     uniform = uniform_policy(controller)
     record = jax.jit(
@@ -347,9 +358,12 @@ def input_statistics(env, controller, pipeline, env_params, memory=None):
 
 
 def _statistics(record, pipeline):
-    """``input_statistics`` of the trajectories ``record(key)`` records."""
+    """``(mean, scale, covariance)`` of the trajectories ``record(key)`` records: the first two
+    are ``input_statistics``, the last ``input_covariance``."""
     traj = record(jax.random.key(0))
     feats = pipeline.features(traj.obs)  # [R, H, agents, *feature_shape]
     feats = feats.reshape(feats.shape[:3] + (-1,))
     mean, std = feats.mean((0, 1)), feats.std((0, 1))
-    return mean, jnp.where(std > 1e-6, std, 1.0)
+    centred = feats - mean
+    covariance = jnp.einsum("rhaf,rhag->afg", centred, centred) / (feats.shape[0] * feats.shape[1])
+    return mean, jnp.where(std > 1e-6, std, 1.0), covariance

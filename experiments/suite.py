@@ -1117,6 +1117,14 @@ AFTER_AXES["plume-budget2x"] = (
     "the defaults (code of main) with twice the default budget, 2.4e9 agent-steps",
     "plume-s0i800",
 )
+AFTER_AXES["plume-whiten"] = (
+    "plume-n5",
+    ["algorithm.whiten_inputs=true"],
+    SEEDS,
+    "candidate: the patch PCA-whitened (whiten_inputs; the sweep ran as a candidate default, "
+    "'auto' deciding true: its runs.json records no override, the resolved flag true)",
+    "plume-s0i800",
+)
 AFTER_AXES["hearing-tiger-noisy-n9-counter"] = (
     "hearing-tiger-noisy-n7",
     ["algorithm.nodes=9"],

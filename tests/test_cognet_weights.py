@@ -13,10 +13,12 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     NARROW_INPUTS,
     SEARCH_LONG_HORIZON,
     SEARCH_SHORT_HORIZON,
+    WHITEN_FLOOR,
     WeightsHyper,
     WeightsSettings,
     cover_probability,
     covers_rarely,
+    input_whitening,
     missed_inputs,
 )
 from cognet_jax.algorithms.engine import SearchParams
@@ -24,7 +26,7 @@ from cognet_jax.algorithms.weight_space import WeightSample, distinct_draw, repr
 from cognet_jax.api import build_algorithm, make_train, split_seed_key
 from cognet_jax.config import ConfigError
 from cognet_jax.envs.tagging import make_tagging
-from cognet_jax.observations import input_statistics
+from cognet_jax.observations import input_covariance, input_statistics
 from cognet_jax.prng import fast_key
 from cognet_jax.registry import load_config
 
@@ -172,8 +174,12 @@ def heatmap_algorithm(**kw):
     settings = WeightsSettings(**{"nodes": 3, "candidates": 4, "eval_rollouts": 16, **kw})
     stats = None
     if settings.standardize_inputs is True:  # "auto" (the default) made in code: as no stats
-        controller = CognetWeights(env, settings.__class__(**{**kw, "standardize_inputs": False}))
-        stats = input_statistics(env, controller.controller, controller.pipeline, env_params)
+        plain = {**kw, "standardize_inputs": False, "whiten_inputs": False}
+        controller = CognetWeights(env, settings.__class__(**plain))
+        measured = (env, controller.controller, controller.pipeline, env_params)
+        stats = input_statistics(*measured)
+        if settings.whiten_inputs is True:
+            stats = input_whitening(stats, input_covariance(*measured))
     return CognetWeights(env, settings, input_stats=stats)
 
 
@@ -202,6 +208,50 @@ def test_standardized_inputs_fold_into_the_first_layer():
         CognetWeights(plain.env, WeightsSettings(nodes=3, hidden=5, standardize_inputs=True))
     same = plain.to_policy(samples).net_params["params"]["Dense_0"]["kernel"]
     np.testing.assert_array_equal(np.asarray(same), np.asarray(samples.w1))
+
+
+def test_whitened_inputs_fold_into_the_first_layer():
+    """With ``whiten_inputs`` the sampled weights act on ``(x - mean) @ transform``, whose
+    covariance over the measured patches is the identity: the policy's first layer applied
+    to a raw patch equals the sample's weights applied to the whitened patch."""
+    from cognet_jax.envs.heatmap import all_patches
+
+    alg = heatmap_algorithm(standardize_inputs=True, whiten_inputs=True, hidden=5)
+    assert alg.settings.whiten_inputs is True
+    mean, transform = (np.asarray(x, np.float64) for x in alg.input_stats)
+    assert mean.shape == (2, 16) and transform.shape == (2, 16, 16)
+    # the transform whitens the covariance it came from, T' C T = I, along every direction
+    # above the floor (the heatmap's noise-free patches have a singular covariance)
+    env, controller = alg.env, alg.controller
+    covariance = input_covariance(env, controller, alg.pipeline, env.default_params())
+    covariance = np.asarray(covariance, np.float64)
+    for a in range(2):
+        values = np.linalg.eigvalsh(covariance[a])
+        floor = WHITEN_FLOOR * values.max()
+        want = np.sort(np.clip(values / np.maximum(values, floor), 0.0, 1.0))
+        got = np.linalg.eigvalsh(transform[a].T @ covariance[a] @ transform[a])
+        np.testing.assert_allclose(np.sort(got), want, atol=2e-2)
+        assert (values >= floor).sum() >= 3  # the mean level and two gradients whitened
+    samples = alg.draw(jax.random.key(7), alg.init_distribution(), 3)
+    policy = alg.to_policy(samples)
+    x = jnp.asarray(all_patches()[:10])  # [10, 16]
+    layer = policy.net_params["params"]["Dense_0"]
+    got = jnp.einsum("pf,cagfh->cagph", x, layer["kernel"]) + layer["bias"][:, :, :, None]
+    z = jnp.einsum("apf,afg->apg", jnp.asarray(x[None] - mean[:, None], jnp.float32), transform)
+    want = jnp.einsum("apf,cagfh->cagph", z, samples.w1) + samples.b1[:, :, :, None]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-3, atol=2e-2)
+
+
+def test_whitening_standardises_and_cannot_be_asked_without_it():
+    """``whiten_inputs`` (off by default) decides ``standardize_inputs = "auto"`` on; with
+    standardisation off it is refused, naming the field."""
+    sizes = [f"algorithm.{k}={v}" for k, v in SMALL_SIZES.items()]
+    assert load_config("plume-n5", sizes).algorithm.whiten_inputs is False
+    whiten = [*sizes, "algorithm.whiten_inputs=true"]
+    decided = load_config("tagging-thesis-n3", whiten).algorithm
+    assert decided.whiten_inputs is True and decided.standardize_inputs is True
+    with pytest.raises(ValueError, match="whiten_inputs"):
+        load_config("plume-n5", [*whiten, "algorithm.standardize_inputs=false"])
 
 
 def test_paired_best_keeps_the_best_unless_a_challenger_beats_it_on_the_same_rollouts():
@@ -362,7 +412,9 @@ def test_a_config_written_before_the_pool_with_paired_best_still_runs_without_it
     assert config_from_dict(data).algorithm.paired_best
 
 
-@pytest.mark.parametrize("standardize", [False, True, "tied-votes", "sharp", "kept-sharp"])
+@pytest.mark.parametrize(
+    "standardize", [False, True, "whitened", "tied-votes", "sharp", "kept-sharp"]
+)
 def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standardize):
     """The refine phase's distribution around a policy (``centered_distribution``): its mode
     runs exactly the policy (tied and untied draws, raw and standardised inputs, votes scaled),
@@ -373,6 +425,9 @@ def test_a_distribution_centred_on_a_policy_has_that_policy_as_its_mode(standard
         alg, _ = small_algorithm(refine_scale=0.2, tied_vote_scale=10.0, vote_sharpness=10.0)
     elif standardize == "kept-sharp":  # the kept policy's votes x 100
         alg, _ = small_algorithm(refine_scale=0.2, vote_sharpness=10.0, kept_sharpness=100.0)
+    elif standardize == "whitened":
+        kw = {"standardize_inputs": True, "whiten_inputs": True, "refine_scale": 0.2}
+        alg = heatmap_algorithm(hidden=5, **kw)
     elif standardize:
         alg = heatmap_algorithm(standardize_inputs=True, hidden=5, refine_scale=0.2)
     else:

@@ -112,6 +112,14 @@ spread over the scale of ``init_scale`` around 0; on the raw heatmap patch (pixe
 most positions differing by a few hundredths) almost no sampled unit then splits the positions
 that matter, and on a reading offset far from 0 none does.
 
+**Whitened inputs** (``whiten_inputs``, off by default): the network reads ``(x - mean) @
+transform`` instead, the PCA whitening of the features' covariance under the random
+controller (``input_whitening``), folded the same way (``W1 -> transform @ W1``): a patch's
+mean level and gradients become features. **[choice]** Off: on the plume it gave 17.952
+(worst 16.717) against 17.732 (worst 16.557), within the seeds' spread; the search's diagonal
+Gaussians depend on the basis, and the principal basis is fixed only up to rotations among
+equal variances (experiments/NOTES.md, "Whitened inputs").
+
 The sampled network is an ordinary ``NeuralPolicy`` (softmax over the logits), so evaluation,
 ``controller_step`` and saved policies are those of the thesis algorithm.
 
@@ -223,7 +231,8 @@ class CognetWeights(PolishFinish, NeuralSearch):
 
     ``pipeline`` maps the environment's observations to the networks' input (identity, or the
     patch VAE's encoder mean; ``cognet_jax.observations``). ``input_stats``: ``(mean, scale)
-    [agents, F]`` of the input features (``input_statistics``), needed with
+    [agents, F]`` of the input features (``input_statistics``), or with ``whiten_inputs``
+    ``(mean [agents, F], transform [agents, F, F])`` (``input_whitening``), needed with
     ``standardize_inputs`` -- a fixed reparametrisation of the search space, computed once
     under the config's env params (``build``), not a function of the params a search runs
     with. ``feature_scale [agents, F]``: the input features' spread the polish measures its
@@ -340,7 +349,12 @@ class CognetWeights(PolishFinish, NeuralSearch):
         agent started in the role its ``start`` draws (``started``)."""
         q, na, sample = self.settings.nodes, self.env.num_actions, started(sample)
         w1, b1 = sample.w1, sample.b1
-        if self.settings.standardize_inputs:  # fold (x - mean) / scale into the first layer
+        if self.settings.standardize_inputs and self.settings.whiten_inputs:
+            # fold (x - mean) @ transform into the first layer: W1 -> transform @ W1
+            input_mean, transform = self.input_stats  # [agents, F], [agents, F, F]
+            w1 = jnp.einsum("afg,...aqgh->...aqfh", transform, w1)
+            b1 = b1 - jnp.einsum("af,...aqfh->...aqh", input_mean, w1)
+        elif self.settings.standardize_inputs:  # fold (x - mean) / scale into the first layer
             input_mean, input_scale = self.input_stats
             lead = w1.ndim - 4  # a candidate axis or none; w1 [..., agents, Q, F, H]
             scale = input_scale.reshape((1,) * lead + input_scale.shape[:1] + (1, -1, 1))
@@ -555,7 +569,11 @@ class CognetWeights(PolishFinish, NeuralSearch):
         s = self.settings
         layers = policy.net_params["params"]
         w1, b1 = layers["Dense_0"]["kernel"], layers["Dense_0"]["bias"]
-        if s.standardize_inputs:  # unfold ``to_policy``'s folding of (x - mean) / scale
+        if s.standardize_inputs and s.whiten_inputs:  # unfold: W1 = transform^-1 @ raw W1
+            input_mean, transform = self.input_stats
+            b1 = b1 + jnp.einsum("af,aqfh->aqh", input_mean, w1)
+            w1 = jnp.einsum("afg,aqgh->aqfh", jnp.linalg.inv(transform), w1)
+        elif s.standardize_inputs:  # unfold ``to_policy``'s folding of (x - mean) / scale
             input_mean, input_scale = self.input_stats
             scale = input_scale[:, None, :, None]
             w1 = w1 * scale

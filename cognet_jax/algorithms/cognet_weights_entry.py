@@ -12,6 +12,7 @@ from cognet_jax.algorithms.cognet_weights_settings import (
     CognetWeightsSection,
     WeightsHyper,
     WeightsSettings,
+    input_whitening,
     minutes_to_budget,
     resolve_search,
     resolve_standardize,
@@ -19,7 +20,12 @@ from cognet_jax.algorithms.cognet_weights_settings import (
 from cognet_jax.algorithms.noise_pilot import check_pilot_fits, measure_noise_cached
 from cognet_jax.algorithms.sizing import SIZE_FIELDS, sized
 from cognet_jax.budget import check_budget
-from cognet_jax.observations import build_pipeline, input_statistics, neural_controller
+from cognet_jax.observations import (
+    build_pipeline,
+    input_covariance,
+    input_statistics,
+    neural_controller,
+)
 from cognet_jax.registry import env_description, fields_from, register_algorithm
 
 
@@ -36,7 +42,7 @@ def build(
         env, settings.nodes, settings.hidden, build_pipeline(config, env, env_params)
     )
     if not statistics:  # shapes only: nothing measured, not even the "auto" decision
-        settings = dataclasses.replace(settings, standardize_inputs=False)
+        settings = dataclasses.replace(settings, standardize_inputs=False, whiten_inputs=False)
     elif settings.standardize_inputs == "auto":  # not resolved: a config made in code
         decided = resolve_standardize(config, env, env_params).standardize_inputs
         settings = dataclasses.replace(settings, standardize_inputs=decided)
@@ -45,6 +51,9 @@ def build(
         stats = input_statistics(env, controller, pipeline, env_params, memory)
     mean, scale = stats if stats is not None else (None, None)
     kept = stats if settings.standardize_inputs else None
+    if settings.standardize_inputs and settings.whiten_inputs:
+        covariance = input_covariance(env, controller, pipeline, env_params, memory)
+        kept = input_whitening(stats, covariance)
     return CognetWeights(env, settings, memory, pipeline, kept, scale, mean)
 
 

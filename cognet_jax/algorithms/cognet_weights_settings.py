@@ -46,8 +46,10 @@ class CognetWeightsSection:
     ``vote_restart_tol``, 0: ``restart_tol``); ``tied_vote_scale`` multiplies the default vote
     of candidates whose nodes are tied (reactive controllers); ``standardize_inputs``: search
     over a network that reads each input feature standardised by its mean and standard deviation
-    under the random controller; ``paired_best``: the best policy so far is re-evaluated on the
-    challengers' fresh rollouts and replaced only when a challenger beats it there;
+    under the random controller, with ``whiten_inputs`` its principal components each
+    standardised instead (PCA whitening, off by default); ``paired_best``: the
+    best policy so far is re-evaluated on the challengers' fresh rollouts and replaced only
+    when a challenger beats it there;
     ``best_pool``: size of the pool of best policies raced on fresh rollouts (0: no pool);
     ``tie_structure``, ``restart_tol``, ``refine``, ``refine_scale``, ``refine_tol``,
     ``refine_levels``, ``refine_redraw`` and ``starts``: tied candidates, restarts, the refine
@@ -98,6 +100,7 @@ class CognetWeightsSection:
     vote_sharpness: float = 1.0
     kept_sharpness: float = 10.0
     standardize_inputs: bool | Literal["auto"] = "auto"
+    whiten_inputs: bool = False
     paired_best: bool = False
     best_pool: int = 4
     tie_structure: bool = True
@@ -225,6 +228,11 @@ class CognetWeightsSection:
             f"in [0, 1) (0: restart_tol), got {self.vote_restart_tol}",
         )
         require_positive(self, "algorithm", "starts")
+        require(
+            not (self.whiten_inputs is True and self.standardize_inputs is False),
+            "algorithm.whiten_inputs",
+            "whitening standardises the inputs: it needs standardize_inputs true or 'auto'",
+        )
         require(
             self.distinct_actions in (True, False, "auto"),
             "algorithm.distinct_actions",
@@ -423,13 +431,34 @@ def missed_inputs(stats) -> bool:
     return bool(float(jnp.min(threshold_cover(stats))) < limit)
 
 
+#: ``input_whitening`` scales no direction by more than ``1 / sqrt`` of this share of the
+#: largest variance (the plume's pixel noise: about 0.01 of it)
+WHITEN_FLOOR = 1e-3
+
+
+def input_whitening(stats, covariance) -> tuple[jax.Array, jax.Array]:
+    """``(mean [agents, F], transform [agents, F, F])``: the PCA whitening of inputs of
+    statistics ``stats`` and ``covariance`` (``input_covariance``), ``(x - mean) @ transform``
+    of covariance the identity along every direction whose variance is at least
+    ``WHITEN_FLOOR`` of the largest; the others are scaled as if at that floor (a direction
+    that hardly varies -- a noise-free patch's covariance is often singular -- is not amplified
+    without bound)."""
+    mean, _ = stats
+    values, vectors = jnp.linalg.eigh(covariance)  # [agents, F], [agents, F, F]
+    floor = WHITEN_FLOOR * jnp.max(values, axis=-1, keepdims=True)
+    return mean, vectors / jnp.sqrt(jnp.maximum(values, floor))[:, None, :]
+
+
 def resolve_standardize(config, env, env_params) -> CognetWeightsSection:
     """``config.algorithm`` with ``standardize_inputs = "auto"`` decided: ``missed_inputs`` on
     the input statistics of ``env_params`` (measured once per simulator in a process, and
-    needed by the polish anyway); unchanged otherwise."""
+    needed by the polish anyway), on with ``whiten_inputs`` (whitening standardises);
+    unchanged otherwise."""
     section = config.algorithm
     if section.standardize_inputs != "auto":
         return section
+    if section.whiten_inputs:
+        return dataclasses.replace(section, standardize_inputs=True)
     pipeline, controller = neural_controller(
         env, section.nodes, config.network.hidden, build_pipeline(config, env, env_params)
     )
