@@ -177,12 +177,14 @@ from cognet_jax.algorithms.weight_space import (
     WeightSample,
     centered,
     draw_actions,
+    fold_inputs,
     mode_of,
     redraw_unit,
     refit,
     sample_of,
     started,
     tie,
+    unfold_inputs,
 )
 from cognet_jax.controllers.base import action_support, sample_categorical, uniform_distribution
 from cognet_jax.controllers.neural import NeuralPolicy
@@ -349,18 +351,8 @@ class CognetWeights(PolishFinish, NeuralSearch):
         agent started in the role its ``start`` draws (``started``)."""
         q, na, sample = self.settings.nodes, self.env.num_actions, started(sample)
         w1, b1 = sample.w1, sample.b1
-        if self.settings.standardize_inputs and self.settings.whiten_inputs:
-            # fold (x - mean) @ transform into the first layer: W1 -> transform @ W1
-            input_mean, transform = self.input_stats  # [agents, F], [agents, F, F]
-            w1 = jnp.einsum("afg,...aqgh->...aqfh", transform, w1)
-            b1 = b1 - jnp.einsum("af,...aqfh->...aqh", input_mean, w1)
-        elif self.settings.standardize_inputs:  # fold (x - mean) / scale into the first layer
-            input_mean, input_scale = self.input_stats
-            lead = w1.ndim - 4  # a candidate axis or none; w1 [..., agents, Q, F, H]
-            scale = input_scale.reshape((1,) * lead + input_scale.shape[:1] + (1, -1, 1))
-            shift = (input_mean / input_scale).reshape(scale.shape)
-            b1 = b1 - jnp.sum(shift * w1, axis=-2)
-            w1 = w1 / scale
+        if self.settings.standardize_inputs:  # the network reads the raw features
+            w1, b1 = fold_inputs(w1, b1, self.input_stats, self.settings.whiten_inputs)
         m, bias = sample.m, sample.bias
         if self.settings.tied_vote_scale != 1.0:  # else the same numbers as without the field
             bias = bias * self.tied_scale(sample.node_tie)
@@ -569,15 +561,8 @@ class CognetWeights(PolishFinish, NeuralSearch):
         s = self.settings
         layers = policy.net_params["params"]
         w1, b1 = layers["Dense_0"]["kernel"], layers["Dense_0"]["bias"]
-        if s.standardize_inputs and s.whiten_inputs:  # unfold: W1 = transform^-1 @ raw W1
-            input_mean, transform = self.input_stats
-            b1 = b1 + jnp.einsum("af,aqfh->aqh", input_mean, w1)
-            w1 = jnp.einsum("afg,aqgh->aqfh", jnp.linalg.inv(transform), w1)
-        elif s.standardize_inputs:  # unfold ``to_policy``'s folding of (x - mean) / scale
-            input_mean, input_scale = self.input_stats
-            scale = input_scale[:, None, :, None]
-            w1 = w1 * scale
-            b1 = b1 + jnp.sum((input_mean / input_scale)[:, None, :, None] * w1, axis=-2)
+        if s.standardize_inputs:  # unfold ``to_policy``'s folding
+            w1, b1 = unfold_inputs(w1, b1, self.input_stats, s.whiten_inputs)
         sample = sample_of(
             w1,
             b1,

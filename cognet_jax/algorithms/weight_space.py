@@ -373,3 +373,32 @@ def mode_of(dist: WeightDistribution, support: jax.Array, ties: bool) -> WeightS
     if dist.start_probs is not None:
         sample = sample.replace(start=jnp.argmax(dist.start_probs, -1).astype(jnp.int32))
     return tie(sample) if ties else sample
+
+
+def fold_inputs(w1, b1, input_stats, whiten: bool):
+    """``(w1, b1)`` of a first layer that reads the standardised features ``(x - mean) /
+    scale`` (``input_stats = (mean, scale) [agents, F]``), or with ``whiten`` the whitened
+    ``(x - mean) @ transform`` (``(mean, transform [agents, F, F])``), rewritten to read the
+    raw ``x``: ``w1 [..., agents, Q, F, H]`` (a candidate axis or none), ``b1 [..., agents,
+    Q, H]``."""
+    if whiten:  # W1 -> transform @ W1
+        input_mean, transform = input_stats
+        w1 = jnp.einsum("afg,...aqgh->...aqfh", transform, w1)
+        return w1, b1 - jnp.einsum("af,...aqfh->...aqh", input_mean, w1)
+    input_mean, input_scale = input_stats
+    lead = w1.ndim - 4
+    scale = input_scale.reshape((1,) * lead + input_scale.shape[:1] + (1, -1, 1))
+    shift = (input_mean / input_scale).reshape(scale.shape)
+    return w1 / scale, b1 - jnp.sum(shift * w1, axis=-2)
+
+
+def unfold_inputs(w1, b1, input_stats, whiten: bool):
+    """The inverse of ``fold_inputs`` for one joint policy's first layer (``w1 [agents, Q, F,
+    H]``, ``b1 [agents, Q, H]``)."""
+    if whiten:  # W1 = transform^-1 @ raw W1
+        input_mean, transform = input_stats
+        b1 = b1 + jnp.einsum("af,aqfh->aqh", input_mean, w1)
+        return jnp.einsum("afg,aqgh->aqfh", jnp.linalg.inv(transform), w1), b1
+    input_mean, input_scale = input_stats
+    w1 = w1 * input_scale[:, None, :, None]
+    return w1, b1 + jnp.sum((input_mean / input_scale)[:, None, :, None] * w1, axis=-2)
